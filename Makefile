@@ -1,0 +1,36 @@
+# Every target goes through .venv/bin/python so `make demo` and `make test` each work
+# on a fresh clone. The stamp reinstalls only when pyproject.toml changes.
+PY := .venv/bin/python
+STAMP := .venv/.installed
+
+.PHONY: install demo test bench lint release clean
+
+install: $(STAMP)
+
+$(STAMP): pyproject.toml
+	test -x $(PY) || python3 -m venv .venv
+	$(PY) -m pip install --quiet --upgrade pip
+	# torch first: this exact release is the local CPU wheel; anything else pulls CUDA.
+	$(PY) -m pip install --quiet torch==2.13.0
+	$(PY) -m pip install --quiet -e '.[dev]'
+	touch $(STAMP)
+
+demo: install
+	$(PY) -m lads.demo --out demo_output
+
+test: install
+	$(PY) -m pytest -q
+
+bench: install
+	$(PY) -m benchmarks.run_all
+
+lint: install
+	$(PY) -m ruff check lads tests benchmarks
+	$(PY) -m ruff format --check lads tests benchmarks
+
+# Until the dataset builder lands (issue 5) a release is the tested wheel.
+release: test
+	$(PY) -m pip wheel --quiet --no-deps --wheel-dir dist .
+
+clean:
+	rm -rf .venv demo_output dist

@@ -1,0 +1,36 @@
+"""`make bench`: every benchmark, each writing its JSON under benchmarks/results/.
+
+speed.json        ms per real SemanticKITTI frame per weather and rate (one core)
+equivalence.json  fast path vs the brute-force reference: speed-up and two-sample tests
+wads_snow.json    simulated vs real falling snow (WADS), fitted defaults vs LISA settings
+fog_radiate.json  fog model vs real fog (RADIATE), with what that data cannot show
+"""
+
+from __future__ import annotations
+
+import os
+
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import importlib  # noqa: E402
+import sys  # noqa: E402
+import time  # noqa: E402
+
+from tqdm import tqdm  # noqa: E402
+
+BENCHMARKS = ("speed", "equivalence", "wads_snow", "fog_radiate")
+
+
+def main() -> int:
+    timings = {}
+    for name in tqdm(BENCHMARKS, desc="benchmarks", unit="bench"):
+        start = time.perf_counter()
+        importlib.import_module(f"benchmarks.{name}").main()
+        timings[name] = round(time.perf_counter() - start, 1)
+    sys.stdout.write(f"benchmarks done (seconds: {timings}); results in benchmarks/results/\n")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,88 @@
+"""Milliseconds per real SemanticKITTI frame for rain, snow and fog, on one core.
+
+Run: .venv/bin/python -m benchmarks.speed   (writes benchmarks/results/speed.json)
+"""
+
+from __future__ import annotations
+
+import os
+
+# One core, as the target says: pin every thread pool before numpy/numba load.
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+from typing import Any  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+from benchmarks.common import kitti_frames, machine_info, write_result  # noqa: E402
+from lads.physics import weather  # noqa: E402
+from lads.sensors.profile import load_profile  # noqa: E402
+
+SETTINGS: tuple[tuple[str, str, float], ...] = (
+    ("rain", "rate_mm_h", 1.0), ("rain", "rate_mm_h", 10.0), ("rain", "rate_mm_h", 25.0),
+    ("rain", "rate_mm_h", 50.0), ("rain", "rate_mm_h", 100.0),
+    ("snow", "rate_mm_h", 1.0), ("snow", "rate_mm_h", 5.0), ("snow", "rate_mm_h", 10.0),
+    ("snow", "rate_mm_h", 20.0),
+    ("fog", "visibility_m", 20.0), ("fog", "visibility_m", 50.0), ("fog", "visibility_m", 200.0),
+    ("fog", "visibility_m", 1000.0),
+)  # fmt: skip
+TARGETS_MS = {("rain", 25.0): 20.0, ("snow", 10.0): 20.0, ("fog", 50.0): 20.0}
+REPEATS = 15
+
+
+def time_setting(frames: list[np.ndarray], name: str, key: str, value: float) -> dict[str, Any]:
+    """Median / min / p90 wall time per frame over REPEATS runs of every frame."""
+    simulate = getattr(weather, name)
+    profile = load_profile("hdl64e")
+    times_ms: list[float] = []
+    counts = []
+    for f_index, points in enumerate(frames):
+        xyz, intensity = points[:, :3], points[:, 3]
+        simulate(xyz, intensity, sensor=profile, rng=np.random.default_rng(0), **{key: value})
+        for rep in range(REPEATS):
+            rng = np.random.default_rng([f_index, rep])
+            start = time.perf_counter()
+            result = simulate(xyz, intensity, sensor=profile, rng=rng, **{key: value})
+            times_ms.append(1e3 * (time.perf_counter() - start))
+        counts.append(result.counts())
+    arr = np.asarray(times_ms)
+    n_points = sum(p.shape[0] for p in frames)
+    summary: dict[str, Any] = {
+        "weather": name,
+        key: value,
+        "median_ms_per_frame": round(float(np.median(arr)), 2),
+        "min_ms": round(float(arr.min()), 2),
+        "p90_ms": round(float(np.percentile(arr, 90)), 2),
+        "runs": int(arr.size),
+        "points_per_frame_mean": round(n_points / len(frames)),
+        "particle_fraction": round(sum(c["particle"] for c in counts) / n_points, 5),
+        "lost_fraction": round(sum(c["lost"] for c in counts) / n_points, 5),
+    }
+    target = TARGETS_MS.get((name, value))
+    if target is not None:
+        summary["target_ms"] = target
+        summary["meets_target"] = bool(summary["median_ms_per_frame"] <= target)
+    return summary
+
+
+def main(out_dir: Path | None = None) -> dict[str, Any]:
+    frames = kitti_frames()
+    rows = [time_setting(frames, *setting) for setting in SETTINGS]
+    payload = {
+        "what": "wall time of lads.physics.weather.{rain,snow,fog} per real SemanticKITTI "
+        "frame (sequence 00, frames 000000-000002), HDL-64E profile, strongest return, "
+        "one thread, after one warm-up call per frame (table and numba caches built)",
+        "machine": machine_info(),
+        "results": rows,
+    }
+    write_result("speed.json", payload, out_dir)
+    return payload
+
+
+if __name__ == "__main__":
+    for row in main()["results"]:
+        key = "rate_mm_h" if "rate_mm_h" in row else "visibility_m"
+        print(f"{row['weather']:5s} {row[key]:7.1f}  median {row['median_ms_per_frame']:6.2f} ms")  # noqa: T201

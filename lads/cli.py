@@ -1,0 +1,161 @@
+"""The `lads` command line. Library errors (LadsError) map to exit code 2 with their message."""
+
+from __future__ import annotations
+
+import functools
+import sys
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import click
+import numpy as np
+
+from lads.errors import InputDataError, LadsError
+
+EXIT_LADS_ERROR = 2
+
+
+def _lads_errors(func: Callable[..., Any]) -> Callable[..., Any]:
+    @functools.wraps(func)
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        try:
+            return func(*args, **kwargs)
+        except LadsError as err:
+            click.echo(f"lads: error: {err}", err=True)
+            sys.exit(EXIT_LADS_ERROR)
+
+    return wrapper
+
+
+@click.group()
+@click.version_option(package_name="lads")
+def main() -> None:
+    """LADS: the same LiDAR scene under another sensor or another weather."""
+
+
+@main.command()
+@click.option(
+    "--out", type=click.Path(path_type=Path), default=Path("demo_output"), show_default=True
+)
+@click.option("--sensor", default="hdl64e", show_default=True)
+@click.option("--seed", type=int, default=0, show_default=True)
+@_lads_errors
+def demo(out: Path, sensor: str, seed: int) -> None:
+    """Rain, snow and fog on a street scan lads builds itself; writes a PNG and summary.json."""
+    from lads.demo import main as demo_main
+
+    demo_main(["--out", str(out), "--sensor", sensor, "--seed", str(seed)])
+
+
+@main.command()
+@_lads_errors
+def profiles() -> None:
+    """List the shipped sensor profiles."""
+    from lads.sensors.profile import available_profiles, load_profile
+
+    for name in available_profiles():
+        p = load_profile(name)
+        click.echo(
+            f"{p.name:8s} {p.channels:3d} ch  "
+            f"{p.vertical_fov_deg[0]:+.1f}..{p.vertical_fov_deg[1]:+.1f} deg  "
+            f"{p.min_range_m:g}-{p.max_range_m:g} m  intensity {p.intensity.kind}  {p.description}"
+        )
+
+
+@main.command()
+@click.argument("scan", type=click.Path(exists=True, dir_okay=False, path_type=Path))
+@click.argument("output", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--sensor", required=True, help="Profile name (see `lads profiles`).")
+@click.option(
+    "--columns",
+    type=int,
+    default=None,
+    help="float32 columns per point (default: 5 if the profile has a ring column, else 4).",
+)
+@click.option("--rain", "rain_mm_h", type=float, help="Rain rate, mm/h.")
+@click.option("--snow", "snow_mm_h", type=float, help="Snowfall rate (water equivalent), mm/h.")
+@click.option("--fog", "visibility_m", type=float, help="Fog visibility (MOR), m.")
+@click.option(
+    "--mode", type=click.Choice(["strongest", "last"]), default="strongest", show_default=True
+)
+@click.option("--seed", type=int, default=0, show_default=True)
+@click.option(
+    "--labels",
+    "labels_in",
+    type=click.Path(exists=True, dir_okay=False, path_type=Path),
+    help="Per-point uint32 labels to carry along.",
+)
+@click.option(
+    "--labels-out",
+    type=click.Path(dir_okay=False, path_type=Path),
+    help="Where to write the carried labels.",
+)
+@_lads_errors
+def weather(
+    scan: Path, output: Path, sensor: str, columns: int | None, rain_mm_h: float | None,
+    snow_mm_h: float | None, visibility_m: float | None, mode: str, seed: int,
+    labels_in: Path | None, labels_out: Path | None,
+) -> None:  # fmt: skip
+    """Apply one weather to a headerless float32 scan (KITTI .bin, nuScenes .pcd.bin).
+
+    Extra columns (e.g. the nuScenes ring) and labels follow each output point's source beam.
+    """
+    from lads.physics import weather as wx
+    from lads.sensors.profile import load_profile
+
+    chosen = [v is not None for v in (rain_mm_h, snow_mm_h, visibility_m)]
+    if sum(chosen) != 1:
+        raise click.UsageError("give exactly one of --rain, --snow, --fog")
+    profile = load_profile(sensor)
+    ncol = columns or (5 if profile.has_ring_column else 4)
+    raw = np.fromfile(scan, dtype=np.float32)
+    if raw.size % ncol:
+        raise InputDataError(
+            f"{scan}: {raw.size} float32 values is not a multiple of {ncol} columns; "
+            "pass --columns with the file's column count."
+        )
+    points = raw.reshape(-1, ncol)
+    rng = np.random.default_rng(seed)
+    if rain_mm_h is not None:
+        result = wx.rain(
+            points[:, :3], points[:, 3], rate_mm_h=rain_mm_h, sensor=profile, rng=rng, mode=mode
+        )
+    elif snow_mm_h is not None:
+        result = wx.snow(
+            points[:, :3], points[:, 3], rate_mm_h=snow_mm_h, sensor=profile, rng=rng, mode=mode
+        )
+    else:
+        result = wx.fog(
+            points[:, :3],
+            points[:, 3],
+            visibility_m=visibility_m,
+            sensor=profile,
+            rng=rng,
+            mode=mode,
+        )  # type: ignore[arg-type]
+    out = points[result.source_index].copy()
+    out[:, :3] = result.xyz
+    out[:, 3] = result.intensity
+    _atomic_write(output, out.tobytes())
+    if labels_in is not None:
+        labels = np.fromfile(labels_in, dtype=np.uint32)
+        if labels.size != points.shape[0]:
+            raise InputDataError(
+                f"{labels_in}: {labels.size} labels for {points.shape[0]} points; "
+                "expected one uint32 label per point."
+            )
+        target = labels_out or output.with_suffix(".label")
+        _atomic_write(target, labels[result.source_index].tobytes())
+    c = result.counts()
+    click.echo(
+        f"{output}: {out.shape[0]} points (attenuated {c['attenuated']}, particle {c['particle']}, "
+        f"lost {c['lost']}); alpha = {result.extinction_per_m:.3e} 1/m"
+    )
+
+
+def _atomic_write(path: Path, payload: bytes) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_bytes(payload)
+    tmp.replace(path)

@@ -1,0 +1,1 @@
+"""Pure physics: no file I/O. Weather, Mie, size distributions and per-point modalities."""

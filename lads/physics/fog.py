@@ -1,0 +1,428 @@
+"""Fog as single-scattering extinction plus a soft (volume) return per beam.
+
+Re-implemented from the equations of Hahner et al. 2021 (arXiv 2108.05249; physics.md §7)
+and the lidar equation (physics.md §9); no code or lookup table of the original is used.
+
+Power convention (`lads.physics.beams`): received power is normalised so that a Lambertian
+hard target of reflectivity rho (cos theta included) at range r gives, at its pulse peak,
+
+    P_hard = rho * T^2(r) / r^2,        T^2(r) = exp(-2 alpha r).
+
+Derivation of the matching fog (volume) return. With peak transmitted power P_T, pulse
+shape w(t) (peak 1), receiver area A_R and efficiency eta, a Lambertian target returns
+P_T eta A_R rho T^2 / (pi r^2) (physics.md §9.2): dividing by P_T eta A_R / pi gives the
+convention above. A slab [s, s + ds] of fog with lidar backscatter coefficient beta_pi
+(1/(m sr), per steradian at 180 degrees) scatters P_T w beta_pi ds per steradian back to the
+sensor; the aperture subtends A_R / s^2, so the slab adds P_T eta A_R w beta_pi xi(s) T^2(s)
+ds / s^2, with xi the transmitter/receiver overlap. Light received at time 2r/c left the
+sensor at time t after the pulse start from the slab at s = r - ct/2 (ds = c dt / 2), so in
+the same normalisation
+
+    P_soft(r; r0) = pi beta_pi * int_0^{2 tau_H} w(t) xi(s) T^2(s) / s^2 H(r0 - s) c dt/2,
+    w(t) = sin^2(pi t / (2 tau_H)),     s = r - ct/2,
+
+i.e. pi * beta_pi plays the role of a reflectivity per metre of fog; the Heaviside H keeps
+only fog in front of the target at r0. This is physics.md §7 with C_A P0 divided out, and it
+needs beta_pi in the lidar convention (1/(m sr)); a radar-convention value is 4 pi larger.
+Substituting u = r - s, L = c tau_H:
+
+    P_soft(r; r0) = pi beta_pi * int_{max(r-L, 0)}^{min(r, r0)} sin^2(pi (r - s) / L) g(s) ds,
+    g(s) = xi(s) exp(-2 alpha s) / s^2.
+
+Its peak over r depends on (alpha, r0) only, and beta_pi is a factor, so one table per
+alpha serves every beam. g decreases beyond R2, hence the peak range r*_inf of the r0 = inf
+curve is <= R2 + L, and for r0 >= R2 + L the peak equals the r0 = inf peak exactly: the table
+stops there. Range timing: a hard target's echo peaks at r0 + L/2 on this time axis and the
+sensor is calibrated to report r0, so a fog peak at r* is reported at r* - L/2
+(`FogParams.report_pulse_centre`; Hahner's "shifted" variant).
+
+Model choices (see `FogParams`):
+- extinction alpha = ln(20) / MOR (Koschmieder, 5 % contrast). MOR is defined in the
+  visible; for fog drops (modal radius ~10 um, size parameter ~70 at 905 nm) Q_ext ~ 2 at
+  both wavelengths, and the Mie ratio alpha(550 nm) / alpha(905 nm) over the default size
+  distribution is 0.989 (derived), so alpha at 905 nm equals the visible one within ~1 %.
+  Haze (sub-micron particles) would extinguish less at 905 nm; this module models fog only.
+- backscatter "mie" (default): beta_pi = alpha / S with the lidar ratio S from Mie theory
+  (miepython) over a modified-gamma advection-fog size distribution, S ~ 18 sr (derived);
+  "hahner": beta_pi = 0.046 / MOR, i.e. S = ln(20) / 0.046 = 65 sr, 3.6x less backscatter.
+- fog-return range noise: sigma = dR / sqrt(2 SNR) * kappa_pulse / kappa_fog. The
+  peak-timing error of a shot-noise-limited peak detector scales as 1 / (sqrt(P) * |P''/P|);
+  the sensor's dR / sqrt(2 SNR) holds for its own pulse (relative curvature
+  kappa_pulse = 2 pi^2 / L^2), and the broader fog echo (smaller kappa_fog, tabulated) is
+  timed less precisely in proportion.
+- detection and returns: strongest / last return of two peaks (fog and target), compared
+  without summing the waveforms (physics.md §9.5), single scattering only.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+import numpy.typing as npt
+
+from lads.errors import ConfigError
+from lads.physics.beams import Beams, assemble, auto_threshold
+from lads.physics.result import Outcome, WeatherResult
+from lads.sensors.profile import SensorProfile
+
+SPEED_OF_LIGHT_M_S = 299_792_458.0
+KOSCHMIEDER_LN20 = math.log(20.0)
+MODES = ("strongest", "last")
+BACKSCATTER_MODELS = ("mie", "hahner")
+MIE_SIZES = 1500  # Q_back ripples with size; ~1000 sizes converge S to +-1 % (measured)
+MIN_OUTPUT_RANGE_M = 1e-3
+
+
+@dataclass(frozen=True, slots=True)
+class FogParams:
+    """Parameters of the fog model, with defaults from Hahner et al. 2021 unless noted.
+
+    Attributes:
+        pulse_half_power_width_s: tau_H of the sin^2 pulse, s (20 ns; pulse spans 2 tau_H).
+        overlap_start_m: R1, range where the transmitter/receiver overlap xi starts, m (0.9).
+        overlap_full_m: R2, range of full overlap, m (1.0); xi is linear from R1 to R2.
+            `with_overlap_from(sensor)` takes R2 from the profile's min_range_m.
+        backscatter_model: "mie" (beta_pi = alpha / S, S from Mie over the size
+            distribution below) or "hahner" (beta_pi = hahner_backscatter_factor / MOR).
+        hahner_backscatter_factor: beta_pi * MOR for "hahner", 1/sr (0.046; paper range
+            0.023-0.092).
+        droplet_modal_radius_um: r_c of the modified-gamma size distribution
+            n(r) ~ r^a exp(-(a / g) (r / r_c)^g), um (10: strong advection fog, Rasshofer
+            et al. 2011 via LISA `augment_avg`, physics.md §1).
+        droplet_shape_a: a of that distribution (3).
+        droplet_shape_g: g of that distribution (1).
+        refractive_index: real refractive index of water at the wavelength (1.328 at 905 nm;
+            absorption there is negligible for 10 um drops).
+        wavelength_nm: laser wavelength for the Mie lidar ratio, nm (905).
+        report_pulse_centre: report a fog peak at r* - c tau_H / 2, as the sensor's hard-target
+            range calibration does (True); False reports the raw pulse-start timing.
+        table_step_m: range step of the soft-return table, m (0.01).
+    """
+
+    pulse_half_power_width_s: float = 20e-9
+    overlap_start_m: float = 0.9
+    overlap_full_m: float = 1.0
+    backscatter_model: str = "mie"
+    hahner_backscatter_factor: float = 0.046
+    droplet_modal_radius_um: float = 10.0
+    droplet_shape_a: float = 3.0
+    droplet_shape_g: float = 1.0
+    refractive_index: float = 1.328
+    wavelength_nm: float = 905.0
+    report_pulse_centre: bool = True
+    table_step_m: float = 0.01
+
+    def __post_init__(self) -> None:
+        positive = (
+            "pulse_half_power_width_s",
+            "overlap_full_m",
+            "hahner_backscatter_factor",
+            "droplet_modal_radius_um",
+            "droplet_shape_a",
+            "droplet_shape_g",
+            "refractive_index",
+            "wavelength_nm",
+        )
+        for name in positive:
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0):
+                raise ConfigError(f"FogParams.{name} = {value!r}; expected a finite value > 0.")
+        if not 0 <= self.overlap_start_m < self.overlap_full_m:
+            raise ConfigError(
+                f"FogParams overlap R1 = {self.overlap_start_m} m, R2 = {self.overlap_full_m} m; "
+                "expected 0 <= overlap_start_m < overlap_full_m."
+            )
+        if not 0 < self.table_step_m <= 0.1:
+            raise ConfigError(
+                f"FogParams.table_step_m = {self.table_step_m}; expected 0 < step <= 0.1 m "
+                "(coarser steps misplace the fog peak)."
+            )
+        if self.backscatter_model not in BACKSCATTER_MODELS:
+            raise ConfigError(
+                f"FogParams.backscatter_model = {self.backscatter_model!r}; expected one of "
+                f"{BACKSCATTER_MODELS}."
+            )
+
+    @property
+    def pulse_length_m(self) -> float:
+        """L = c tau_H: range extent of the whole sin^2 pulse (c 2 tau_H / 2), m."""
+        return SPEED_OF_LIGHT_M_S * self.pulse_half_power_width_s
+
+    def with_overlap_from(self, sensor: SensorProfile) -> FogParams:
+        """Copy with R2 = sensor.min_range_m (R1 lowered to 0.9 R2 if it would not be < R2)."""
+        full = sensor.min_range_m
+        if not full > 0:
+            raise ConfigError(
+                f"sensor '{sensor.name}' has min_range_m = {full}; a full-overlap range needs "
+                "min_range_m > 0. Set FogParams.overlap_full_m explicitly instead."
+            )
+        return replace(
+            self, overlap_full_m=full, overlap_start_m=min(self.overlap_start_m, 0.9 * full)
+        )
+
+
+def extinction_from_visibility(visibility_m: float) -> float:
+    """Extinction alpha = ln(20) / MOR in 1/m (Koschmieder, 5 % contrast); MOR = inf -> 0.
+
+    Raises:
+        ConfigError: visibility_m is NaN or <= 0.
+    """
+    v = float(visibility_m)
+    if math.isnan(v) or v <= 0:
+        raise ConfigError(
+            f"visibility_m = {visibility_m!r}; expected a meteorological optical range > 0 m "
+            "(e.g. 50 for dense fog, 1000 for mist; inf for clear air)."
+        )
+    return 0.0 if math.isinf(v) else KOSCHMIEDER_LN20 / v
+
+
+def lidar_ratio_sr(params: FogParams) -> float:
+    """Lidar ratio S = alpha / beta_pi in sr used by `params.backscatter_model`."""
+    if params.backscatter_model == "hahner":
+        return KOSCHMIEDER_LN20 / params.hahner_backscatter_factor
+    return _mie_lidar_ratio_sr(
+        params.droplet_modal_radius_um,
+        params.droplet_shape_a,
+        params.droplet_shape_g,
+        params.refractive_index,
+        params.wavelength_nm,
+    )
+
+
+def backscatter_from_visibility(visibility_m: float, params: FogParams) -> float:
+    """Lidar backscatter coefficient beta_pi in 1/(m sr) for a visibility (MOR) in m.
+
+    "mie": alpha / S with S from `lidar_ratio_sr`; "hahner": 0.046 / MOR (Hahner et al. 2021).
+
+    Raises:
+        ConfigError: visibility_m is NaN or <= 0.
+    """
+    alpha = extinction_from_visibility(visibility_m)
+    return alpha / lidar_ratio_sr(params)
+
+
+@functools.lru_cache(maxsize=8)
+def _mie_lidar_ratio_sr(
+    modal_radius_um: float, shape_a: float, shape_g: float, index: float, wavelength_nm: float
+) -> float:
+    # miepython pulls in numba; import on first use so `import lads` stays light.
+    import miepython
+    from scipy.integrate import trapezoid
+
+    # The tail beyond 6 r_c carries < 0.2 % of the cross-section for a = 3, g = 1.
+    radius_um = np.linspace(0.05, 6.0 * modal_radius_um, MIE_SIZES)
+    number = radius_um**shape_a * np.exp(
+        -(shape_a / shape_g) * (radius_um / modal_radius_um) ** shape_g
+    )
+    area = number * np.pi * radius_um**2
+    qext, _, qback, _ = miepython.efficiencies(index, 2.0 * radius_um, wavelength_nm * 1e-3)
+    # miepython's qback is the radar convention, 4 pi times the lidar (per sr) value.
+    return float(
+        trapezoid(area * qext, radius_um) / (trapezoid(area * qback, radius_um) / (4 * np.pi))
+    )
+
+
+@dataclass(frozen=True, slots=True)
+class SoftReturnTable:
+    """Peak of P_soft(r; r0) / (pi beta_pi) for one extinction, on a grid of target ranges.
+
+    Attributes:
+        target_range_m: (K,) float64 grid of r0, m, from R1 to R2 + L.
+        peak_range_m: (K,) float64 raw peak range r* (pulse-start timing), m.
+        peak_unit: (K,) float64 peak value divided by pi beta_pi, 1/m (times beta_pi and pi:
+            normalised power).
+        relative_curvature_per_m2: (K,) float64 |P''(r*)| / P(r*), 1/m^2.
+    """
+
+    target_range_m: npt.NDArray[np.float64]
+    peak_range_m: npt.NDArray[np.float64]
+    peak_unit: npt.NDArray[np.float64]
+    relative_curvature_per_m2: npt.NDArray[np.float64]
+
+
+@functools.lru_cache(maxsize=64)
+def soft_return_table(extinction_per_m: float, params: FogParams) -> SoftReturnTable:
+    """Tabulate the fog-return peak for target ranges R1 .. R2 + L (exact beyond: constant).
+
+    Midpoint rule on cells of `table_step_m` in s; target ranges sit on cell edges, so the
+    Heaviside cut is exact there and a cumulative sum over cells gives every r0 at once.
+    The peak over r is refined by a parabola through the best grid point and its neighbours.
+    """
+    h, length = params.table_step_m, params.pulse_length_m
+    r1, r2 = params.overlap_start_m, params.overlap_full_m
+    n_cells = math.ceil((r2 + length - r1) / h)
+    edges = r1 + h * np.arange(n_cells + 1)
+    centre = edges[:-1] + 0.5 * h
+    overlap = np.clip((centre - r1) / (r2 - r1), 0.0, 1.0)
+    g = overlap * np.exp(-2.0 * extinction_per_m * centre) / centre**2 * h
+    r = r1 + h * np.arange(math.ceil((r2 + 2 * length - r1) / h) + 2)
+    lag = r[:, None] - centre[None, :]
+    kernel = np.where((lag >= 0) & (lag <= length), np.sin(np.pi * lag / length) ** 2, 0.0)
+    power = np.cumsum(kernel * g[None, :], axis=1)  # power[i, k]: P(r_i; r0 = edges[k + 1])
+    cols = np.arange(n_cells)
+    i = np.clip(np.argmax(power, axis=0), 1, r.size - 2)
+    left, mid, right = power[i - 1, cols], power[i, cols], power[i + 1, cols]
+    second = left - 2 * mid + right
+    with np.errstate(divide="ignore", invalid="ignore"):
+        shift = np.where(second < 0, 0.5 * (left - right) / second, 0.0)
+    shift = np.clip(shift, -1.0, 1.0)
+    peak = mid - 0.25 * (left - right) * shift
+    curvature = np.where(peak > 0, -second / h**2 / np.where(peak > 0, peak, 1.0), 0.0)
+    table = SoftReturnTable(
+        target_range_m=edges,
+        peak_range_m=np.concatenate(([r[0] + 0.5 * length], r[i] + shift * h)),
+        peak_unit=np.concatenate(([0.0], peak)),
+        relative_curvature_per_m2=np.concatenate(([curvature[0]], curvature)),
+    )
+    for arr in (table.target_range_m, table.peak_range_m, table.peak_unit):
+        arr.flags.writeable = False
+    table.relative_curvature_per_m2.flags.writeable = False
+    return table
+
+
+def _lookup(
+    values: npt.NDArray[np.float64], r0: npt.NDArray[np.float64], table: SoftReturnTable
+) -> npt.NDArray[np.float64]:
+    # Only near targets need interpolation; beyond the grid the peak is the r0 = inf one.
+    out = np.full(r0.shape, values[-1])
+    near = r0 < table.target_range_m[-1]
+    out[near] = np.interp(r0[near], table.target_range_m, values)
+    return out
+
+
+def soft_return_peak(
+    target_range_m: npt.ArrayLike,
+    extinction_per_m: float,
+    backscatter_per_m_sr: float,
+    params: FogParams,
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    """Peak of the fog return in front of targets at r0 (module docstring formula).
+
+    Args:
+        target_range_m: (N,) target ranges r0, m.
+        extinction_per_m: alpha, 1/m.
+        backscatter_per_m_sr: beta_pi, 1/(m sr).
+        params: the fog parameters.
+
+    Returns:
+        peak_range_m: (N,) float64 raw peak range r* (pulse-start timing, before the
+            c tau_H / 2 report shift), m; r0 < R1 (no fog in front) gives r0.
+        peak_power: (N,) float64 normalised peak power (reflectivity / m^2); 0 for r0 <= R1.
+        relative_curvature_per_m2: (N,) float64 |P''| / P at the peak, 1/m^2.
+    """
+    r0 = np.asarray(target_range_m, dtype=np.float64)
+    table = soft_return_table(float(extinction_per_m), params)
+    power = np.pi * backscatter_per_m_sr * _lookup(table.peak_unit, r0, table)
+    peak_range = np.where(r0 < params.overlap_start_m, r0, _lookup(table.peak_range_m, r0, table))
+    power[r0 < params.overlap_start_m] = 0.0
+    return peak_range, power, _lookup(table.relative_curvature_per_m2, r0, table)
+
+
+def simulate_fog(
+    beams: Beams,
+    sensor: SensorProfile,
+    *,
+    visibility_m: float,
+    rng: np.random.Generator,
+    mode: str = "strongest",
+    params: FogParams | None = None,
+    detection_threshold: float | None = None,
+) -> WeatherResult:
+    """Apply homogeneous fog of a given visibility to one frame.
+
+    Per active beam with target range r0 and reflectivity rho: hard-target power
+    P_w = rho T^2(r0) / r0^2 and fog peak P_f (`soft_return_peak`). strongest: fog return if
+    P_f > P_w and P_f >= P_min, else the target if P_w >= P_min, else lost. last: the target
+    if P_w >= P_min, else fog if P_f >= P_min, else lost. Kept targets (ATTENUATED) get
+    intensity rho T^2 and extra range noise of variance sigma(SNR_w)^2 - sigma(SNR_clear)^2,
+    sigma = dR / sqrt(2 SNR), SNR = P / P_min (LISA, physics.md §4). Fog returns (PARTICLE)
+    lie on the same ray at the reported peak range plus noise (module docstring), with
+    intensity P_f r^2. Intensities are encoded once, by `assemble`.
+
+    Args:
+        beams: the prepared frame (`prepare_beams`), N beams.
+        sensor: its profile (range_accuracy_m = dR, intensity encoding).
+        visibility_m: meteorological optical range (MOR), m; inf returns the input unchanged.
+        rng: source of the range noise; the same state gives byte-identical output.
+        mode: "strongest" or "last" return.
+        params: fog parameters (default `FogParams()`).
+        detection_threshold: P_min in normalised power (reflectivity / m^2); None takes
+            `auto_threshold(beams)`, the weakest clear-air return, so clear air loses nothing.
+
+    Returns:
+        WeatherResult with extinction_per_m = alpha and the P_min used.
+
+    Raises:
+        ConfigError: visibility_m NaN or <= 0, unknown mode, or a threshold that is not a
+            finite number > 0.
+    """
+    params = FogParams() if params is None else params
+    if mode not in MODES:
+        raise ConfigError(f"fog mode = {mode!r}; expected one of {MODES}.")
+    alpha = extinction_from_visibility(visibility_m)
+    p_min = auto_threshold(beams) if detection_threshold is None else float(detection_threshold)
+    if not (math.isfinite(p_min) and p_min > 0):
+        raise ConfigError(
+            f"detection_threshold = {detection_threshold!r}; expected a finite normalised power "
+            "> 0 (reflectivity / m^2), or None to calibrate it on the frame."
+        )
+    n = beams.range_m.size
+    outcome = np.full(n, Outcome.KEPT, dtype=np.uint8)
+    new_range = np.zeros(n)
+    new_rho = np.zeros(n)
+    if alpha == 0.0 or n == 0:
+        return assemble(
+            beams, sensor, outcome=outcome, range_m=new_range, reflectivity=new_rho,
+            extinction_per_m=alpha, detection_threshold=p_min,
+        )  # fmt: skip
+    beta = backscatter_from_visibility(visibility_m, params)
+    idx = np.flatnonzero(beams.active)
+    r0, rho = beams.range_m[idx], beams.reflectivity[idx]
+    p_clear = rho / r0**2
+    t2 = np.exp(-2.0 * alpha * r0)
+    p_target = p_clear * t2
+    table = soft_return_table(alpha, params)
+    p_fog = np.pi * beta * _lookup(table.peak_unit, r0, table)
+    p_fog[r0 < params.overlap_start_m] = 0.0
+    target_ok = p_target >= p_min
+    fog_ok = p_fog >= p_min
+    if mode == "strongest":
+        fog = fog_ok & (p_fog > p_target)
+        target = target_ok & ~fog
+    else:
+        target = target_ok
+        fog = fog_ok & ~target_ok
+    code = np.full(idx.size, Outcome.LOST, dtype=np.uint8)
+    code[target] = Outcome.ATTENUATED
+    code[fog] = Outcome.PARTICLE
+    outcome[idx] = code
+
+    noise = rng.standard_normal(int(target.sum()) + int(fog.sum()))
+    k = int(target.sum())
+    dr = sensor.range_accuracy_m
+    extra_var = 0.5 * dr**2 * p_min * (1.0 / p_target[target] - 1.0 / p_clear[target])
+    t_idx = idx[target]
+    new_range[t_idx] = np.maximum(
+        r0[target] + np.sqrt(np.maximum(extra_var, 0.0)) * noise[:k], MIN_OUTPUT_RANGE_M
+    )
+    new_rho[t_idx] = rho[target] * t2[target]
+
+    f_idx = idx[fog]
+    if f_idx.size:
+        r0_fog, pf = r0[fog], p_fog[fog]
+        reported = _lookup(table.peak_range_m, r0_fog, table)
+        if params.report_pulse_centre:
+            reported = reported - 0.5 * params.pulse_length_m
+        kappa_pulse = 2.0 * np.pi**2 / params.pulse_length_m**2
+        kappa_fog = np.maximum(_lookup(table.relative_curvature_per_m2, r0_fog, table), 1e-12)
+        sigma = dr / np.sqrt(2.0 * pf / p_min) * np.minimum(kappa_pulse / kappa_fog, 1e6)
+        out_r = np.maximum(reported + sigma * noise[k:], MIN_OUTPUT_RANGE_M)
+        new_range[f_idx] = out_r
+        new_rho[f_idx] = pf * out_r**2
+    return assemble(
+        beams, sensor, outcome=outcome, range_m=new_range, reflectivity=new_rho,
+        extinction_per_m=alpha, detection_threshold=p_min,
+    )  # fmt: skip

@@ -1,0 +1,111 @@
+"""Compiled per-beam loops for the weather models (numba, cached on disk).
+
+Only loops whose numpy form allocates several (N,)-sized temporaries per frame live here;
+randomness never does: uniforms are drawn by the caller's numpy Generator and passed in,
+so output bytes depend only on the generator state, not on numba.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+import numpy.typing as npt
+
+_LOST = np.uint8(3)
+_KEPT = np.uint8(0)
+
+
+@numba.njit(cache=True, nogil=True)
+def scaled_survivors(
+    xyz: npt.NDArray[np.float32],
+    range_old_m: npt.NDArray[np.float64],
+    range_new_m: npt.NDArray[np.float64],
+    outcome: npt.NDArray[np.uint8],
+) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.float32]]:
+    """Indices of non-LOST beams and their output xyz, moved along the ray to the new range.
+
+    KEPT beams and beams whose range did not change keep their input bytes exactly.
+
+    Args:
+        xyz: (N, 3) float32 input points, m. range_old_m, range_new_m: (N,) float64, m.
+        outcome: (N,) uint8 Outcome codes.
+
+    Returns:
+        survive (M,) int64 ascending, out_xyz (M, 3) float32.
+    """
+    n = outcome.size
+    m = 0
+    for i in range(n):
+        if outcome[i] != _LOST:
+            m += 1
+    survive = np.empty(m, dtype=np.int64)
+    out = np.empty((m, 3), dtype=np.float32)
+    j = 0
+    for i in range(n):
+        if outcome[i] == _LOST:
+            continue
+        survive[j] = i
+        if outcome[i] != _KEPT and range_new_m[i] != range_old_m[i]:
+            scale = range_new_m[i] / range_old_m[i]
+            for c in range(3):
+                out[j, c] = np.float32(xyz[i, c] * scale)
+        else:
+            for c in range(3):
+                out[j, c] = xyz[i, c]
+        j += 1
+    return survive, out
+
+
+@numba.njit(cache=True, nogil=True)
+def poisson_counts_from_table(
+    cumulative: npt.NDArray[np.float64],
+    r_start_m: float,
+    r_step_m: float,
+    column: npt.NDArray[np.int64],
+    r0_m: npt.NDArray[np.float64],
+    uniform: npt.NDArray[np.float64],
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.int64]]:
+    """Per beam: mean number of proposals mu(r0; s_column) and a Poisson draw of it.
+
+    mu is the tabulated cumulative count, linear between range rows (0 before the first
+    row); the count inverts the Poisson CDF at `uniform` (exact; almost every mean is tiny,
+    so the loop rarely runs more than once).
+
+    Args:
+        cumulative: (Q, R) float64 table, row k = mu(r; s_k) on an even range grid.
+        r_start_m, r_step_m: the range grid, m. column: (N,) int64 row per beam.
+        r0_m: (N,) float64 search range per beam, m (clipped to the grid by the caller).
+        uniform: (N,) float64 U(0, 1) draws.
+
+    Returns:
+        mean (N,) float64, count (N,) int64.
+    """
+    n = r0_m.size
+    n_r = cumulative.shape[1]
+    mean = np.empty(n)
+    count = np.zeros(n, dtype=np.int64)
+    for i in range(n):
+        position = (r0_m[i] - r_start_m) / r_step_m
+        if position <= 0.0:
+            mean[i] = 0.0
+            continue
+        j = int(math.floor(position))
+        if j > n_r - 2:
+            j = n_r - 2
+        frac = min(max(position - j, 0.0), 1.0)
+        k = column[i]
+        mu = cumulative[k, j] * (1.0 - frac) + cumulative[k, j + 1] * frac
+        mean[i] = mu
+        prob = math.exp(-mu)
+        cdf = prob
+        c = 0
+        u = uniform[i]
+        # Stop where the pmf underflows: the remaining mass is below double precision.
+        while u > cdf and prob > 0.0:
+            c += 1
+            prob *= mu / c
+            cdf += prob
+        count[i] = c
+    return mean, count

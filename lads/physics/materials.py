@@ -1,0 +1,249 @@
+"""Material reflectance at 905 nm per semantic class, from `lads/physics/materials.yaml`.
+
+The YAML is the single source of truth (physics.md §10.2): materials with a reflectance and
+a citation each, and one class -> material map per label set. It is read from the package
+data once, validated, and turned into one lookup array per label set, so mapping a frame's
+labels is a single fancy-indexing operation.
+"""
+
+from __future__ import annotations
+
+import functools
+import importlib.resources
+import warnings
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+import yaml
+
+from lads.errors import ConfigError, InputDataError
+
+MATERIALS_FILE = "materials.yaml"
+LABEL_SETS: tuple[str, ...] = ("semantickitti", "nuscenes", "voxelscape", "wads")
+MAX_REFLECTANCE = 1.2
+MAX_CLASS_ID = 0xFFFF
+_OUT_OF_RANGE = MAX_CLASS_ID + 1  # lookup slot for ids above 0xFFFF (unmasked label sets)
+
+
+class UnknownLabelWarning(UserWarning):
+    """Labels without a class -> material entry were given the default reflectance."""
+
+
+@dataclass(frozen=True, slots=True)
+class Material:
+    """One material: diffuse reflectance at 905 nm (unitless) and where the value comes from."""
+
+    name: str
+    reflectance: float
+    source: str
+
+
+@dataclass(frozen=True, slots=True)
+class _LabelSet:
+    name: str
+    instance_bits: bool
+    classes: dict[int, tuple[str, str]]  # class id -> (class name, material name)
+    lookup: npt.NDArray[np.float32]  # (MAX_CLASS_ID + 2,) reflectance per id
+    known: npt.NDArray[np.bool_]  # (MAX_CLASS_ID + 2,) id has an entry
+
+
+@dataclass(frozen=True, slots=True)
+class _Table:
+    materials: dict[str, Material]
+    default: Material
+    label_sets: dict[str, _LabelSet]
+
+
+_warned: dict[str, set[int]] = {}
+
+
+def reflectance_for_labels(labels: npt.ArrayLike, label_set: str) -> npt.NDArray[np.float32]:
+    """Reflectance at 905 nm of each point's material, looked up from its class label.
+
+    Args:
+        labels: (N,) any integer dtype, the dataset's stored labels. For label sets with
+            instance bits (semantickitti, voxelscape, wads) the class is `label & 0xFFFF`.
+        label_set: one of `LABEL_SETS`.
+
+    Returns:
+        (N,) float32 reflectance, unitless (retro-reflective sheeting is 1.0). Ids without an
+        entry get the default material's 0.20, with one `UnknownLabelWarning` per label set
+        the first time each such id is seen in this process.
+
+    Raises:
+        ConfigError: unknown label set, or the shipped YAML is invalid.
+        InputDataError: labels are not a 1-D integer array, or contain negative values.
+    """
+    table = _table()
+    if label_set not in table.label_sets:
+        raise ConfigError(
+            f"unknown label set '{label_set}'; known label sets: {', '.join(LABEL_SETS)}."
+        )
+    lset = table.label_sets[label_set]
+    ids = _class_ids(labels, lset.instance_bits)
+    unknown = ~lset.known[ids]
+    if unknown.any():
+        _warn_unknown(lset, labels, unknown)
+    return lset.lookup[ids]
+
+
+def material_table() -> dict[str, Material]:
+    """All materials of the shipped YAML by name (a copy; safe to modify)."""
+    return dict(_table().materials)
+
+
+def class_materials(label_set: str) -> dict[int, tuple[str, str]]:
+    """Class id -> (class name, material name) for one label set, `extends` resolved."""
+    table = _table()
+    if label_set not in table.label_sets:
+        raise ConfigError(
+            f"unknown label set '{label_set}'; known label sets: {', '.join(LABEL_SETS)}."
+        )
+    return dict(table.label_sets[label_set].classes)
+
+
+def _class_ids(labels: npt.ArrayLike, instance_bits: bool) -> npt.NDArray[np.intp]:
+    arr = np.asarray(labels)
+    if arr.ndim != 1 or not (np.issubdtype(arr.dtype, np.integer) or arr.size == 0):
+        raise InputDataError(
+            f"labels: expected a 1-D integer array (N,), got shape {arr.shape} and dtype "
+            f"{arr.dtype}; read .label files as uint32 and lidarseg files as uint8."
+        )
+    arr = arr.astype(np.int64, copy=False)
+    negative = int(np.count_nonzero(arr < 0))
+    if negative:
+        raise InputDataError(
+            f"labels: {negative} negative values (min {int(arr.min())}); class labels are "
+            "non-negative. Int32-read .label files with instance ids >= 32768 must be read "
+            "as uint32."
+        )
+    ids = arr & MAX_CLASS_ID if instance_bits else np.minimum(arr, _OUT_OF_RANGE)
+    return ids.astype(np.intp, copy=False)
+
+
+def _warn_unknown(lset: _LabelSet, labels: npt.ArrayLike, unknown: npt.NDArray[np.bool_]) -> None:
+    arr = np.asarray(labels).astype(np.int64, copy=False)
+    ids = np.unique(arr[unknown] & MAX_CLASS_ID if lset.instance_bits else arr[unknown])
+    seen = _warned.setdefault(lset.name, set())
+    new = sorted(set(ids.tolist()) - seen)
+    if new:
+        seen.update(new)
+        default = _table().default
+        warnings.warn(
+            f"label set '{lset.name}': class ids {new} have no material in {MATERIALS_FILE}; "
+            f"those points get the '{default.name}' reflectance {default.reflectance:g}. "
+            "Add the classes to lads/physics/materials.yaml if they are real.",
+            UnknownLabelWarning,
+            stacklevel=3,
+        )
+
+
+@functools.lru_cache(maxsize=1)
+def _table() -> _Table:
+    resource = importlib.resources.files("lads.physics").joinpath(MATERIALS_FILE)
+    try:
+        raw = yaml.safe_load(resource.read_text(encoding="utf-8"))
+    except (OSError, yaml.YAMLError) as exc:
+        raise ConfigError(f"{MATERIALS_FILE}: cannot read YAML ({exc}).") from exc
+    return parse_table(raw, MATERIALS_FILE)
+
+
+def parse_table(raw: Any, where: str) -> _Table:
+    """Validate a materials mapping (as loaded from YAML); raise ConfigError naming `where`."""
+    if not isinstance(raw, dict):
+        raise ConfigError(f"{where}: expected a mapping at top level.")
+    _require_keys(raw, {"schema_version", "default_material", "materials", "label_sets"}, where)
+    if raw["schema_version"] != 1:
+        raise ConfigError(f"{where}: schema_version {raw['schema_version']!r}; expected 1.")
+    materials = {name: _material(name, spec, where) for name, spec in raw["materials"].items()}
+    default_name = raw["default_material"]
+    if default_name not in materials:
+        raise ConfigError(f"{where}: default_material '{default_name}' is not a material.")
+    sets_raw = raw["label_sets"]
+    if not isinstance(sets_raw, dict) or set(sets_raw) != set(LABEL_SETS):
+        raise ConfigError(
+            f"{where}: label_sets must be exactly {list(LABEL_SETS)}, got "
+            f"{sorted(sets_raw) if isinstance(sets_raw, dict) else sets_raw!r}."
+        )
+    label_sets = {
+        name: _label_set(name, sets_raw, materials, materials[default_name], where)
+        for name in LABEL_SETS
+    }
+    return _Table(materials, materials[default_name], label_sets)
+
+
+def _material(name: str, spec: Any, where: str) -> Material:
+    if not isinstance(spec, dict):
+        raise ConfigError(f"{where}: materials.{name} must be a mapping.")
+    _require_keys(spec, {"reflectance", "source"}, f"{where}: materials.{name}")
+    rho = spec["reflectance"]
+    if isinstance(rho, bool) or not isinstance(rho, int | float):
+        raise ConfigError(f"{where}: materials.{name}.reflectance must be a number.")
+    if not 0.0 <= rho <= MAX_REFLECTANCE:
+        raise ConfigError(
+            f"{where}: materials.{name}.reflectance = {rho}; expected 0 <= rho <= "
+            f"{MAX_REFLECTANCE}."
+        )
+    if not isinstance(spec["source"], str) or not spec["source"].strip():
+        raise ConfigError(f"{where}: materials.{name}.source must cite where {rho} comes from.")
+    return Material(str(name), float(rho), spec["source"].strip())
+
+
+def _label_set(
+    name: str, sets_raw: dict[str, Any], materials: dict[str, Material], default: Material,
+    where: str,
+) -> _LabelSet:
+    spec = sets_raw[name]
+    ctx = f"{where}: label_sets.{name}"
+    if not isinstance(spec, dict):
+        raise ConfigError(f"{ctx} must be a mapping.")
+    _require_keys(spec, {"description", "instance_bits", "classes"}, ctx, optional=frozenset({"extends"}))
+    classes: dict[int, tuple[str, str]] = {}
+    if "extends" in spec:
+        base = sets_raw.get(spec["extends"])
+        if not isinstance(base, dict) or "extends" in base:
+            raise ConfigError(f"{ctx}.extends must name a label set that extends nothing.")
+        classes.update(_classes(base.get("classes"), f"{where}: label_sets.{spec['extends']}"))
+    classes.update(_classes(spec["classes"], ctx))
+    lookup = np.full(_OUT_OF_RANGE + 1, default.reflectance, dtype=np.float32)
+    known = np.zeros(_OUT_OF_RANGE + 1, dtype=bool)
+    for class_id, (class_name, material) in classes.items():
+        if material not in materials:
+            raise ConfigError(
+                f"{ctx}: class {class_id} ({class_name}) maps to unknown material "
+                f"'{material}'; defined materials: {', '.join(sorted(materials))}."
+            )
+        lookup[class_id] = materials[material].reflectance
+        known[class_id] = True
+    lookup.flags.writeable = False
+    known.flags.writeable = False
+    return _LabelSet(name, bool(spec["instance_bits"]), classes, lookup, known)
+
+
+def _classes(raw: Any, ctx: str) -> dict[int, tuple[str, str]]:
+    if not isinstance(raw, dict) or not raw:
+        raise ConfigError(f"{ctx}.classes must be a non-empty mapping of class id -> entry.")
+    out = {}
+    for class_id, entry in raw.items():
+        if isinstance(class_id, bool) or not isinstance(class_id, int):
+            raise ConfigError(f"{ctx}.classes: key {class_id!r} is not an integer class id.")
+        if not 0 <= class_id <= MAX_CLASS_ID:
+            raise ConfigError(f"{ctx}.classes: id {class_id} outside [0, {MAX_CLASS_ID}].")
+        if not isinstance(entry, dict):
+            raise ConfigError(f"{ctx}.classes.{class_id} must be a mapping.")
+        _require_keys(entry, {"name", "material"}, f"{ctx}.classes.{class_id}")
+        out[class_id] = (str(entry["name"]), str(entry["material"]))
+    return out
+
+
+def _require_keys(
+    spec: dict[str, Any], required: set[str], ctx: str, optional: frozenset[str] = frozenset()
+) -> None:
+    unknown, missing = set(spec) - required - set(optional), required - set(spec)
+    if unknown or missing:
+        raise ConfigError(
+            f"{ctx}: unknown keys {sorted(unknown)}, missing keys {sorted(missing)}; "
+            f"expected {sorted(required | set(optional))}."
+        )

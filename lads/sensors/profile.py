@@ -1,0 +1,247 @@
+"""Load and validate sensor profiles (`lads/sensors/*.yaml`).
+
+A profile is data, not code: channel geometry, optics and the intensity encoding of one
+LiDAR as it appears in one dataset. Channel ids run from the lowest beam (0) upwards, which
+is the nuScenes ring convention; datasets without a ring column get channels by nearest
+elevation (`SensorProfile.channel_of`).
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from dataclasses import dataclass, fields
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+import numpy.typing as npt
+import yaml
+
+from lads.errors import IntensityEncodingError, SensorProfileError
+
+PROFILE_DIR = Path(__file__).parent
+
+
+@functools.lru_cache(maxsize=16)
+def _encoding_levels(step: float, max_value: float) -> npt.NDArray[np.float32]:
+    count = int(math.floor(max_value / step + 1e-9)) + 1
+    levels = (np.arange(count, dtype=np.float64) * step).astype(np.float32)
+    levels.flags.writeable = False
+    return levels
+
+
+@dataclass(frozen=True, slots=True)
+class IntensityEncoding:
+    """How a dataset stores intensity, and how that maps to reflectivity.
+
+    Attributes:
+        kind: "unit" (float remission in [0, 1), e.g. SemanticKITTI) or "byte" (integer
+            values 0-255 stored as float, e.g. nuScenes, WADS).
+        reflectivity_full_scale: encoded value that stands for a diffuse (Lambertian)
+            reflectivity of 1.0. Larger values (retro-reflectors) map to reflectivity > 1.
+        step: quantisation step of the stored values (0.01 or 1.0).
+        max_value: largest value the encoding can hold (0.99 or 255).
+    """
+
+    kind: Literal["unit", "byte"]
+    reflectivity_full_scale: float
+    step: float
+    max_value: float
+
+    def to_reflectivity(self, intensity: npt.ArrayLike) -> npt.NDArray[np.float64]:
+        """Encoded intensity (N,) -> reflectivity (N,) float64, linear, unitless."""
+        return np.asarray(intensity, dtype=np.float64) / self.reflectivity_full_scale
+
+    def from_reflectivity(self, reflectivity: npt.ArrayLike) -> npt.NDArray[np.float32]:
+        """Reflectivity (N,) -> encoded intensity (N,) float32, rounded to `step`, clipped.
+
+        Values come from a table of the encoding's levels computed in float64 and cast once,
+        so they are the very float32 numbers the datasets store (KITTI's 0.29 is
+        float32(0.29), not float32(29) * float32(0.01), which differs in the last bit).
+        """
+        steps = np.asarray(reflectivity, dtype=np.float32) * np.float32(
+            self.reflectivity_full_scale / self.step
+        )
+        np.rint(steps, out=steps)
+        np.clip(steps, 0.0, self._levels.size - 1, out=steps)
+        return self._levels[steps.astype(np.intp)]
+
+    @property
+    def _levels(self) -> npt.NDArray[np.float32]:
+        return _encoding_levels(self.step, self.max_value)
+
+    @property
+    def detection_floor(self) -> float:
+        """Reflectivity assumed for a stored 0: half a quantisation step.
+
+        A point stored with intensity 0 was detected, so its true reflectivity is positive
+        but below half a step; half a step is the midpoint of that interval.
+        """
+        return 0.5 * self.step / self.reflectivity_full_scale
+
+    def validate(self, intensity: npt.NDArray[Any], what: str) -> None:
+        """Raise IntensityEncodingError if any value lies outside [0, max_value]."""
+        if intensity.size == 0:
+            return
+        all_finite = bool(np.isfinite(intensity).all())
+        finite = intensity if all_finite else intensity[np.isfinite(intensity)]
+        low, high = float(finite.min(initial=0.0)), float(finite.max(initial=0.0))
+        if not all_finite or low < 0.0 or high > self.max_value * (1 + 1e-6):
+            raise IntensityEncodingError(
+                f"{what}: intensities span [{low:g}, {high:g}]"
+                f"{'' if all_finite else ' and include NaN/inf'}, but the '{self.kind}' "
+                f"encoding holds values in [0, {self.max_value:g}]. Pass the sensor profile "
+                "that matches the data (e.g. 'hdl64e' for SemanticKITTI remission in [0, 1), "
+                "'hdl32e' for nuScenes 0-255) or rescale the intensities first."
+            )
+
+
+@dataclass(frozen=True, slots=True)
+class SensorProfile:
+    """One LiDAR as recorded in one dataset.
+
+    Attributes:
+        name: profile id, also the YAML file stem.
+        description: sensor model and dataset.
+        channels: number of laser channels (beams).
+        elevation_deg: (channels,) elevation of each channel in degrees, channel 0 lowest,
+            strictly increasing.
+        elevation_method: how the elevations were obtained (measured on which files, how).
+        vertical_fov_deg: (lowest, highest) elevation in degrees that the range image spans.
+        range_image_width: azimuth bins of the range image.
+        wavelength_nm: laser wavelength in nm.
+        beam_divergence_mrad: full-angle beam divergence in mrad.
+        min_range_m: bistatic minimum range in m; nothing nearer is detected.
+        max_range_m: maximum range in m.
+        range_accuracy_m: one-sigma range accuracy in m at the detection threshold.
+        intensity: the dataset's intensity encoding.
+        has_ring_column: scans carry a per-point ring (channel) column.
+        sources: citations for the numbers above.
+    """
+
+    name: str
+    description: str
+    channels: int
+    elevation_deg: tuple[float, ...]
+    elevation_method: str
+    vertical_fov_deg: tuple[float, float]
+    range_image_width: int
+    wavelength_nm: float
+    beam_divergence_mrad: float
+    min_range_m: float
+    max_range_m: float
+    range_accuracy_m: float
+    intensity: IntensityEncoding
+    has_ring_column: bool
+    sources: tuple[str, ...]
+
+    @property
+    def beam_divergence_rad(self) -> float:
+        return self.beam_divergence_mrad * 1e-3
+
+    @property
+    def wavelength_m(self) -> float:
+        return self.wavelength_nm * 1e-9
+
+    def channel_of(self, xyz: npt.NDArray[np.floating[Any]]) -> npt.NDArray[np.int64]:
+        """Nearest channel for each point by elevation: (N, 3) m -> (N,) int64 in [0, channels)."""
+        xyz = np.asarray(xyz, dtype=np.float64)
+        horizontal_m = np.hypot(xyz[:, 0], xyz[:, 1])
+        elevation = np.degrees(np.arctan2(xyz[:, 2], horizontal_m))
+        table = np.asarray(self.elevation_deg)
+        midpoints = 0.5 * (table[1:] + table[:-1])
+        return np.searchsorted(midpoints, elevation).astype(np.int64)
+
+
+def available_profiles() -> list[str]:
+    """Names of the profiles shipped with lads."""
+    return sorted(p.stem for p in PROFILE_DIR.glob("*.yaml"))
+
+
+@functools.lru_cache(maxsize=32)
+def load_profile(name_or_path: str | Path) -> SensorProfile:
+    """Load a profile by shipped name ("hdl64e") or by YAML path, validated.
+
+    Raises:
+        SensorProfileError: unknown name, unreadable file, missing or unknown keys, or
+            inconsistent values; the message names the file and the key.
+    """
+    path = Path(name_or_path)
+    if path.suffix not in (".yaml", ".yml"):
+        path = PROFILE_DIR / f"{name_or_path}.yaml"
+    if not path.is_file():
+        raise SensorProfileError(
+            f"sensor profile '{name_or_path}' not found (looked for {path}); "
+            f"shipped profiles: {', '.join(available_profiles())}, or pass a YAML path."
+        )
+    try:
+        raw = yaml.safe_load(path.read_text())
+    except (OSError, yaml.YAMLError) as exc:
+        raise SensorProfileError(f"{path}: cannot read YAML ({exc}); fix the file.") from exc
+    if not isinstance(raw, dict):
+        raise SensorProfileError(f"{path}: expected a mapping of profile keys at top level.")
+    return _build(raw, path)
+
+
+def _build(raw: dict[str, Any], path: Path) -> SensorProfile:
+    expected = {f.name for f in fields(SensorProfile)}
+    unknown, missing = set(raw) - expected, expected - set(raw)
+    if unknown or missing:
+        raise SensorProfileError(
+            f"{path}: unknown keys {sorted(unknown)}, missing keys {sorted(missing)}; "
+            f"a profile has exactly: {sorted(expected)}."
+        )
+    try:
+        enc = IntensityEncoding(**raw["intensity"])
+        profile = SensorProfile(
+            name=str(raw["name"]),
+            description=str(raw["description"]),
+            channels=int(raw["channels"]),
+            elevation_deg=tuple(float(v) for v in raw["elevation_deg"]),
+            elevation_method=str(raw["elevation_method"]),
+            vertical_fov_deg=(float(raw["vertical_fov_deg"][0]), float(raw["vertical_fov_deg"][1])),
+            range_image_width=int(raw["range_image_width"]),
+            wavelength_nm=float(raw["wavelength_nm"]),
+            beam_divergence_mrad=float(raw["beam_divergence_mrad"]),
+            min_range_m=float(raw["min_range_m"]),
+            max_range_m=float(raw["max_range_m"]),
+            range_accuracy_m=float(raw["range_accuracy_m"]),
+            intensity=enc,
+            has_ring_column=bool(raw["has_ring_column"]),
+            sources=tuple(str(s) for s in raw["sources"]),
+        )
+    except (TypeError, ValueError, KeyError, IndexError) as exc:
+        raise SensorProfileError(
+            f"{path}: malformed value ({exc}); see lads/sensors/*.yaml."
+        ) from exc
+    _check(profile, path)
+    return profile
+
+
+def _check(p: SensorProfile, path: Path) -> None:
+    problems = []
+    elev = np.asarray(p.elevation_deg)
+    if p.name != path.stem and path.parent == PROFILE_DIR:
+        problems.append(f"name '{p.name}' differs from the file stem '{path.stem}'")
+    if len(elev) != p.channels:
+        problems.append(f"{len(elev)} elevation_deg values for {p.channels} channels")
+    if np.any(np.diff(elev) <= 0):
+        problems.append("elevation_deg must be strictly increasing (channel 0 lowest)")
+    low, high = p.vertical_fov_deg
+    if len(elev) and not (low <= elev.min() and elev.max() <= high):
+        problems.append(f"elevations [{elev.min()}, {elev.max()}] fall outside vertical_fov_deg")
+    for key in ("wavelength_nm", "beam_divergence_mrad", "max_range_m", "range_accuracy_m"):
+        if not getattr(p, key) > 0:
+            problems.append(f"{key} must be > 0")
+    if not 0 <= p.min_range_m < p.max_range_m:
+        problems.append("need 0 <= min_range_m < max_range_m")
+    if p.range_image_width < 4 or p.range_image_width % 4:
+        problems.append("range_image_width must be a positive multiple of 4")
+    enc = p.intensity
+    if enc.kind not in ("unit", "byte") or not (0 < enc.step <= enc.max_value):
+        problems.append("intensity needs kind unit|byte and 0 < step <= max_value")
+    if not enc.reflectivity_full_scale > 0:
+        problems.append("intensity.reflectivity_full_scale must be > 0")
+    if problems:
+        raise SensorProfileError(f"{path}: " + "; ".join(problems) + ".")
