@@ -49,6 +49,8 @@ def run_demo(out_dir: Path, *, sensor: str = "hdl64e", seed: int = 0) -> dict[st
     }
     for title, name, kwargs in SCENARIOS:
         simulate = getattr(weather, name)
+        # The first call builds the Mie and sampling tables (cached); time the second.
+        simulate(scan.xyz, scan.intensity, sensor=profile, rng=np.random.default_rng(0), **kwargs)
         rng = np.random.default_rng([seed, len(results)])
         start = time.perf_counter()
         result = simulate(scan.xyz, scan.intensity, sensor=profile, rng=rng, **kwargs)
@@ -65,7 +67,7 @@ def run_demo(out_dir: Path, *, sensor: str = "hdl64e", seed: int = 0) -> dict[st
                 if particle_range.size
                 else None
             ),
-            "runtime_ms": round(elapsed_ms, 2),
+            "runtime_ms_after_warm_up": round(elapsed_ms, 2),
         }
     out_dir.mkdir(parents=True, exist_ok=True)
     _write_json(out_dir / "summary.json", summary)
@@ -132,7 +134,7 @@ def main(argv: list[str] | None = None) -> int:
         c = info["counts"]
         lines.append(
             f"  {title:22s} attenuated {c['attenuated']:7,}  particle {c['particle']:6,}  "
-            f"lost {c['lost']:6,}  ({info['runtime_ms']:.1f} ms)"
+            f"lost {c['lost']:6,}  ({info['runtime_ms_after_warm_up']:.1f} ms)"
         )
     lines.append(f"wrote {args.out / 'weather_demo.png'} and {args.out / 'summary.json'}")
     import sys

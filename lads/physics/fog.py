@@ -82,9 +82,12 @@ class FogParams:
 
     Attributes:
         pulse_half_power_width_s: tau_H of the sin^2 pulse, s (20 ns; pulse spans 2 tau_H).
-        overlap_start_m: R1, range where the transmitter/receiver overlap xi starts, m (0.9).
-        overlap_full_m: R2, range of full overlap, m (1.0); xi is linear from R1 to R2.
-            `with_overlap_from(sensor)` takes R2 from the profile's min_range_m.
+        overlap_start_m: R1, range where the transmitter/receiver overlap xi starts, m;
+            None takes the sensor profile's min_range_m (Hahner et al.: 0.9 for the HDL-64).
+        overlap_full_m: R2 >= R1, range of full overlap, m; xi is linear from R1 to R2 (a
+            step at R1 if equal); None takes the profile's overlap_full_m (Hahner: 1.0).
+            The same overlap scales the particle returns of rain and snow, so one sensor
+            property governs near-range clutter in every weather.
         backscatter_model: "mie" (beta_pi = alpha / S, S from Mie over the size
             distribution below) or "hahner" (beta_pi = hahner_backscatter_factor / MOR).
         hahner_backscatter_factor: beta_pi * MOR for "hahner", 1/sr (0.046; paper range
@@ -103,8 +106,8 @@ class FogParams:
     """
 
     pulse_half_power_width_s: float = 20e-9
-    overlap_start_m: float = 0.9
-    overlap_full_m: float = 1.0
+    overlap_start_m: float | None = None
+    overlap_full_m: float | None = None
     backscatter_model: str = "mie"
     hahner_backscatter_factor: float = 0.046
     droplet_modal_radius_um: float = 10.0
@@ -118,7 +121,6 @@ class FogParams:
     def __post_init__(self) -> None:
         positive = (
             "pulse_half_power_width_s",
-            "overlap_full_m",
             "hahner_backscatter_factor",
             "droplet_modal_radius_um",
             "droplet_shape_a",
@@ -130,10 +132,11 @@ class FogParams:
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
                 raise ConfigError(f"FogParams.{name} = {value!r}; expected a finite value > 0.")
-        if not 0 <= self.overlap_start_m < self.overlap_full_m:
+        r1, r2 = self.overlap_start_m, self.overlap_full_m
+        if (r1 is not None and not 0 <= r1) or (r2 is not None and not r2 >= (r1 or 0.0)):
             raise ConfigError(
                 f"FogParams overlap R1 = {self.overlap_start_m} m, R2 = {self.overlap_full_m} m; "
-                "expected 0 <= overlap_start_m < overlap_full_m."
+                "expected 0 <= overlap_start_m <= overlap_full_m."
             )
         if not 0 < self.table_step_m <= 0.1:
             raise ConfigError(
@@ -151,17 +154,11 @@ class FogParams:
         """L = c tau_H: range extent of the whole sin^2 pulse (c 2 tau_H / 2), m."""
         return SPEED_OF_LIGHT_M_S * self.pulse_half_power_width_s
 
-    def with_overlap_from(self, sensor: SensorProfile) -> FogParams:
-        """Copy with R2 = sensor.min_range_m (R1 lowered to 0.9 R2 if it would not be < R2)."""
-        full = sensor.min_range_m
-        if not full > 0:
-            raise ConfigError(
-                f"sensor '{sensor.name}' has min_range_m = {full}; a full-overlap range needs "
-                "min_range_m > 0. Set FogParams.overlap_full_m explicitly instead."
-            )
-        return replace(
-            self, overlap_full_m=full, overlap_start_m=min(self.overlap_start_m, 0.9 * full)
-        )
+    def resolved_for(self, sensor: SensorProfile) -> FogParams:
+        """Copy with every None overlap range taken from the sensor profile."""
+        r1 = sensor.min_range_m if self.overlap_start_m is None else self.overlap_start_m
+        r2 = sensor.overlap_full_m if self.overlap_full_m is None else self.overlap_full_m
+        return replace(self, overlap_start_m=r1, overlap_full_m=max(r1, r2))
 
 
 def extinction_from_visibility(visibility_m: float) -> float:
@@ -256,7 +253,12 @@ def soft_return_table(extinction_per_m: float, params: FogParams) -> SoftReturnT
     n_cells = math.ceil((r2 + length - r1) / h)
     edges = r1 + h * np.arange(n_cells + 1)
     centre = edges[:-1] + 0.5 * h
-    overlap = np.clip((centre - r1) / (r2 - r1), 0.0, 1.0)
+    if r1 is None or r2 is None:
+        raise ConfigError("soft_return_table needs FogParams.resolved_for(sensor) first.")
+    if r2 > r1:
+        overlap = np.clip((centre - r1) / (r2 - r1), 0.0, 1.0)
+    else:
+        overlap = (centre > r1).astype(np.float64)
     g = overlap * np.exp(-2.0 * extinction_per_m * centre) / centre**2 * h
     r = r1 + h * np.arange(math.ceil((r2 + 2 * length - r1) / h) + 2)
     lag = r[:, None] - centre[None, :]
@@ -359,7 +361,7 @@ def simulate_fog(
         ConfigError: visibility_m NaN or <= 0, unknown mode, or a threshold that is not a
             finite number > 0.
     """
-    params = FogParams() if params is None else params
+    params = (FogParams() if params is None else params).resolved_for(sensor)
     if mode not in MODES:
         raise ConfigError(f"fog mode = {mode!r}; expected one of {MODES}.")
     alpha = extinction_from_visibility(visibility_m)

@@ -58,25 +58,34 @@ def scaled_survivors(
     return survive, out
 
 
+# Above this mean the inversion's exp(-mu) loses all precision; the caller redraws.
+MAX_INVERSION_MEAN = 30.0
+
+
 @numba.njit(cache=True, nogil=True)
 def poisson_counts_from_table(
     cumulative: npt.NDArray[np.float64],
-    r_start_m: float,
-    r_step_m: float,
+    r_grid_m: npt.NDArray[np.float64],
+    cell_lookup: npt.NDArray[np.int64],
+    lookup_step_m: float,
     column: npt.NDArray[np.int64],
     r0_m: npt.NDArray[np.float64],
     uniform: npt.NDArray[np.float64],
 ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.int64]]:
     """Per beam: mean number of proposals mu(r0; s_column) and a Poisson draw of it.
 
-    mu is the tabulated cumulative count, linear between range rows (0 before the first
+    mu is the tabulated cumulative count, linear in range between rows (0 before the first
     row); the count inverts the Poisson CDF at `uniform` (exact; almost every mean is tiny,
-    so the loop rarely runs more than once).
+    so the loop rarely runs more than once). Means above MAX_INVERSION_MEAN get count -1:
+    the caller draws those with another sampler.
 
     Args:
-        cumulative: (Q, R) float64 table, row k = mu(r; s_k) on an even range grid.
-        r_start_m, r_step_m: the range grid, m. column: (N,) int64 row per beam.
-        r0_m: (N,) float64 search range per beam, m (clipped to the grid by the caller).
+        cumulative: (Q, R) float64 table, row k = mu(r; s_k) at ranges r_grid_m.
+        r_grid_m: (R,) float64 increasing ranges, m.
+        cell_lookup: (L,) int64, the cell j (r_grid_m[j] <= r < r_grid_m[j + 1]) holding
+            r = r_grid_m[0] + k * lookup_step_m, covering the whole grid.
+        column: (N,) int64 row per beam.
+        r0_m: (N,) float64 search range per beam, m (<= the last grid range).
         uniform: (N,) float64 U(0, 1) draws.
 
     Returns:
@@ -87,17 +96,21 @@ def poisson_counts_from_table(
     mean = np.empty(n)
     count = np.zeros(n, dtype=np.int64)
     for i in range(n):
-        position = (r0_m[i] - r_start_m) / r_step_m
-        if position <= 0.0:
+        r0 = r0_m[i]
+        if r0 <= r_grid_m[0]:
             mean[i] = 0.0
             continue
-        j = int(math.floor(position))
-        if j > n_r - 2:
-            j = n_r - 2
-        frac = min(max(position - j, 0.0), 1.0)
+        k_probe = min(int((r0 - r_grid_m[0]) / lookup_step_m), cell_lookup.size - 1)
+        j = cell_lookup[k_probe]
+        while j < n_r - 2 and r0 > r_grid_m[j + 1]:
+            j += 1
+        frac = min(max((r0 - r_grid_m[j]) / (r_grid_m[j + 1] - r_grid_m[j]), 0.0), 1.0)
         k = column[i]
         mu = cumulative[k, j] * (1.0 - frac) + cumulative[k, j + 1] * frac
         mean[i] = mu
+        if mu > MAX_INVERSION_MEAN:
+            count[i] = -1
+            continue
         prob = math.exp(-mu)
         cdf = prob
         c = 0

@@ -192,14 +192,18 @@ def _material(name: str, spec: Any, where: str) -> Material:
 
 
 def _label_set(
-    name: str, sets_raw: dict[str, Any], materials: dict[str, Material], default: Material,
+    name: str,
+    sets_raw: dict[str, Any],
+    materials: dict[str, Material],
+    default: Material,
     where: str,
 ) -> _LabelSet:
     spec = sets_raw[name]
     ctx = f"{where}: label_sets.{name}"
     if not isinstance(spec, dict):
         raise ConfigError(f"{ctx} must be a mapping.")
-    _require_keys(spec, {"description", "instance_bits", "classes"}, ctx, optional=frozenset({"extends"}))
+    required = {"description", "instance_bits", "classes"}
+    _require_keys(spec, required, ctx, optional=frozenset({"extends"}))
     classes: dict[int, tuple[str, str]] = {}
     if "extends" in spec:
         base = sets_raw.get(spec["extends"])

@@ -63,8 +63,8 @@ class ParticleParams:
         min_range_m: R1, bistatic minimum range, nothing nearer is detected; None -> profile.
         overlap_full_m: R2, range of full transmitter/receiver overlap, m; between R1 and R2
             particle returns are scaled by the linear overlap (r - R1) / (R2 - R1). Bright
-            hard targets are still seen there, faint particles mostly not. None -> R2 = R1,
-            a hard cut (LISA).
+            hard targets are still seen there, faint particles mostly not. None -> profile
+            (R2 = R1 is a hard cut, LISA's model).
         range_accuracy_m: dR, range sigma is dR / sqrt(2 SNR); None -> profile.
         detection_threshold: P_min in reflectivity / m^2; None -> calibrated to the frame
             (weakest clear-air return), so clear air loses nothing.
@@ -142,7 +142,7 @@ def resolve_optics(
         min_range_m=min_range,
         particle_reflectivity=params.particle_reflectivity,
         max_range_m=max(10.0 * math.ceil(farthest / 10.0), min_range + 10.0),
-        overlap_full_m=max(_pick(params.overlap_full_m, min_range), min_range),
+        overlap_full_m=max(_pick(params.overlap_full_m, sensor.overlap_full_m), min_range),
     )
     threshold = (
         auto_threshold(beams) if params.detection_threshold is None else params.detection_threshold

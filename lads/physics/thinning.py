@@ -31,6 +31,11 @@ from lads.physics.kernels import poisson_counts_from_table
 from lads.physics.psd import ExponentialPSD
 
 RANGE_ROWS = 2048
+# Rows are even in u = log(r + RANGE_SOFTENING_M): cells of ~4 mm at 1 m and ~20 cm at
+# 100 m, where particle returns are rare, so the near-range onset (R1, the overlap ramp)
+# spans many cells; the softening keeps R1 = 0 allowed.
+RANGE_SOFTENING_M = 1.0
+LOOKUP_STEP_M = 0.01  # finer than the smallest cell (~4 mm) needs only a few steps forward
 S_RATIO = 1.04
 S_MIN, S_MAX = 1e-6, 1e2  # sqrt(P / rho_p): P/rho_p from 1e-12 (80 km) to 1e4 (1 cm)
 
@@ -60,7 +65,7 @@ class ParticleOptics:
     def overlap(self, r: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
         """Transmitter/receiver overlap xi(r) in [0, 1]: 0 up to R1, linear to 1 at R2."""
         if self.overlap_full_m <= self.min_range_m:
-            return np.where(r > self.min_range_m, 1.0, 0.0)
+            return np.where(r >= self.min_range_m, 1.0, 0.0)
         return np.clip((r - self.min_range_m) / (self.overlap_full_m - self.min_range_m), 0.0, 1.0)
 
     def beam_diameter_mm(self, r: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
@@ -69,8 +74,12 @@ class ParticleOptics:
     def g_mm(self, r: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
         """Detectable diameter per unit s: D_thr = s g(r), in mm (inf where xi(r) = 0)."""
         with np.errstate(divide="ignore"):
-            return 1e3 * self.divergence_rad * r**2 * np.exp(self.alpha_per_m * r) / np.sqrt(
-                self.overlap(r)
+            return (
+                1e3
+                * self.divergence_rad
+                * r**2
+                * np.exp(self.alpha_per_m * r)
+                / np.sqrt(self.overlap(r))
             )
 
     def particle_power(
@@ -93,33 +102,49 @@ class ParticleOptics:
             * np.exp(-self.psd.slope_per_mm * d_low)
             * area_m2
         )
-        possible = (d_thr <= self.beam_diameter_mm(r)) & (r > self.min_range_m)
+        possible = (d_thr <= self.beam_diameter_mm(r)) & (r >= self.min_range_m)
         return np.where(possible, rate, 0.0)
 
 
 @dataclass(frozen=True, slots=True)
 class Table:
-    """mu(r_j; s_k): (Q, R) cumulative counts, rows offset so the flat array is sorted."""
+    """mu(r_j; s_k): (Q, R) cumulative counts, rows offset so the flat array is sorted.
+
+    r_grid is even in u = log(r + RANGE_SOFTENING_M). cell_lookup[k] is the cell holding
+    r_grid[0] + k * LOOKUP_STEP_M, so a beam finds its cell without a logarithm.
+    """
 
     r_grid: npt.NDArray[np.float64]
     s_grid: npt.NDArray[np.float64]
     cumulative: npt.NDArray[np.float64]
     flat_sorted: npt.NDArray[np.float64]
     row_offset: float
+    cell_lookup: npt.NDArray[np.int64]
 
 
 @functools.lru_cache(maxsize=16)
 def build_table(optics: ParticleOptics) -> Table:
     """Tabulate mu for one weather configuration (about 10 ms, cached)."""
-    r = np.linspace(optics.min_range_m, optics.max_range_m, RANGE_ROWS)
+    u = np.linspace(
+        math.log(optics.min_range_m + RANGE_SOFTENING_M),
+        math.log(optics.max_range_m + RANGE_SOFTENING_M),
+        RANGE_ROWS,
+    )
+    r = np.exp(u) - RANGE_SOFTENING_M
+    r[0] = optics.min_range_m  # exactly, so nothing is proposed nearer than R1
     q = int(math.ceil(math.log(S_MAX / S_MIN) / math.log(S_RATIO))) + 1
     s = S_MIN * S_RATIO ** np.arange(q)
-    rate = optics.rate_per_m(r[None, :], s[:, None])
-    steps = 0.5 * (rate[:, 1:] + rate[:, :-1]) * (r[1] - r[0])
+    # Midpoint rule: the density is piecewise constant per cell, exactly what the linear
+    # interpolation of mu (mean) and its inversion (ranges) assume, and a rate that jumps
+    # at R1 (a hard cut, or a ramp with a very low floor) is not halved in the first cell.
+    mid = 0.5 * (r[1:] + r[:-1])
+    steps = optics.rate_per_m(mid[None, :], s[:, None]) * np.diff(r)
     cumulative = np.concatenate((np.zeros((q, 1)), np.cumsum(steps, axis=1)), axis=1)
     offset = float(cumulative[:, -1].max()) + 1.0
     flat = (cumulative + offset * np.arange(q)[:, None]).ravel()
-    return Table(r, s, cumulative, flat, offset)
+    probe = r[0] + LOOKUP_STEP_M * np.arange(int((r[-1] - r[0]) / LOOKUP_STEP_M) + 2)
+    lookup = np.clip(np.searchsorted(r, probe, side="right") - 1, 0, r.size - 2)
+    return Table(r, s, cumulative, flat, offset, lookup.astype(np.int64))
 
 
 def sample_winning_particles(
@@ -141,11 +166,15 @@ def sample_winning_particles(
     s = np.sqrt(power_floor / optics.particle_reflectivity)
     log_ratio = np.log(np.maximum(s, S_MIN) / S_MIN) / math.log(S_RATIO)
     column = np.clip(np.floor(log_ratio).astype(np.int64), 0, table.s_grid.size - 1)
-    r_grid = table.r_grid
     mean, counts = poisson_counts_from_table(
-        table.cumulative, float(r_grid[0]), float(r_grid[1] - r_grid[0]), column,
+        table.cumulative, table.r_grid, table.cell_lookup, LOOKUP_STEP_M, column,
         np.minimum(r0, optics.max_range_m), rng.random(r0.size),
     )  # fmt: skip
+    # The inversion underflows for large means (exp(-mu) = 0 beyond ~745); such beams
+    # (huge divergence or absurdly low thresholds) take numpy's Poisson sampler instead.
+    large = np.flatnonzero(counts < 0)
+    if large.size:
+        counts[large] = rng.poisson(mean[large])
     owner = np.repeat(np.arange(r0.size), counts)
     if owner.size == 0:
         return owner, np.zeros(0), np.zeros(0)
@@ -171,4 +200,4 @@ def _inverse_rows(
     c_lo, c_hi = table.flat_sorted[lo], table.flat_sorted[hi]
     frac = np.where(c_hi > c_lo, (shifted - c_lo) / np.where(c_hi > c_lo, c_hi - c_lo, 1.0), 0.0)
     j = lo - column * n_r
-    return table.r_grid[j] + frac * (table.r_grid[1] - table.r_grid[0])
+    return table.r_grid[j] + frac * (table.r_grid[j + 1] - table.r_grid[j])

@@ -112,7 +112,11 @@ class SensorProfile:
         range_image_width: azimuth bins of the range image.
         wavelength_nm: laser wavelength in nm.
         beam_divergence_mrad: full-angle beam divergence in mrad.
-        min_range_m: bistatic minimum range in m; nothing nearer is detected.
+        min_range_m: bistatic minimum range in m (R1): the transmitter and receiver fields
+            of view start to overlap here; nothing nearer is detected.
+        overlap_full_m: range of full transmitter/receiver overlap in m (R2 >= R1); between
+            R1 and R2 the received power scales linearly with the overlap, which bright hard
+            targets survive but faint particle and fog returns mostly do not.
         max_range_m: maximum range in m.
         range_accuracy_m: one-sigma range accuracy in m at the detection threshold.
         intensity: the dataset's intensity encoding.
@@ -130,6 +134,7 @@ class SensorProfile:
     wavelength_nm: float
     beam_divergence_mrad: float
     min_range_m: float
+    overlap_full_m: float
     max_range_m: float
     range_accuracy_m: float
     intensity: IntensityEncoding
@@ -205,6 +210,7 @@ def _build(raw: dict[str, Any], path: Path) -> SensorProfile:
             wavelength_nm=float(raw["wavelength_nm"]),
             beam_divergence_mrad=float(raw["beam_divergence_mrad"]),
             min_range_m=float(raw["min_range_m"]),
+            overlap_full_m=float(raw["overlap_full_m"]),
             max_range_m=float(raw["max_range_m"]),
             range_accuracy_m=float(raw["range_accuracy_m"]),
             intensity=enc,
@@ -236,6 +242,8 @@ def _check(p: SensorProfile, path: Path) -> None:
             problems.append(f"{key} must be > 0")
     if not 0 <= p.min_range_m < p.max_range_m:
         problems.append("need 0 <= min_range_m < max_range_m")
+    if not p.min_range_m <= p.overlap_full_m < p.max_range_m:
+        problems.append("need min_range_m <= overlap_full_m < max_range_m")
     if p.range_image_width < 4 or p.range_image_width % 4:
         problems.append("range_image_width must be a positive multiple of 4")
     enc = p.intensity

@@ -1,0 +1,535 @@
+"""Per-point modalities for intensity models: range, channel, incidence, reflectance, I_phy.
+
+Pure numpy (plus a scipy k-d tree), no file I/O. Every function returns one value per input
+point: points are never dropped, because labels and output files are matched by index
+(physics.md §10.7 item 4).
+
+Range image (physics.md §10.3, with one change): the row is the point's *channel* (ring
+column, or nearest elevation), top row = highest channel, so no point is lost outside a
+nominal vertical FOV. Columns follow the azimuth, u = 0.5 (-atan2(y, x) / pi + 1) W.
+
+Incidence: cos(theta) = |n . r| / (|n| |r|), with the surface normal n taken from the
+organised image, n = (P[u+1] - P[u-1]) x (P[v+1] - P[v-1]) (azimuth wraps, elevation does
+not). Along azimuth the neighbour is the nearest occupied pixel within MAX_COLUMN_GAP columns,
+because rings with fewer returns than columns leave every other pixel empty. A central
+difference needs both neighbours and a range profile that is smooth through the centre:
+2 |r_interp - r[0]| <= max_depth_jump * r[0], r_interp being the range linearly interpolated
+from the two neighbours (|r[+1] - 2 r[0] + r[-1]| for adjacent ones). That second difference
+is ~0 on any plane, also on ground at grazing angles where adjacent rows differ by 10-30 % in
+range, but equals the jump at an object edge and twice it on thin objects. Failing that, a
+one-sided difference P[side] - P[0] to the neighbour with the smaller range jump is used if
+that jump is <= max_depth_jump * r[0] (edge pixels, top and bottom rows). Creases (a wall
+meeting the ground) have no range jump and get a blend of both normals within ~1 pixel.
+Every point takes the normal of the pixel it falls in, with its own ray direction, unless its
+range differs from the pixel owner's by more than max_depth_jump * r (another surface).
+The rest get a local PCA normal from up to KNN_NEIGHBOURS neighbours within KNN_RADIUS_M (at
+least KNN_MIN_NEIGHBOURS, not collinear as points along one ring are), and finally the frame
+median of the computed cosines (0.5 if there is none). `Incidence.source` records which.
+"""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+from scipy.spatial import cKDTree
+
+from lads.errors import ConfigError, InvalidPointsError
+from lads.physics.materials import reflectance_for_labels
+from lads.sensors.profile import SensorProfile
+
+MIN_RANGE_M = 1e-6  # physics.md §10.3: a point is valid if its range exceeds this
+RANGE_FLOOR_M = 1e-3  # physics_intensity clamps ranges below this (1/R^n would blow up)
+DEFAULT_MAX_DEPTH_JUMP = 0.1  # relative; see the module docstring
+KNN_NEIGHBOURS = 10
+KNN_RADIUS_M = 1.0
+KNN_MIN_NEIGHBOURS = 5
+# PCA patches whose middle eigenvalue is below this fraction of the largest are lines (one
+# ring), whose smallest-eigenvalue direction is not a surface normal.
+KNN_MIN_PLANARITY = 0.02
+FALLBACK_COS = 0.5
+# Azimuth neighbours may sit up to this many columns away: rings with fewer returns than
+# columns (KITTI: 1126-2156 points per ring in 2048 columns) leave every other pixel empty.
+MAX_COLUMN_GAP = 2
+
+FloatArray = npt.NDArray[np.float32]
+
+
+class IncidenceSource(enum.IntEnum):
+    """Where a point's incidence cosine came from."""
+
+    IMAGE = 0  # normal of the organised range image
+    NEIGHBOURS = 1  # PCA normal of its k nearest neighbours
+    MEDIAN = 2  # frame median (0.5 if nothing could be computed)
+
+
+@dataclass(frozen=True, slots=True)
+class RangeImage:
+    """A point cloud organised by channel (rows) and azimuth (columns).
+
+    Attributes:
+        index: (H, W) int64 index of the point that owns each pixel (the nearest one), -1
+            where empty. Row 0 is the highest channel (H - 1 - channel).
+        range_m: (H, W) float32 range of the owner in m, 0 where empty.
+        xyz: (H, W, 3) float32 coordinates of the owner in m, 0 where empty.
+        row: (N,) int64 row of every input point (owner or not).
+        col: (N,) int64 column of every input point.
+    """
+
+    index: npt.NDArray[np.int64]
+    range_m: FloatArray
+    xyz: FloatArray
+    row: npt.NDArray[np.int64]
+    col: npt.NDArray[np.int64]
+
+    @property
+    def mask(self) -> npt.NDArray[np.bool_]:
+        """(H, W) bool, True where a point owns the pixel."""
+        return self.index >= 0
+
+
+@dataclass(frozen=True, slots=True)
+class Incidence:
+    """cos_incidence (N,) float32 in [0, 1] and source (N,) int8 `IncidenceSource` codes."""
+
+    cos: FloatArray
+    source: npt.NDArray[np.int8]
+
+
+@dataclass(frozen=True, slots=True)
+class Modalities:
+    """Per-point inputs of the intensity models, all (N,) in input point order.
+
+    Attributes:
+        range_m: float32 range in m.
+        channel: int64 laser channel, 0 = lowest beam.
+        cos_incidence: float32 cosine of the incidence angle, in [0, 1].
+        incidence_source: int8 `IncidenceSource` code of each cosine.
+        reflectance: float32 material reflectance at 905 nm, unitless.
+        physics_intensity: float32 rho cos(theta) / R^n exp(-2 alpha R), in m^-n.
+    """
+
+    range_m: FloatArray
+    channel: npt.NDArray[np.int64]
+    cos_incidence: FloatArray
+    incidence_source: npt.NDArray[np.int8]
+    reflectance: FloatArray
+    physics_intensity: FloatArray
+
+
+def range_m(xyz: npt.ArrayLike) -> FloatArray:
+    """Euclidean range of each point from the sensor origin.
+
+    Args:
+        xyz: (N, 3) coordinates in m, any real dtype.
+
+    Returns:
+        (N,) float32 range in m (zero-range points are allowed here and give 0).
+
+    Raises:
+        InvalidPointsError: wrong shape, or NaN/inf coordinates.
+    """
+    return _checked_xyz(xyz, allow_zero=True)[1].astype(np.float32)
+
+
+def channels(
+    xyz: npt.ArrayLike, profile: SensorProfile, ring: npt.ArrayLike | None = None
+) -> npt.NDArray[np.int64]:
+    """Laser channel of each point: the ring column when given, else the nearest elevation.
+
+    Args:
+        xyz: (N, 3) coordinates in m.
+        profile: sensor profile; `profile.channels` bounds the ring, its elevation table
+            assigns channels when `ring` is None.
+        ring: optional (N,) ring ids, 0 = lowest beam; integer dtype or integral floats
+            (nuScenes stores the ring as float32).
+
+    Returns:
+        (N,) int64 channel in [0, profile.channels).
+
+    Raises:
+        InvalidPointsError: bad xyz (shape, NaN/inf, zero range), or a ring of the wrong
+            shape, non-integral, or outside [0, profile.channels).
+    """
+    xyz64, _ = _checked_xyz(xyz)
+    return _channels(xyz64, profile, ring)
+
+
+def project(
+    xyz: npt.ArrayLike,
+    profile: SensorProfile,
+    *,
+    channel: npt.ArrayLike | None = None,
+    width: int | None = None,
+) -> RangeImage:
+    """Organise points into a (profile.channels, W) range image; the nearest point wins.
+
+    Args:
+        xyz: (N, 3) coordinates in m.
+        profile: sensor profile (rows = its channels, default width its range_image_width).
+        channel: optional (N,) channel per point (e.g. from `channels`); default nearest
+            elevation.
+        width: azimuth bins W (>= 3); default `profile.range_image_width`.
+
+    Returns:
+        RangeImage. Among points sharing a pixel the nearest owns it, ties going to the
+        lower input index: points are ordered by range with a stable sort (nearest first)
+        and the first of each pixel is kept, which equals writing farthest first without
+        relying on the unspecified order of repeated fancy-index assignment.
+
+    Raises:
+        InvalidPointsError: bad xyz or channel. ConfigError: width < 3.
+    """
+    xyz64, r = _checked_xyz(xyz)
+    chan = _channels(xyz64, profile, channel)
+    return _project(xyz64, r, chan, profile.channels, _width(profile, width))
+
+
+def incidence(
+    xyz: npt.ArrayLike,
+    profile: SensorProfile,
+    *,
+    channel: npt.ArrayLike | None = None,
+    image: RangeImage | None = None,
+    max_depth_jump: float = DEFAULT_MAX_DEPTH_JUMP,
+) -> Incidence:
+    """Incidence cosine of every point and where it came from (see the module docstring).
+
+    Args:
+        xyz: (N, 3) coordinates in m.
+        profile: sensor profile used to build the range image.
+        channel: optional (N,) channel per point, used to build the image.
+        image: optional `project(xyz, ...)` result for these very points (then `channel`
+            must be None).
+        max_depth_jump: relative range tolerance (> 0) for edges, see the module docstring.
+
+    Returns:
+        Incidence with cos (N,) float32 in [0, 1] and source (N,) int8.
+
+    Raises:
+        InvalidPointsError: bad xyz, or an image built from another cloud.
+        ConfigError: both channel and image given, or max_depth_jump <= 0.
+    """
+    xyz64, r = _checked_xyz(xyz)
+    if image is not None and channel is not None:
+        raise ConfigError("incidence: pass either channel or a prebuilt image, not both.")
+    if not max_depth_jump > 0:
+        raise ConfigError(f"max_depth_jump = {max_depth_jump}; expected a relative value > 0.")
+    if image is None:
+        chan = _channels(xyz64, profile, channel)
+        image = _project(xyz64, r, chan, profile.channels, profile.range_image_width)
+    elif image.row.shape != (len(xyz64),):
+        raise InvalidPointsError(
+            f"image: built from {image.row.shape[0]} points, but xyz has {len(xyz64)}; "
+            "project the same cloud."
+        )
+    return _incidence(xyz64, r, image, max_depth_jump)
+
+
+def incidence_cos(
+    xyz: npt.ArrayLike,
+    profile: SensorProfile,
+    *,
+    channel: npt.ArrayLike | None = None,
+    image: RangeImage | None = None,
+    max_depth_jump: float = DEFAULT_MAX_DEPTH_JUMP,
+) -> FloatArray:
+    """(N,) float32 incidence cosine in [0, 1] for every point; `incidence` without sources."""
+    return incidence(xyz, profile, channel=channel, image=image, max_depth_jump=max_depth_jump).cos
+
+
+def physics_intensity(
+    reflectance: npt.ArrayLike,
+    cos_incidence: npt.ArrayLike,
+    range_m: npt.ArrayLike,
+    *,
+    range_exponent: float = 1.0,
+    extinction_per_m: float = 0.0,
+) -> FloatArray:
+    """Physics intensity I = rho cos(theta) / R^n * exp(-2 alpha R) (physics.md §10.1).
+
+    ReaLiTy's clear-weather I_phy = MR cos(theta) / r has n = 1 and alpha = 0; the
+    adverse-weather form adds two-way Beer-Lambert extinction. The extended-target radar
+    equation has n = 2 (physics.md §9), real sensors n_eff 1-3, so n is a parameter.
+
+    Args:
+        reflectance: (N,) unitless, >= 0.
+        cos_incidence: (N,) in [0, 1].
+        range_m: (N,) in m, >= 0. Ranges below RANGE_FLOOR_M (1 mm) are clamped to it:
+            such returns are unphysical (e.g. nuScenes ego-body points at 1e-5 m) but must
+            keep a finite value, because points are never dropped.
+        range_exponent: n >= 0.
+        extinction_per_m: alpha >= 0 in 1/m.
+
+    Returns:
+        (N,) float32 intensity in m^-n (relative units).
+
+    Raises:
+        InvalidPointsError: shapes differ, NaN/inf, or values outside the ranges above.
+        ConfigError: negative or non-finite range_exponent or extinction_per_m.
+    """
+    for name, value in (("range_exponent", range_exponent), ("extinction_per_m", extinction_per_m)):
+        if not (np.isfinite(value) and value >= 0):
+            raise ConfigError(f"{name} = {value}; expected a finite value >= 0.")
+    rho, cos, rng = (np.asarray(a, dtype=np.float64) for a in (reflectance, cos_incidence, range_m))
+    if not rho.shape == cos.shape == rng.shape:
+        raise InvalidPointsError(
+            f"physics_intensity: shapes differ: reflectance {rho.shape}, cos_incidence "
+            f"{cos.shape}, range_m {rng.shape}."
+        )
+    for name, arr, low, high in (
+        ("reflectance", rho, 0.0, np.inf),
+        ("cos_incidence", cos, 0.0, 1.0),
+        ("range_m", rng, 0.0, np.inf),
+    ):
+        bad = int(np.count_nonzero(~((arr >= low) & (arr <= high))))  # NaN fails both
+        if bad:
+            raise InvalidPointsError(
+                f"physics_intensity: {bad} {name} values are NaN or outside [{low}, {high}]."
+            )
+    rng = np.maximum(rng, RANGE_FLOOR_M)
+    out: npt.NDArray[np.float64] = rho * cos * rng**-range_exponent
+    out *= np.exp(-2.0 * extinction_per_m * rng)
+    return out.astype(np.float32)
+
+
+def compute_modalities(
+    xyz: npt.ArrayLike,
+    labels: npt.ArrayLike,
+    label_set: str,
+    profile: SensorProfile,
+    *,
+    ring: npt.ArrayLike | None = None,
+    range_exponent: float = 1.0,
+    extinction_per_m: float = 0.0,
+) -> Modalities:
+    """All per-point modalities of one frame in one call.
+
+    Args:
+        xyz: (N, 3) coordinates in m, sensor frame.
+        labels: (N,) integer class labels of `label_set` (instance bits allowed).
+        label_set: one of `lads.physics.materials.LABEL_SETS`.
+        profile: sensor profile of the frame.
+        ring: optional (N,) ring column (0 = lowest beam); default nearest elevation.
+        range_exponent, extinction_per_m: see `physics_intensity`.
+
+    Returns:
+        Modalities, every array (N,) in input order; an empty frame gives empty arrays.
+
+    Raises:
+        InvalidPointsError: bad xyz or ring, or labels of another length.
+        InputDataError: negative labels. ConfigError: unknown label set or bad parameters.
+    """
+    xyz64, r = _checked_xyz(xyz)
+    label_arr = np.asarray(labels)
+    if label_arr.shape != (len(xyz64),):
+        raise InvalidPointsError(
+            f"labels: shape {label_arr.shape}, expected ({len(xyz64)},), one per point."
+        )
+    chan = _channels(xyz64, profile, ring)
+    image = _project(xyz64, r, chan, profile.channels, profile.range_image_width)
+    inc = _incidence(xyz64, r, image, DEFAULT_MAX_DEPTH_JUMP)
+    rho = reflectance_for_labels(label_arr, label_set)
+    range32 = r.astype(np.float32)
+    phys = physics_intensity(
+        rho, inc.cos, r, range_exponent=range_exponent, extinction_per_m=extinction_per_m
+    )
+    return Modalities(range32, chan, inc.cos, inc.source, rho, phys)
+
+
+def _checked_xyz(
+    xyz: npt.ArrayLike, *, allow_zero: bool = False
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    arr = np.asarray(xyz)
+    if arr.ndim != 2 or arr.shape[1] != 3 or not np.issubdtype(arr.dtype, np.number):
+        raise InvalidPointsError(
+            f"xyz: expected an (N, 3) real array in m, got shape {arr.shape} and dtype "
+            f"{arr.dtype}; pass points[:, :3]."
+        )
+    arr = arr.astype(np.float64, copy=False)
+    bad = int(np.count_nonzero(~np.isfinite(arr).all(axis=1)))
+    if bad:
+        raise InvalidPointsError(
+            f"xyz: {bad} of {len(arr)} points have NaN or infinite coordinates."
+        )
+    r = np.sqrt(np.einsum("ij,ij->i", arr, arr))
+    zero = 0 if allow_zero else int(np.count_nonzero(r <= MIN_RANGE_M))
+    if zero:
+        raise InvalidPointsError(
+            f"xyz: {zero} of {len(arr)} points lie at zero range (<= {MIN_RANGE_M:g} m), "
+            "where no direction is defined; they are not LiDAR returns."
+        )
+    return arr, r
+
+
+def _channels(
+    xyz64: npt.NDArray[np.float64], profile: SensorProfile, ring: npt.ArrayLike | None
+) -> npt.NDArray[np.int64]:
+    if ring is None:
+        return profile.channel_of(xyz64)
+    arr = np.asarray(ring)
+    if arr.shape != (len(xyz64),) or not np.issubdtype(arr.dtype, np.number):
+        raise InvalidPointsError(
+            f"ring: shape {arr.shape} and dtype {arr.dtype}, expected ({len(xyz64)},) numbers."
+        )
+    finite = np.isfinite(arr)
+    as_int = np.where(finite & (np.abs(arr) < 2**62), arr, -1).astype(np.int64)
+    bad = ~finite | (as_int != arr) | (as_int < 0) | (as_int >= profile.channels)
+    count = int(np.count_nonzero(bad))
+    if count:
+        raise InvalidPointsError(
+            f"ring: {count} values are not integers in [0, {profile.channels}) for profile "
+            f"'{profile.name}' (e.g. {arr[bad][:3].tolist()}); check the profile."
+        )
+    return as_int
+
+
+def _width(profile: SensorProfile, width: int | None) -> int:
+    w = profile.range_image_width if width is None else width
+    if isinstance(w, bool) or not isinstance(w, int | np.integer) or w < 3:
+        raise ConfigError(f"width = {width!r}; expected an integer >= 3 azimuth bins.")
+    return int(w)
+
+
+def _project(
+    xyz64: npt.NDArray[np.float64],
+    r: npt.NDArray[np.float64],
+    chan: npt.NDArray[np.int64],
+    height: int,
+    width: int,
+) -> RangeImage:
+    row = (height - 1 - chan).astype(np.int64)
+    u = 0.5 * (-np.arctan2(xyz64[:, 1], xyz64[:, 0]) / np.pi + 1.0) * width
+    col = np.floor(u).astype(np.int64) % width  # u == W is azimuth -pi, i.e. column 0
+    pixel = row * width + col
+    order = np.argsort(r, kind="stable")
+    _, first = np.unique(pixel[order], return_index=True)
+    owners = order[first]
+    index = np.full(height * width, -1, dtype=np.int64)
+    index[pixel[owners]] = owners
+    range_img = np.zeros(height * width, dtype=np.float32)
+    range_img[pixel[owners]] = r[owners]
+    xyz_img = np.zeros((height * width, 3), dtype=np.float32)
+    xyz_img[pixel[owners]] = xyz64[owners]
+    return RangeImage(
+        index.reshape(height, width),
+        range_img.reshape(height, width),
+        xyz_img.reshape(height, width, 3),
+        row,
+        col,
+    )
+
+
+def _image_normals(
+    image: RangeImage, max_depth_jump: float
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.bool_]]:
+    """(H, W, 3) unnormalised normals and (H, W) validity, see the module docstring."""
+    pts = image.xyz.astype(np.float64)
+    rng = image.range_m.astype(np.float64)
+    occ = image.index >= 0
+    ok = occ.copy()
+    diffs = []
+    for axis, max_gap in ((1, MAX_COLUMN_GAP), (0, 1)):
+        sides = [_neighbour(pts, rng, occ, sign, axis, max_gap) for sign in (1, -1)]
+        (p_next, r_next, o_next, gap_next), (p_prev, r_prev, o_prev, gap_prev) = sides
+        # Range linearly interpolated to the centre; twice the deviation is the second
+        # difference |r[+1] - 2 r[0] + r[-1]| when both gaps are 1.
+        interp = (gap_next * r_prev + gap_prev * r_next) / (gap_next + gap_prev)
+        central = o_next & o_prev & (2.0 * np.abs(interp - rng) <= max_depth_jump * rng)
+        # Otherwise a one-sided difference to the neighbour on the same surface (edge pixels,
+        # the top and bottom rows).
+        jump_next = np.where(o_next, np.abs(r_next - rng), np.inf)
+        jump_prev = np.where(o_prev, np.abs(r_prev - rng), np.inf)
+        use_next = jump_next <= jump_prev
+        one_sided = np.minimum(jump_next, jump_prev) <= max_depth_jump * rng
+        side = np.where(use_next[..., None], p_next, p_prev)
+        diffs.append(np.where(central[..., None], p_next - p_prev, side - pts))
+        ok &= central | one_sided
+    normal = np.cross(diffs[0], diffs[1])
+    scale = np.linalg.norm(diffs[0], axis=-1) * np.linalg.norm(diffs[1], axis=-1)
+    ok &= np.linalg.norm(normal, axis=-1) > 1e-6 * scale  # parallel differences: no plane
+    return normal, ok
+
+
+def _neighbour(
+    pts: npt.NDArray[np.float64],
+    rng: npt.NDArray[np.float64],
+    occ: npt.NDArray[np.bool_],
+    sign: int,
+    axis: int,
+    max_gap: int,
+) -> tuple[Any, Any, Any, Any]:
+    """Nearest occupied pixel within max_gap steps of each pixel in one direction.
+
+    Returns its xyz (H, W, 3), range (H, W), found flag (H, W) and distance in pixels.
+    Azimuth (axis 1) wraps; elevation (axis 0) does not.
+    """
+    p_out, r_out = np.zeros_like(pts), np.zeros_like(rng)
+    found, gap = np.zeros_like(occ), np.ones_like(rng)
+    for step in range(max_gap, 0, -1):  # nearer steps overwrite farther ones
+        shift = sign * step
+        o = np.roll(occ, -shift, axis=axis)  # o[v, u] = occ[v, u + shift] (or v + shift)
+        if axis == 0:  # rows rolled in from the other edge are not neighbours
+            o[slice(-shift, None) if shift > 0 else slice(None, -shift)] = False
+        p_out[o] = np.roll(pts, -shift, axis=axis)[o]
+        r_out[o] = np.roll(rng, -shift, axis=axis)[o]
+        gap[o] = step
+        found |= o
+    return p_out, r_out, found, gap
+
+
+def _incidence(
+    xyz64: npt.NDArray[np.float64],
+    r: npt.NDArray[np.float64],
+    image: RangeImage,
+    max_depth_jump: float,
+) -> Incidence:
+    n_points = len(xyz64)
+    cos = np.zeros(n_points, dtype=np.float64)
+    source = np.full(n_points, IncidenceSource.MEDIAN, dtype=np.int8)
+    if n_points == 0:
+        return Incidence(cos.astype(np.float32), source)
+    normal, ok = _image_normals(image, max_depth_jump)
+    owner_range = image.range_m.astype(np.float64)[image.row, image.col]
+    use = ok[image.row, image.col] & (np.abs(r - owner_range) <= max_depth_jump * owner_range)
+    cos[use] = _abs_cos(normal[image.row[use], image.col[use]], xyz64[use])
+    source[use] = IncidenceSource.IMAGE
+
+    rest = np.flatnonzero(~use)
+    if rest.size:
+        knn_cos, found = _neighbour_cos(xyz64, rest)
+        cos[rest[found]] = knn_cos[found]
+        source[rest[found]] = IncidenceSource.NEIGHBOURS
+    computed = source != IncidenceSource.MEDIAN
+    cos[~computed] = np.median(cos[computed]) if computed.any() else FALLBACK_COS
+    return Incidence(np.clip(cos, 0.0, 1.0).astype(np.float32), source)
+
+
+def _abs_cos(normal: npt.NDArray[np.float64], ray: npt.NDArray[np.float64]) -> Any:
+    dot = np.abs(np.einsum("ij,ij->i", normal, ray))
+    return np.clip(dot / (np.linalg.norm(normal, axis=1) * np.linalg.norm(ray, axis=1)), 0, 1)
+
+
+def _neighbour_cos(
+    xyz64: npt.NDArray[np.float64], query: npt.NDArray[np.intp]
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.bool_]]:
+    """PCA-normal cosine for the `query` points; (M,) cos and (M,) found flags."""
+    k = min(KNN_NEIGHBOURS, len(xyz64))
+    dist, idx = cKDTree(xyz64).query(
+        xyz64[query], k=k, distance_upper_bound=KNN_RADIUS_M, workers=-1
+    )
+    valid = np.isfinite(dist.reshape(len(query), k))
+    count = valid.sum(axis=1)
+    # Missing neighbours become the query point itself: offset 0 adds nothing to the sums.
+    offsets = xyz64[np.where(valid, idx.reshape(len(query), k), query[:, None])]
+    offsets -= xyz64[query][:, None, :]
+    first = offsets.sum(axis=1) / np.maximum(count, 1)[:, None]
+    second = np.matmul(offsets.transpose(0, 2, 1), offsets) / np.maximum(count, 1)[:, None, None]
+    eigval, eigvec = np.linalg.eigh(second - first[:, :, None] * first[:, None, :])
+    # eigh sorts ascending: column 0 is the normal, eigval[:, 1] / eigval[:, 2] the planarity
+    planar = eigval[:, 1] >= KNN_MIN_PLANARITY * np.maximum(eigval[:, 2], 1e-300)
+    found = (count >= KNN_MIN_NEIGHBOURS) & planar
+    return _abs_cos(eigvec[:, :, 0], xyz64[query]), found

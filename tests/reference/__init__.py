@@ -1,0 +1,1 @@
+"""Slow, obviously-correct reference implementations the fast weather code is tested against."""

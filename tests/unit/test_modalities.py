@@ -1,0 +1,311 @@
+"""Per-point modalities: lads/physics/modalities.py (physics.md §10.1, §10.3)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from lads.errors import ConfigError, InputDataError, InvalidPointsError
+from lads.physics.modalities import (
+    IncidenceSource,
+    RangeImage,
+    channels,
+    compute_modalities,
+    incidence,
+    incidence_cos,
+    physics_intensity,
+    project,
+    range_m,
+)
+from lads.sensors.profile import load_profile
+from lads.synthetic import synthetic_scan
+
+SHARED_DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data"
+KITTI = SHARED_DATA / "semantickitti" / "sequences" / "00"
+NUSCENES_KEYFRAME = (
+    SHARED_DATA
+    / "nuscenes/samples/LIDAR_TOP"
+    / "n015-2018-07-24-11-22-45+0800__LIDAR_TOP__1532402927647951.pcd.bin"
+)
+realdata = pytest.mark.realdata
+needs_data = pytest.mark.skipif(not SHARED_DATA.is_dir(), reason=f"{SHARED_DATA} is absent")
+
+HDL64 = load_profile("hdl64e")
+SENSOR_HEIGHT_M = 1.73
+
+
+def planar_street(wall_x_m: float | None = 8.0, max_range_m: float = 60.0):
+    """Every HDL-64E beam cast at a flat ground (z = -1.73 m) and a wall facing the sensor.
+
+    Returns xyz (N, 3), the beam's channel (N,) and the analytic incidence cosine (N,):
+    |d_z| on the ground, |d_x| on the wall x = wall_x_m (none if wall_x_m is None).
+    """
+    el = np.radians(np.asarray(HDL64.elevation_deg))[:, None]
+    width = HDL64.range_image_width
+    az = ((np.arange(width) + 0.5) * 2 * np.pi / width - np.pi)[None, :]
+    el, az = np.broadcast_arrays(el, az)
+    d = np.stack([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)], -1)
+    d = d.reshape(-1, 3)
+    ring = np.broadcast_to(np.arange(HDL64.channels)[:, None], el.shape).reshape(-1)
+    with np.errstate(divide="ignore"):
+        t_ground = np.where(d[:, 2] < 0, -SENSOR_HEIGHT_M / d[:, 2], np.inf)
+        t_wall = np.full(len(d), np.inf)
+        if wall_x_m is not None:
+            t_wall = np.where(d[:, 0] > 0, wall_x_m / d[:, 0], np.inf)
+    t = np.minimum(t_ground, t_wall)
+    cos = np.where(t_ground < t_wall, np.abs(d[:, 2]), np.abs(d[:, 0]))
+    keep = t < max_range_m
+    return d[keep] * t[keep, None], ring[keep], cos[keep]
+
+
+# --- range and channels ---------------------------------------------------------------
+
+
+def test_range_is_the_euclidean_norm_as_float32():
+    out = range_m(np.array([[3.0, 4.0, 0.0], [0.0, 0.0, -2.0]]))
+    assert out.dtype == np.float32
+    np.testing.assert_allclose(out, [5.0, 2.0])
+
+
+def test_channels_take_the_ring_column_when_given():
+    xyz, ring, _ = planar_street()
+    np.testing.assert_array_equal(channels(xyz, HDL64, ring=ring.astype(np.float32)), ring)
+    np.testing.assert_array_equal(channels(xyz, HDL64), HDL64.channel_of(xyz))
+
+
+@pytest.mark.parametrize("ring", [[0, 64], [-1, 3], [0.5, 3], [np.nan, 1], [0]])
+def test_bad_rings_raise(ring):
+    xyz = np.array([[5.0, 0, 0], [0, 5.0, 0]])
+    with pytest.raises(InvalidPointsError, match="ring"):
+        channels(xyz, HDL64, ring=np.array(ring))
+
+
+# --- projection -----------------------------------------------------------------------
+
+
+def test_projection_rows_are_channels_top_down_and_columns_follow_azimuth():
+    width = HDL64.range_image_width
+    xyz = np.array([[10.0, 0.0, 0.0], [0.0, 10.0, 0.0], [-10.0, 0.0, 0.0], [-10.0, -0.0, 0.0]])
+    image = project(xyz, HDL64, channel=np.array([0, 63, 5, 5]))
+    assert image.index.shape == (64, width) and image.xyz.shape == (64, width, 3)
+    np.testing.assert_array_equal(image.row, [63, 0, 58, 58])
+    # u = 0.5 (-atan2(y, x) / pi + 1) W: forward -> W/2, left -> W/4, behind -> 0 (u = W wraps)
+    np.testing.assert_array_equal(image.col, [width // 2, width // 4, 0, 0])
+    assert image.mask.sum() == 3 and image.index[63, width // 2] == 0
+    assert image.index[58, 0] == 2  # equal ranges: the lower index owns the pixel
+    assert np.all(image.range_m[~image.mask] == 0) and np.all(image.index[~image.mask] == -1)
+
+
+@pytest.mark.parametrize("near_first", [True, False])
+def test_projection_nearest_point_wins_its_pixel(near_first):
+    near, far = [4.0, 0.01, 0.0], [20.0, 0.05, 0.0]
+    xyz = np.array([near, far] if near_first else [far, near])
+    image = project(xyz, HDL64, channel=np.array([10, 10]))
+    owner = image.index[image.row[0], image.col[0]]
+    assert image.col[0] == image.col[1] and image.mask.sum() == 1
+    assert owner == (0 if near_first else 1)
+    assert image.range_m[image.row[0], image.col[0]] == pytest.approx(4.0, rel=1e-5)
+
+
+def test_projection_ties_go_to_the_lower_index():
+    xyz = np.array([[5.0, 0.0, 0.0]] * 3)
+    image = project(xyz, HDL64, channel=np.zeros(3, dtype=int))
+    assert image.index[image.row[0], image.col[0]] == 0
+
+
+def test_projection_keeps_points_outside_the_nominal_fov():
+    steep = np.array([[1.0, 0.0, -5.0], [1.0, 0.0, 5.0]])  # -79 and +79 degrees
+    image = project(steep, HDL64)
+    np.testing.assert_array_equal(image.row, [63, 0])
+    assert image.mask.sum() == 2
+
+
+def test_projection_rejects_a_width_below_3():
+    with pytest.raises(ConfigError):
+        project(np.array([[1.0, 0, 0]]), HDL64, width=2)
+
+
+# --- incidence ------------------------------------------------------------------------
+
+
+def test_incidence_matches_the_analytic_cosine_on_a_wall_and_ground():
+    xyz, ring, truth = planar_street(wall_x_m=8.0)
+    inc = incidence(xyz, HDL64, channel=ring)
+    err = np.abs(inc.cos - truth)
+    # Within ~0.35 m of the crease, where ground meets wall, normals blend both planes.
+    crease_m = np.hypot(xyz[:, 0] - 8.0, xyz[:, 2] + SENSOR_HEIGHT_M)
+    away = (crease_m > 0.5) & (inc.source == IncidenceSource.IMAGE)
+    assert np.mean(inc.source == IncidenceSource.IMAGE) > 0.95
+    assert err[away].max() < 0.05
+    assert np.mean(err < 0.05) > 0.97
+
+
+def test_incidence_on_ground_alone_uses_one_sided_differences_at_the_lowest_ring():
+    xyz, ring, truth = planar_street(wall_x_m=None, max_range_m=30.0)
+    inc = incidence(xyz, HDL64, channel=ring)
+    assert np.all(inc.source[ring == 0] == IncidenceSource.IMAGE)
+    # The last ring before the 30 m cut has only a neighbour 13 % nearer: no normal there.
+    inner = np.linalg.norm(xyz, axis=1) < 25.0
+    np.testing.assert_allclose(inc.cos[inner], truth[inner], atol=0.05)
+
+
+def test_every_point_gets_a_finite_cos_in_0_1():
+    scan = synthetic_scan(HDL64)
+    xyz = np.concatenate([scan.xyz, scan.xyz[:500], [[0.5, 0.0, 30.0]]])  # duplicates, a loner
+    inc = incidence(xyz, HDL64)
+    assert inc.cos.shape == (len(xyz),) and inc.cos.dtype == np.float32
+    assert np.all(np.isfinite(inc.cos)) and np.all((inc.cos >= 0) & (inc.cos <= 1))
+    assert inc.source[-1] == IncidenceSource.MEDIAN
+    assert inc.cos[-1] == pytest.approx(np.median(inc.cos[inc.source != IncidenceSource.MEDIAN]))
+
+
+def test_a_lone_point_falls_back_to_0_5():
+    assert incidence_cos(np.array([[10.0, 0.0, 0.0]]), HDL64)[0] == pytest.approx(0.5)
+
+
+def test_points_sharing_a_pixel_use_their_own_ray_and_are_not_dropped():
+    xyz, ring, truth = planar_street(wall_x_m=8.0)
+    image = project(xyz, HDL64, channel=ring, width=HDL64.range_image_width // 2)
+    assert image.mask.sum() < len(xyz)  # two beams per pixel
+    inc = incidence(xyz, HDL64, image=image)
+    assert np.mean(np.abs(inc.cos - truth) < 0.05) > 0.95
+
+
+def test_a_prebuilt_image_gives_the_same_result():
+    xyz, ring, _ = planar_street()
+    image = project(xyz, HDL64, channel=ring)
+    np.testing.assert_array_equal(
+        incidence_cos(xyz, HDL64, image=image), incidence_cos(xyz, HDL64, channel=ring)
+    )
+    with pytest.raises(InvalidPointsError, match="project the same cloud"):
+        incidence_cos(xyz[:-1], HDL64, image=image)
+    with pytest.raises(ConfigError):
+        incidence_cos(xyz, HDL64, image=image, channel=ring)
+
+
+# --- physics intensity ----------------------------------------------------------------
+
+
+def test_physics_intensity_is_rho_cos_over_r_to_the_n_times_two_way_extinction():
+    rho, cos, rng = np.array([0.5, 1.0]), np.array([0.8, 0.5]), np.array([10.0, 40.0])
+    np.testing.assert_allclose(physics_intensity(rho, cos, rng), rho * cos / rng, rtol=1e-6)
+    np.testing.assert_allclose(
+        physics_intensity(rho, cos, rng, range_exponent=2.0, extinction_per_m=0.01),
+        rho * cos / rng**2 * np.exp(-0.02 * rng),
+        rtol=1e-6,
+    )
+    out = physics_intensity(rho, cos, rng, range_exponent=0.0)
+    assert out.dtype == np.float32
+    np.testing.assert_allclose(out, rho * cos, rtol=1e-6)
+
+
+def test_physics_intensity_clamps_ranges_below_1_mm():
+    out = physics_intensity(np.array([0.5]), np.array([1.0]), np.array([1e-5]))
+    assert out[0] == pytest.approx(0.5 / 1e-3)
+
+
+@pytest.mark.parametrize(
+    ("rho", "cos", "rng"),
+    [([-0.1], [0.5], [1.0]), ([0.5], [1.5], [1.0]), ([0.5], [0.5], [np.nan]),
+     ([0.5], [0.5], [-1.0]), ([0.5, 0.5], [0.5], [1.0])],
+)  # fmt: skip
+def test_physics_intensity_rejects_bad_inputs(rho, cos, rng):
+    with pytest.raises(InvalidPointsError):
+        physics_intensity(np.array(rho), np.array(cos), np.array(rng))
+
+
+@pytest.mark.parametrize("kwargs", [{"range_exponent": -1.0}, {"extinction_per_m": np.inf}])
+def test_physics_intensity_rejects_bad_parameters(kwargs):
+    with pytest.raises(ConfigError):
+        physics_intensity(np.array([0.5]), np.array([0.5]), np.array([1.0]), **kwargs)
+
+
+# --- compute_modalities and bad input -------------------------------------------------
+
+
+def test_compute_modalities_combines_the_parts():
+    scan = synthetic_scan(HDL64)
+    mods = compute_modalities(scan.xyz, scan.labels, "semantickitti", HDL64, ring=scan.ring)
+    np.testing.assert_array_equal(mods.channel, scan.ring)
+    np.testing.assert_allclose(mods.range_m, range_m(scan.xyz))
+    np.testing.assert_array_equal(
+        mods.cos_incidence, incidence_cos(scan.xyz, HDL64, channel=scan.ring)
+    )
+    expected = mods.reflectance * mods.cos_incidence / mods.range_m
+    np.testing.assert_allclose(mods.physics_intensity, expected, rtol=1e-5)
+    road = scan.labels == 40
+    assert np.all(mods.reflectance[road] == np.float32(0.10))
+
+
+def test_empty_frames_give_empty_arrays():
+    mods = compute_modalities(np.zeros((0, 3)), np.zeros(0, np.uint32), "semantickitti", HDL64)
+    dtypes = {"range_m": np.float32, "channel": np.int64, "cos_incidence": np.float32}
+    for name, dtype in {
+        **dtypes,
+        "reflectance": np.float32,
+        "physics_intensity": np.float32,
+    }.items():
+        arr = getattr(mods, name)
+        assert arr.shape == (0,) and arr.dtype == dtype
+    assert isinstance(project(np.zeros((0, 3)), HDL64), RangeImage)
+
+
+@pytest.mark.parametrize(
+    ("xyz", "message"),
+    [
+        (np.array([[1.0, 2.0, np.nan], [1.0, np.inf, 0.0], [1.0, 0, 0]]), "2 of 3 points have NaN"),
+        (np.array([[0.0, 0.0, 0.0], [1.0, 0, 0]]), "1 of 2 points lie at zero range"),
+        (np.ones((4, 4)), r"expected an \(N, 3\)"),
+        (np.ones(3), r"expected an \(N, 3\)"),
+    ],
+)
+def test_bad_points_raise_naming_the_problem_and_count(xyz, message):
+    labels = np.zeros(len(xyz), np.uint32)
+    for call in (
+        lambda: compute_modalities(xyz, labels, "semantickitti", HDL64),
+        lambda: project(xyz, HDL64),
+        lambda: incidence_cos(xyz, HDL64),
+    ):
+        with pytest.raises(InvalidPointsError, match=message):
+            call()
+
+
+def test_labels_must_match_the_points():
+    with pytest.raises(InvalidPointsError, match="one per point"):
+        compute_modalities(np.ones((3, 3)), np.zeros(2, np.uint32), "semantickitti", HDL64)
+    with pytest.raises(InputDataError):
+        compute_modalities(np.ones((1, 3)), np.array([-3]), "semantickitti", HDL64)
+    with pytest.raises(ConfigError):
+        compute_modalities(np.ones((1, 3)), np.array([3]), "kitti", HDL64)
+
+
+# --- real data ------------------------------------------------------------------------
+
+
+@realdata
+@needs_data
+def test_kitti_frame_gets_a_plausible_cos_for_every_point():
+    points = np.fromfile(KITTI / "velodyne" / "000000.bin", np.float32).reshape(-1, 4)
+    labels = np.fromfile(KITTI / "labels" / "000000.label", np.uint32)
+    mods = compute_modalities(points[:, :3], labels, "semantickitti", HDL64)
+    cos = mods.cos_incidence
+    assert cos.shape == (124_668,) and np.all(np.isfinite(cos)) and np.all((cos >= 0) & (cos <= 1))
+    # physics.md §10.3 quotes ~0.35 for ReaLiTy's 64 x 1024 projection; this one gives ~0.40.
+    assert 0.3 < cos.mean() < 0.5
+    assert np.mean(mods.incidence_source == IncidenceSource.IMAGE) > 0.85
+    assert np.all(np.isfinite(mods.physics_intensity))
+
+
+@realdata
+@needs_data
+def test_nuscenes_channels_equal_the_ring_column():
+    points = np.fromfile(NUSCENES_KEYFRAME, np.float32).reshape(-1, 5)
+    profile = load_profile("hdl32e")
+    ring = points[:, 4]
+    np.testing.assert_array_equal(channels(points[:, :3], profile, ring=ring), ring)
+    # Ego-body returns at 1e-5 m stay in the frame, with finite (clamped) physics intensity.
+    labels = np.zeros(len(points), np.uint8)
+    mods = compute_modalities(points[:, :3], labels, "nuscenes", profile, ring=ring)
+    assert np.all(np.isfinite(mods.physics_intensity)) and len(mods.range_m) == 34_688
