@@ -25,140 +25,35 @@ outside a 1 % band around ties.
 
 from __future__ import annotations
 
-import dataclasses
-import math
-import time
-
 import numpy as np
 import pytest
-from scipy import stats
 
 from lads.physics.beams import auto_threshold, prepare_beams
 from lads.physics.fog import (
-    FogParams,
     backscatter_from_visibility,
     extinction_from_visibility,
     soft_return_peak,
 )
-from lads.physics.particles import resolve_optics
-from lads.physics.result import Outcome
-from lads.physics.weather import RAIN_DEFAULTS, SNOW_DEFAULTS, fog, rain, snow
-from lads.sensors.profile import IntensityEncoding, load_profile
+from lads.physics.weather import FOG_DEFAULTS, RAIN_DEFAULTS, fog
+from lads.sensors.profile import load_profile
 from tests.reference import fog_bruteforce as fb
-from tests.reference import particles_bruteforce as bf
+from tests.reference.equivalence import (
+    CASES,
+    FAST_SEEDS,
+    FRAMES,
+    LOST,
+    MAX_COHEN_H,
+    P_VALUE_FLOOR,
+    PARTICLE,
+    Sample,
+    compare,
+    fine_frame,
+    fine_kitti_profile,
+    run_brute,
+    run_fast,
+)  # fmt: skip
 
 pytestmark = pytest.mark.realdata
-
-FRAMES = (0, 1)
-FAST_SEEDS = 24
-P_VALUE_FLOOR = 1e-3
-MAX_COHEN_H = 0.02
-WEATHER = {"rain": (rain, RAIN_DEFAULTS), "snow": (snow, SNOW_DEFAULTS)}
-CASES = [
-    ("rain", 25.0, "strongest"),
-    ("rain", 25.0, "last"),
-    ("snow", 10.0, "strongest"),
-    ("snow", 10.0, "last"),
-]
-LOST, PARTICLE = int(Outcome.LOST), int(Outcome.PARTICLE)
-FINE_STEP = 1e-5
-
-
-def fine_kitti_profile():
-    kitti = load_profile("hdl64e")
-    return dataclasses.replace(kitti, intensity=IntensityEncoding("unit", 1.0, FINE_STEP, 0.99))
-
-
-def on_fine_grid(reflectivity: np.ndarray) -> np.ndarray:
-    """The brute force's own encoding onto the fine grid (round to the step, clip)."""
-    return np.clip(np.rint(reflectivity / FINE_STEP), 0, round(0.99 / FINE_STEP)) * FINE_STEP
-
-
-@dataclasses.dataclass
-class Sample:
-    """Outcomes of one implementation, pooled over runs (and frames)."""
-
-    beams: int = 0
-    lost: int = 0
-    particle: int = 0
-    ranges: list = dataclasses.field(default_factory=list)
-    intensities: list = dataclasses.field(default_factory=list)
-    seconds: float = 0.0
-
-    def add(self, outcome, ranges, intensities):
-        self.beams += outcome.size
-        self.lost += int((outcome == LOST).sum())
-        self.particle += int((outcome == PARTICLE).sum())
-        self.ranges.append(np.asarray(ranges, dtype=np.float64))
-        self.intensities.append(np.asarray(intensities, dtype=np.float64))
-
-    @property
-    def range_m(self):
-        return np.concatenate(self.ranges)
-
-    @property
-    def intensity(self):
-        return np.concatenate(self.intensities)
-
-
-def fine_frame(kitti_frame, i):
-    xyz, intensity = kitti_frame(i)
-    floor = load_profile("hdl64e").intensity.detection_floor
-    return xyz, np.where(intensity == 0, np.float32(floor), intensity)
-
-
-def run_fast(xyz, intensity, weather, rate, mode, seed, sample, profile):
-    simulate, params = WEATHER[weather]
-    t = time.perf_counter()
-    result = simulate(
-        xyz, intensity, rate_mm_h=rate, sensor=profile, mode=mode, params=params,
-        rng=np.random.default_rng(seed),
-    )  # fmt: skip
-    sample.seconds += time.perf_counter() - t
-    outcome = np.full(len(xyz), LOST, dtype=np.uint8)
-    outcome[result.source_index] = result.outcome
-    is_particle = result.outcome == PARTICLE
-    sample.add(
-        outcome,
-        np.linalg.norm(result.xyz[is_particle].astype(np.float64), axis=1),
-        result.intensity[is_particle],
-    )
-
-
-def run_brute(xyz, intensity, weather, rate, mode, seed, sample, profile, **wrong):
-    beams = prepare_beams(xyz, intensity, profile)
-    constants = bf.Constants.from_optics(resolve_optics(beams, profile, rate, WEATHER[weather][1]))
-    constants = dataclasses.replace(constants, **wrong)
-    rho_out = profile.intensity.to_reflectivity(beams.intensity)
-    t = time.perf_counter()
-    res = bf.simulate(beams, rho_out, constants, mode, np.random.default_rng(seed))
-    sample.seconds += time.perf_counter() - t
-    is_particle = res.outcome == PARTICLE
-    sample.add(res.outcome, res.range_m[is_particle], on_fine_grid(res.reflectivity[is_particle]))
-    return res.particles_drawn
-
-
-def two_proportion(k1, n1, k2, n2):
-    """(two-sided p-value of the pooled z-test, Cohen's h) for k1/n1 vs k2/n2."""
-    p1, p2, pooled = k1 / n1, k2 / n2, (k1 + k2) / (n1 + n2)
-    se = math.sqrt(pooled * (1 - pooled) * (1 / n1 + 1 / n2))
-    p_value = 1.0 if se == 0 else 2 * stats.norm.sf(abs(p1 - p2) / se)
-    h = 2 * math.asin(math.sqrt(p1)) - 2 * math.asin(math.sqrt(p2))
-    return p_value, h
-
-
-def compare(fast: Sample, brute: Sample) -> dict:
-    out = {}
-    for what in ("lost", "particle"):
-        k_fast, k_brute = getattr(fast, what), getattr(brute, what)
-        p, h = two_proportion(k_fast, fast.beams, k_brute, brute.beams)
-        out[what] = dict(fast=k_fast / fast.beams, brute=k_brute / brute.beams, p=p, h=h)
-    out["range_ks_p"] = stats.ks_2samp(fast.range_m, brute.range_m).pvalue
-    # Compare grid levels, not floats: float32(k * step) != float64(k * step), and the KS
-    # statistic would see every tie as a shift.
-    levels_fast, levels_brute = (np.rint(s.intensity / FINE_STEP) for s in (fast, brute))
-    out["intensity_ks_p"] = stats.ks_2samp(levels_fast, levels_brute).pvalue
-    return out
 
 
 @pytest.fixture(scope="module")
@@ -173,7 +68,7 @@ def samples(kitti_frame):
             fast, brute = Sample(), Sample()
             drawn = 0
             for i in FRAMES:
-                xyz, intensity = fine_frame(kitti_frame, i)
+                xyz, intensity = fine_frame(*kitti_frame(i))
                 for seed in range(FAST_SEEDS):
                     run_fast(xyz, intensity, weather, rate, mode, 1000 * i + seed, fast, profile)
                 drawn += run_brute(xyz, intensity, weather, rate, mode, 7 + i, brute, profile)
@@ -208,7 +103,7 @@ def test_comparison_rejects_a_brute_force_with_doubled_particle_reflectivity(sam
     wrong = Sample()
     rho_p = RAIN_DEFAULTS.particle_reflectivity
     for i in FRAMES:
-        xyz, intensity = fine_frame(kitti_frame, i)
+        xyz, intensity = fine_frame(*kitti_frame(i))
         run_brute(xyz, intensity, weather, rate, mode, 99 + i, wrong, fine_kitti_profile(),
                   particle_reflectivity=2 * rho_p)  # fmt: skip
     result = compare(fast, wrong)
@@ -229,7 +124,7 @@ def test_fog_outcomes_match_direct_waveform_integration_beam_by_beam(kitti_frame
     """simulate_fog (tabulated peak) agrees beam by beam with the integrated waveform."""
     xyz, intensity = kitti_frame(0)
     profile = load_profile("hdl64e")
-    params = FogParams().resolved_for(profile)
+    params = FOG_DEFAULTS.resolved_for(profile)
     beams = prepare_beams(xyz, intensity, profile)
     # All the table's interpolation happens for r0 < R2 + L (~7 m): sample those densely.
     rng = np.random.default_rng(5)

@@ -105,7 +105,7 @@ def test_particle_returns_and_target_losses_rise_with_rate(street, weather):
     target_gone = np.add(lost, particle)
     assert np.all(np.diff(particle) > 0), particle
     assert np.all(np.diff(target_gone) > 0), target_gone
-    assert particle[0] > 0
+    assert particle[-1] > 0.001  # at 1 mm/h a street frame may show no drop at all
 
 
 @pytest.mark.parametrize("weather", ["rain", "snow"])
@@ -251,7 +251,10 @@ def test_thinned_sampler_draws_the_cone_volume_times_the_particle_density(r0, di
     xyz = np.array([[r0, 0.0, 0.0]], dtype=np.float32)
     profile = load_profile("hdl64e")
     beams = prepare_beams(xyz, np.array([0.5], dtype=np.float32), profile)
-    params = with_overrides(RAIN_DEFAULTS, beam_divergence_mrad=divergence_mrad)
+    # A hard cut at R1 (no overlap ramp), so the cone volume is the textbook one.
+    params = with_overrides(
+        RAIN_DEFAULTS, beam_divergence_mrad=divergence_mrad, min_range_m=0.9, overlap_full_m=0.9
+    )
     optics = resolve_optics(beams, profile, 25.0, params).particles
     theta, r_min = optics.divergence_rad, optics.min_range_m
     per_beam = optics.psd.number_per_m3 * math.pi * (theta / 2) ** 2 * (r0**3 - r_min**3) / 3

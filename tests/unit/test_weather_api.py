@@ -238,12 +238,6 @@ def test_light_fog_in_last_mode_keeps_nearly_every_target(kitti_like, nuscenes_l
     assert fog_share(xyz, intensity, sensor, 1000.0, mode="last") < 0.01
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="fog strongest mode at MOR 1000 m turns ~13 % (street frame) / 16 % (KITTI 000000) "
-    "of points into fog returns: see the test-suite report (Mie lidar ratio ~17 sr, full "
-    "overlap at 1 m)",
-)
 @pytest.mark.parametrize("sensor", ["hdl64e", "hdl32e"])
 def test_light_fog_leaves_more_than_90_percent_of_points_as_targets(
     kitti_like, nuscenes_like, sensor
