@@ -4,9 +4,8 @@ Pure numpy (plus a scipy k-d tree), no file I/O. Every function returns one valu
 point: points are never dropped, because labels and output files are matched by index
 (physics.md §10.7 item 4).
 
-Range image (physics.md §10.3, with one change): the row is the point's *channel* (ring
-column, or nearest elevation), top row = highest channel, so no point is lost outside a
-nominal vertical FOV. Columns follow the azimuth, u = 0.5 (-atan2(y, x) / pi + 1) W.
+The range image (rows = channel, columns = azimuth) lives in `lads.physics.projection`;
+range_m, channels, project and RangeImage are re-exported here.
 
 Incidence: cos(theta) = |n . r| / (|n| |r|), with the surface normal n taken from the
 organised image, n = (P[u+1] - P[u-1]) x (P[v+1] - P[v-1]) (azimuth wraps, elevation does
@@ -29,6 +28,12 @@ median of the computed cosines (0.5 if there is none). `Incidence.source` record
 
 from __future__ import annotations
 
+__all__ = [
+    "Incidence", "IncidenceSource", "Modalities", "RangeImage", "channels",
+    "compute_modalities", "incidence", "incidence_cos", "physics_intensity", "project",
+    "range_m", "MIN_RANGE_M",
+]  # fmt: skip
+
 import enum
 from dataclasses import dataclass
 from typing import Any
@@ -39,9 +44,18 @@ from scipy.spatial import cKDTree
 
 from lads.errors import ConfigError, InvalidPointsError
 from lads.physics.materials import reflectance_for_labels
+from lads.physics.projection import (
+    MIN_RANGE_M,
+    RangeImage,
+    channels,
+    channels_of,
+    checked_xyz,
+    organise,
+    project,
+    range_m,
+)
 from lads.sensors.profile import SensorProfile
 
-MIN_RANGE_M = 1e-6  # physics.md §10.3: a point is valid if its range exceeds this
 RANGE_FLOOR_M = 1e-3  # physics_intensity clamps ranges below this (1/R^n would blow up)
 DEFAULT_MAX_DEPTH_JUMP = 0.1  # relative; see the module docstring
 KNN_NEIGHBOURS = 10
@@ -64,31 +78,6 @@ class IncidenceSource(enum.IntEnum):
     IMAGE = 0  # normal of the organised range image
     NEIGHBOURS = 1  # PCA normal of its k nearest neighbours
     MEDIAN = 2  # frame median (0.5 if nothing could be computed)
-
-
-@dataclass(frozen=True, slots=True)
-class RangeImage:
-    """A point cloud organised by channel (rows) and azimuth (columns).
-
-    Attributes:
-        index: (H, W) int64 index of the point that owns each pixel (the nearest one), -1
-            where empty. Row 0 is the highest channel (H - 1 - channel).
-        range_m: (H, W) float32 range of the owner in m, 0 where empty.
-        xyz: (H, W, 3) float32 coordinates of the owner in m, 0 where empty.
-        row: (N,) int64 row of every input point (owner or not).
-        col: (N,) int64 column of every input point.
-    """
-
-    index: npt.NDArray[np.int64]
-    range_m: FloatArray
-    xyz: FloatArray
-    row: npt.NDArray[np.int64]
-    col: npt.NDArray[np.int64]
-
-    @property
-    def mask(self) -> npt.NDArray[np.bool_]:
-        """(H, W) bool, True where a point owns the pixel."""
-        return self.index >= 0
 
 
 @dataclass(frozen=True, slots=True)
@@ -120,74 +109,6 @@ class Modalities:
     physics_intensity: FloatArray
 
 
-def range_m(xyz: npt.ArrayLike) -> FloatArray:
-    """Euclidean range of each point from the sensor origin.
-
-    Args:
-        xyz: (N, 3) coordinates in m, any real dtype.
-
-    Returns:
-        (N,) float32 range in m (zero-range points are allowed here and give 0).
-
-    Raises:
-        InvalidPointsError: wrong shape, or NaN/inf coordinates.
-    """
-    return _checked_xyz(xyz, allow_zero=True)[1].astype(np.float32)
-
-
-def channels(
-    xyz: npt.ArrayLike, profile: SensorProfile, ring: npt.ArrayLike | None = None
-) -> npt.NDArray[np.int64]:
-    """Laser channel of each point: the ring column when given, else the nearest elevation.
-
-    Args:
-        xyz: (N, 3) coordinates in m.
-        profile: sensor profile; `profile.channels` bounds the ring, its elevation table
-            assigns channels when `ring` is None.
-        ring: optional (N,) ring ids, 0 = lowest beam; integer dtype or integral floats
-            (nuScenes stores the ring as float32).
-
-    Returns:
-        (N,) int64 channel in [0, profile.channels).
-
-    Raises:
-        InvalidPointsError: bad xyz (shape, NaN/inf, zero range), or a ring of the wrong
-            shape, non-integral, or outside [0, profile.channels).
-    """
-    xyz64, _ = _checked_xyz(xyz)
-    return _channels(xyz64, profile, ring)
-
-
-def project(
-    xyz: npt.ArrayLike,
-    profile: SensorProfile,
-    *,
-    channel: npt.ArrayLike | None = None,
-    width: int | None = None,
-) -> RangeImage:
-    """Organise points into a (profile.channels, W) range image; the nearest point wins.
-
-    Args:
-        xyz: (N, 3) coordinates in m.
-        profile: sensor profile (rows = its channels, default width its range_image_width).
-        channel: optional (N,) channel per point (e.g. from `channels`); default nearest
-            elevation.
-        width: azimuth bins W (>= 3); default `profile.range_image_width`.
-
-    Returns:
-        RangeImage. Among points sharing a pixel the nearest owns it, ties going to the
-        lower input index: points are ordered by range with a stable sort (nearest first)
-        and the first of each pixel is kept, which equals writing farthest first without
-        relying on the unspecified order of repeated fancy-index assignment.
-
-    Raises:
-        InvalidPointsError: bad xyz or channel. ConfigError: width < 3.
-    """
-    xyz64, r = _checked_xyz(xyz)
-    chan = _channels(xyz64, profile, channel)
-    return _project(xyz64, r, chan, profile.channels, _width(profile, width))
-
-
 def incidence(
     xyz: npt.ArrayLike,
     profile: SensorProfile,
@@ -213,14 +134,14 @@ def incidence(
         InvalidPointsError: bad xyz, or an image built from another cloud.
         ConfigError: both channel and image given, or max_depth_jump <= 0.
     """
-    xyz64, r = _checked_xyz(xyz)
+    xyz64, r = checked_xyz(xyz)
     if image is not None and channel is not None:
         raise ConfigError("incidence: pass either channel or a prebuilt image, not both.")
     if not max_depth_jump > 0:
         raise ConfigError(f"max_depth_jump = {max_depth_jump}; expected a relative value > 0.")
     if image is None:
-        chan = _channels(xyz64, profile, channel)
-        image = _project(xyz64, r, chan, profile.channels, profile.range_image_width)
+        chan = channels_of(xyz64, profile, channel)
+        image = organise(xyz64, r, chan, profile.channels, profile.range_image_width)
     elif image.row.shape != (len(xyz64),):
         raise InvalidPointsError(
             f"image: built from {image.row.shape[0]} points, but xyz has {len(xyz64)}; "
@@ -323,14 +244,14 @@ def compute_modalities(
         InvalidPointsError: bad xyz or ring, or labels of another length.
         InputDataError: negative labels. ConfigError: unknown label set or bad parameters.
     """
-    xyz64, r = _checked_xyz(xyz)
+    xyz64, r = checked_xyz(xyz)
     label_arr = np.asarray(labels)
     if label_arr.shape != (len(xyz64),):
         raise InvalidPointsError(
             f"labels: shape {label_arr.shape}, expected ({len(xyz64)},), one per point."
         )
-    chan = _channels(xyz64, profile, ring)
-    image = _project(xyz64, r, chan, profile.channels, profile.range_image_width)
+    chan = channels_of(xyz64, profile, ring)
+    image = organise(xyz64, r, chan, profile.channels, profile.range_image_width)
     inc = _incidence(xyz64, r, image, DEFAULT_MAX_DEPTH_JUMP)
     rho = reflectance_for_labels(label_arr, label_set)
     range32 = r.astype(np.float32)
@@ -338,89 +259,6 @@ def compute_modalities(
         rho, inc.cos, r, range_exponent=range_exponent, extinction_per_m=extinction_per_m
     )
     return Modalities(range32, chan, inc.cos, inc.source, rho, phys)
-
-
-def _checked_xyz(
-    xyz: npt.ArrayLike, *, allow_zero: bool = False
-) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
-    arr = np.asarray(xyz)
-    if arr.ndim != 2 or arr.shape[1] != 3 or not np.issubdtype(arr.dtype, np.number):
-        raise InvalidPointsError(
-            f"xyz: expected an (N, 3) real array in m, got shape {arr.shape} and dtype "
-            f"{arr.dtype}; pass points[:, :3]."
-        )
-    arr = arr.astype(np.float64, copy=False)
-    bad = int(np.count_nonzero(~np.isfinite(arr).all(axis=1)))
-    if bad:
-        raise InvalidPointsError(
-            f"xyz: {bad} of {len(arr)} points have NaN or infinite coordinates."
-        )
-    r = np.sqrt(np.einsum("ij,ij->i", arr, arr))
-    zero = 0 if allow_zero else int(np.count_nonzero(r <= MIN_RANGE_M))
-    if zero:
-        raise InvalidPointsError(
-            f"xyz: {zero} of {len(arr)} points lie at zero range (<= {MIN_RANGE_M:g} m), "
-            "where no direction is defined; they are not LiDAR returns."
-        )
-    return arr, r
-
-
-def _channels(
-    xyz64: npt.NDArray[np.float64], profile: SensorProfile, ring: npt.ArrayLike | None
-) -> npt.NDArray[np.int64]:
-    if ring is None:
-        return profile.channel_of(xyz64)
-    arr = np.asarray(ring)
-    if arr.shape != (len(xyz64),) or not np.issubdtype(arr.dtype, np.number):
-        raise InvalidPointsError(
-            f"ring: shape {arr.shape} and dtype {arr.dtype}, expected ({len(xyz64)},) numbers."
-        )
-    finite = np.isfinite(arr)
-    as_int = np.where(finite & (np.abs(arr) < 2**62), arr, -1).astype(np.int64)
-    bad = ~finite | (as_int != arr) | (as_int < 0) | (as_int >= profile.channels)
-    count = int(np.count_nonzero(bad))
-    if count:
-        raise InvalidPointsError(
-            f"ring: {count} values are not integers in [0, {profile.channels}) for profile "
-            f"'{profile.name}' (e.g. {arr[bad][:3].tolist()}); check the profile."
-        )
-    return as_int
-
-
-def _width(profile: SensorProfile, width: int | None) -> int:
-    w = profile.range_image_width if width is None else width
-    if isinstance(w, bool) or not isinstance(w, int | np.integer) or w < 3:
-        raise ConfigError(f"width = {width!r}; expected an integer >= 3 azimuth bins.")
-    return int(w)
-
-
-def _project(
-    xyz64: npt.NDArray[np.float64],
-    r: npt.NDArray[np.float64],
-    chan: npt.NDArray[np.int64],
-    height: int,
-    width: int,
-) -> RangeImage:
-    row = (height - 1 - chan).astype(np.int64)
-    u = 0.5 * (-np.arctan2(xyz64[:, 1], xyz64[:, 0]) / np.pi + 1.0) * width
-    col = np.floor(u).astype(np.int64) % width  # u == W is azimuth -pi, i.e. column 0
-    pixel = row * width + col
-    order = np.argsort(r, kind="stable")
-    _, first = np.unique(pixel[order], return_index=True)
-    owners = order[first]
-    index = np.full(height * width, -1, dtype=np.int64)
-    index[pixel[owners]] = owners
-    range_img = np.zeros(height * width, dtype=np.float32)
-    range_img[pixel[owners]] = r[owners]
-    xyz_img = np.zeros((height * width, 3), dtype=np.float32)
-    xyz_img[pixel[owners]] = xyz64[owners]
-    return RangeImage(
-        index.reshape(height, width),
-        range_img.reshape(height, width),
-        xyz_img.reshape(height, width, 3),
-        row,
-        col,
-    )
 
 
 def _image_normals(
