@@ -34,7 +34,7 @@ from lads.physics.fog import (  # noqa: E402
     extinction_from_visibility,
 )
 from lads.physics.result import Outcome  # noqa: E402
-from lads.physics.weather import FOG_DEFAULTS, fog  # noqa: E402
+from lads.physics.weather import FOG_DEFAULTS, RAIN_DEFAULTS, fog  # noqa: E402
 from lads.sensors.profile import load_profile  # noqa: E402
 from tests.reference import fog_bruteforce as fb  # noqa: E402
 from tests.reference.equivalence import (  # noqa: E402
@@ -52,9 +52,11 @@ FOG_BEAMS = 300
 FOG_VISIBILITY_M = 50.0
 
 
-def particle_cases(frames: list[np.ndarray]) -> list[dict[str, Any]]:
+def particle_cases(frames: list[np.ndarray]) -> tuple[list[dict[str, Any]], Sample]:
+    """One row per case, and the fast sample of the first case (for the power check)."""
     profile = fine_kitti_profile()
     rows = []
+    first_fast: Sample | None = None
     for weather, rate, mode in tqdm(CASES, desc="fast vs brute force", unit="case"):
         fast, brute = Sample(), Sample()
         drawn = 0
@@ -64,6 +66,7 @@ def particle_cases(frames: list[np.ndarray]) -> list[dict[str, Any]]:
             for seed in range(FAST_SEEDS):
                 run_fast(xyz, intensity, weather, rate, mode, 1000 * i + seed, fast, profile)
             drawn += run_brute(xyz, intensity, weather, rate, mode, 7 + i, brute, profile)
+        first_fast = first_fast or fast
         stats = compare(fast, brute)
         fast_s = fast.seconds / (FAST_SEEDS * len(frames))
         brute_s = brute.seconds / len(frames)
@@ -82,7 +85,20 @@ def particle_cases(frames: list[np.ndarray]) -> list[dict[str, Any]]:
                 **_rounded(stats),
             }
         )
-    return rows
+    return rows, first_fast or Sample()
+
+
+def power_check(frames: list[np.ndarray], fast: Sample) -> dict[str, Any]:
+    """The same statistics against a wrong brute force (rho_p doubled) must reject it."""
+    weather, rate, mode = CASES[0]
+    wrong = Sample()
+    rho_p = RAIN_DEFAULTS.particle_reflectivity
+    for i, points in enumerate(frames):
+        xyz, intensity = fine_frame(points[:, :3], points[:, 3])
+        run_brute(xyz, intensity, weather, rate, mode, 99 + i, wrong, fine_kitti_profile(),
+                  particle_reflectivity=2 * rho_p)  # fmt: skip
+    return {"case": f"{weather} {rate} {mode}, brute force with particle_reflectivity x 2",
+            **_rounded(compare(fast, wrong))}  # fmt: skip
 
 
 def fog_case(points: np.ndarray) -> dict[str, Any]:
@@ -134,13 +150,15 @@ def _rounded(stats: dict[str, Any]) -> dict[str, Any]:
 
 def main(out_dir: Path | None = None) -> dict[str, Any]:
     frames = kitti_frames()
+    rows, first_fast = particle_cases(frames)
     payload = {
         "what": "lads fast weather paths vs the brute-force references in tests/reference, "
         "on real SemanticKITTI 00/000000-000002, same process and machine; statistics as in "
         "tests/realdata/test_equivalence.py (two-proportion z-test p and Cohen's h for lost "
         "and particle fractions, KS p for particle-return range and intensity)",
         "machine": machine_info(),
-        "particles": particle_cases(frames),
+        "particles": rows,
+        "power_check": power_check(frames, first_fast),
         "fog": fog_case(frames[0]),
     }
     write_result("equivalence.json", payload, out_dir)

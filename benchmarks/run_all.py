@@ -2,6 +2,7 @@
 
 speed.json        ms per real SemanticKITTI frame per weather and rate (one core)
 equivalence.json  fast path vs the brute-force reference: speed-up and two-sample tests
+anchors.json      rain extinction vs Ulbrich-Atlas, Q_ext, incidence on a real frame
 wads_snow.json    simulated vs real falling snow (WADS), fitted defaults vs LISA settings
 fog_radiate.json  fog model vs real fog (RADIATE), with what that data cannot show
 """
@@ -19,7 +20,7 @@ import time  # noqa: E402
 
 from tqdm import tqdm  # noqa: E402
 
-BENCHMARKS = ("speed", "equivalence", "wads_snow", "fog_radiate")
+BENCHMARKS = ("speed", "equivalence", "anchors", "wads_snow", "fog_radiate")
 
 
 def main() -> int:

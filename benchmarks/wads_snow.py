@@ -35,7 +35,7 @@ def _settings(fitted: W.SnowKnobs, dual: W.SnowKnobs) -> dict[str, Any]:
         "lisa_paper_strongest": ("strongest", W.LISA_SNOW),
         "lisa_paper_dual_emulation": ("dual", W.LISA_SNOW),
         "lisa_hahner_strongest": ("strongest", W.LISA_HAHNER_SNOW),
-        "previous_snow_defaults_strongest": ("strongest", SNOW_DEFAULTS),
+        "shipped_snow_defaults_strongest": ("strongest", SNOW_DEFAULTS),
     }
 
 

@@ -181,9 +181,10 @@ def sample_winning_particles(
     k = column[owner]
     target = rng.random(owner.size) * mean[owner]
     r_p = _inverse_rows(table, k, target)
-    d_low = np.maximum(table.s_grid[k] * optics.g_mm(r_p), optics.psd.min_diameter_mm)
+    g = optics.g_mm(r_p)
+    d_low = np.maximum(table.s_grid[k] * g, optics.psd.min_diameter_mm)
     d = d_low + rng.exponential(1.0 / optics.psd.slope_per_mm, owner.size)
-    need = s[owner] * optics.g_mm(r_p)
+    need = s[owner] * g
     accept = need <= np.minimum(d, optics.beam_diameter_mm(r_p))
     return owner[accept], r_p[accept], optics.particle_power(r_p[accept], d[accept])
 
