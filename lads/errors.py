@@ -33,3 +33,31 @@ class IntensityEncodingError(InputDataError):
 
 class PhysicsError(LadsError):
     """A physics computation was asked for outside its domain of validity."""
+
+
+class ReaderError(LadsError):
+    """A dataset tree or one of its files cannot be read as the reader's format."""
+
+
+class DatasetNotFoundError(ReaderError):
+    """The source root does not hold the layout the reader expects."""
+
+
+class CorruptItemError(ReaderError):
+    """One item's files are truncated, mis-sized, inconsistent or unreadable."""
+
+
+class StageError(LadsError):
+    """A pipeline stage cannot process a frame."""
+
+
+class BuildError(LadsError):
+    """A build cannot start or finish (output inside the source, a conflicting tree, ...)."""
+
+
+class ManifestError(LadsError):
+    """A manifest, SHA256SUMS or run.json is missing or inconsistent."""
+
+
+class VerifyError(LadsError):
+    """An output tree does not verify against its source (raised only by the CLI layer)."""
