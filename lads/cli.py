@@ -1,4 +1,9 @@
-"""The `lads` command line. Library errors (LadsError) map to exit code 2 with their message."""
+"""The `lads` command line.
+
+Exit codes: 0 success; 1 the job ran but its result is not clean (a build with failed
+items, a tree that does not verify); 2 a LadsError (bad input, config or paths), with its
+message on stderr.
+"""
 
 from __future__ import annotations
 
@@ -13,6 +18,7 @@ import numpy as np
 
 from lads.errors import InputDataError, LadsError
 
+EXIT_INCOMPLETE = 1
 EXIT_LADS_ERROR = 2
 
 
@@ -159,3 +165,133 @@ def _atomic_write(path: Path, payload: bytes) -> None:
     tmp = path.with_name(path.name + ".tmp")
     tmp.write_bytes(payload)
     tmp.replace(path)
+
+
+@main.command()
+@click.option(
+    "--source", required=True, help="Reader: semantickitti, nuscenes, voxelscape, wads, radiate."
+)
+@click.option(
+    "--variant",
+    help="Variant: snow, rain or fog (pipelines/<source>-<variant>.yaml or <variant>.yaml).",
+)
+@click.option(
+    "--pipeline",
+    "pipeline_file",
+    type=click.Path(exists=True, dir_okay=False, path_type=Path),
+    help="Use this pipeline YAML instead of --variant.",
+)
+@click.option(
+    "--in",
+    "source_root",
+    required=True,
+    type=click.Path(exists=True, file_okay=False, path_type=Path),
+    help="Source dataset root.",
+)
+@click.option(
+    "--out",
+    "out_root",
+    required=True,
+    type=click.Path(file_okay=False, path_type=Path),
+    help="Output root (new, or a partial build of the same settings to resume).",
+)
+@click.option("--seed", type=int, default=0, show_default=True, help="Root seed.")
+@click.option("--rate-mm-h", type=float, help="Override the rain/snow rate, mm/h.")
+@click.option("--visibility-m", type=float, help="Override the fog visibility, m.")
+@click.option("--mode", type=click.Choice(["strongest", "last"]), help="Override the return mode.")
+@click.option(
+    "--points",
+    type=click.Choice(["physical", "aligned"]),
+    help="Point correspondence (docs/output_tree.md).",
+)
+@click.option("--particle-label", type=int, help="Label of particle returns in physical mode.")
+@click.option(
+    "--sequences", help="Comma-separated sequences to build (SemanticKITTI, WADS, Voxelscape)."
+)
+@click.option("--version", "nuscenes_version", help="nuScenes table version, e.g. v1.0-trainval.")
+@click.option("--include-sweeps", is_flag=True, help="nuScenes: transform sweeps too.")
+@click.option("--jobs", type=int, default=1, show_default=True, help="Worker processes (loky).")
+@click.option("--backend", type=click.Choice(["loky", "dask"]), default="loky", show_default=True)
+@click.option("--scheduler", help="Dask scheduler address (with --backend dask).")
+@click.option("--fail-fast", is_flag=True, help="Stop at the first bad item.")
+@click.option("--limit", type=int, help="Only the first N items (trial runs).")
+@_lads_errors
+def build(
+    source: str, variant: str | None, pipeline_file: Path | None, source_root: Path, out_root: Path,
+    seed: int, rate_mm_h: float | None, visibility_m: float | None, mode: str | None,
+    points: str | None, particle_label: int | None, sequences: str | None,
+    nuscenes_version: str | None, include_sweeps: bool, jobs: int, backend: str,
+    scheduler: str | None, fail_fast: bool, limit: int | None,
+) -> None:  # fmt: skip
+    """Build a variant tree: one output item per source item, same format and layout."""
+    from lads.config import find_pipeline, load_pipeline
+    from lads.runner import run_build
+
+    if (variant is None) == (pipeline_file is None):
+        raise click.UsageError("give exactly one of --variant and --pipeline")
+    path = pipeline_file or find_pipeline(source, variant)  # type: ignore[arg-type]
+    pipeline = load_pipeline(path).with_overrides(
+        rate_mm_h=rate_mm_h, visibility_m=visibility_m, mode=mode, points=points,
+        particle_label=particle_label,
+    )  # fmt: skip
+    options: dict[str, Any] = {}
+    if sequences:
+        options["sequences"] = [s.strip() for s in sequences.split(",") if s.strip()]
+    if nuscenes_version:
+        options["version"] = nuscenes_version
+    if include_sweeps:
+        options["include_sweeps"] = True
+    report = run_build(
+        source, source_root, out_root, pipeline, seed=seed, reader_options=options, jobs=jobs,
+        backend=backend, scheduler=scheduler, fail_fast=fail_fast, progress=None, limit=limit,
+    )  # fmt: skip
+    click.echo(report.summary_text())
+    if not report.complete:
+        sys.exit(EXIT_INCOMPLETE)
+
+
+@main.command()
+@click.argument("out_root", type=click.Path(exists=True, file_okay=False, path_type=Path))
+@click.option(
+    "--against",
+    "source_root",
+    type=click.Path(exists=True, file_okay=False, path_type=Path),
+    help="The source tree the output was built from.",
+)
+@click.option(
+    "--regenerate",
+    type=int,
+    default=0,
+    show_default=True,
+    help="Rebuild K random items in memory and compare bytes.",
+)
+@click.option(
+    "--inventory", help="Expected release inventory, e.g. semantickitti-00-10 (see manifests/)."
+)
+@click.option(
+    "--seed", type=int, default=0, show_default=True, help="Seed for choosing items to regenerate."
+)
+@click.option(
+    "--json",
+    "json_out",
+    type=click.Path(dir_okay=False, path_type=Path),
+    help="Also write the report as JSON.",
+)
+@_lads_errors
+def verify(
+    out_root: Path, source_root: Path | None, regenerate: int, inventory: str | None, seed: int,
+    json_out: Path | None,
+) -> None:  # fmt: skip
+    """Check a built tree: checksums, manifest, one-to-one layout against the source."""
+    from lads.verify import verify_tree
+
+    if regenerate and source_root is None:
+        raise click.UsageError("--regenerate needs --against SOURCE")
+    report = verify_tree(
+        out_root, source_root, regenerate=regenerate, seed=seed, inventory=inventory, progress=None
+    )
+    if json_out is not None:
+        _atomic_write(json_out, report.to_json().encode())
+    click.echo(report.summary_text())
+    if not report.ok:
+        sys.exit(EXIT_INCOMPLETE)

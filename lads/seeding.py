@@ -24,4 +24,6 @@ def seed_entropy(root_seed: int, item_id: str, variant: str, stage: str) -> list
 
 def rng_for(root_seed: int, item_id: str, variant: str, stage: str) -> np.random.Generator:
     """numpy Generator for one stage of one item of one variant."""
-    return np.random.default_rng(np.random.SeedSequence(seed_entropy(root_seed, item_id, variant, stage)))
+    return np.random.default_rng(
+        np.random.SeedSequence(seed_entropy(root_seed, item_id, variant, stage))
+    )

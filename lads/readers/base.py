@@ -82,7 +82,9 @@ def read_records(path: Path, dtype: np.dtype | type, columns: int, what: str) ->
 
     dt = np.dtype(dtype).newbyteorder("<")
     try:
-        raw = path.read_bytes()
+        # np.fromfile gives a writable buffer (bytes would give read-only arrays, which
+        # numba compiles as a separate type) without a second copy of the file.
+        raw = np.fromfile(path, dtype=np.uint8)
     except OSError as exc:
         raise CorruptItemError(
             f"{path}: cannot read {what} ({exc.strerror or exc}); check that the file exists "
@@ -95,5 +97,141 @@ def read_records(path: Path, dtype: np.dtype | type, columns: int, what: str) ->
             f"({columns} x {dt.name}) for {what}; the file is truncated or not in this format. "
             "Re-extract it from the dataset archive."
         )
-    values = np.frombuffer(raw, dtype=dt).astype(dt.newbyteorder("="), copy=False)
+    values = raw.view(dt).astype(dt.newbyteorder("="), copy=False)
     return values if columns == 1 else values.reshape(-1, columns)
+
+
+# Helpers shared by the readers. Read-side problems are CorruptItemError (the file is at
+# fault); encode-side problems are InputDataError / InvalidPointsError (the frame is).
+
+
+def check_finite(points: np.ndarray, path: Path, columns: tuple[str, ...]) -> None:
+    """Raise CorruptItemError naming `path`, the first bad point and column on NaN/inf."""
+    from lads.errors import CorruptItemError
+
+    bad = ~np.isfinite(points)
+    if bad.any():
+        rows, cols = np.nonzero(bad)
+        raise CorruptItemError(
+            f"{path}: {rows.size} non-finite values (first: point {rows[0]}, column "
+            f"'{columns[cols[0]]}' = {points[rows[0], cols[0]]}); expected finite "
+            f"{', '.join(columns)} values. The file is corrupt: re-extract it from the dataset "
+            "archive (lads never drops points, since labels are matched by index)."
+        )
+
+
+def read_labels(
+    path: Path, dtype: np.dtype | type, n_points: int, what: str, scan: Path
+) -> np.ndarray:
+    """Read (N,) per-point labels of `dtype` from `path`, checking it exists and N matches.
+
+    Raises CorruptItemError naming the file when it is missing, unreadable, mis-sized or
+    holds a different number of records than the scan `scan` has points.
+    """
+    from lads.errors import CorruptItemError
+
+    dt = np.dtype(dtype)
+    if not path.is_file():
+        raise CorruptItemError(
+            f"{path}: missing {what} for scan {scan}; expected {n_points} {dt.name} records "
+            "(one per point) because this sequence has a labels folder. Restore the file from "
+            "the dataset archive, or remove the scan from the source tree."
+        )
+    labels = read_records(path, dt, 1, what)
+    if labels.shape[0] != n_points:
+        raise CorruptItemError(
+            f"{path}: {labels.shape[0]} {what} records but scan {scan} has {n_points} points; "
+            f"expected one {dt.name} per point, in scan order. The two files do not belong "
+            "together or one is truncated: re-extract both from the dataset archive."
+        )
+    return labels
+
+
+def encode_points(frame: Frame, n_columns: int, relpath: str) -> EncodedFile:
+    """(M, n_columns) float32 points of `frame` -> headerless little-endian scan bytes."""
+    from lads.errors import InvalidPointsError
+
+    points = np.asarray(frame.points)
+    if points.ndim != 2 or points.shape[1] != n_columns:
+        raise InvalidPointsError(
+            f"{frame.item.item_id}: points have shape {points.shape}, expected (M, {n_columns}) "
+            f"for {relpath}; a stage changed the column layout ({frame.columns})."
+        )
+    if not np.isfinite(points).all():
+        raise InvalidPointsError(
+            f"{frame.item.item_id}: points hold NaN or inf; {relpath} would be unreadable. "
+            "A stage produced non-finite values: fix the stage or its parameters."
+        )
+    payload = np.ascontiguousarray(points, dtype="<f4").tobytes()
+    return EncodedFile(relpath, "scan", payload, points.shape[0], 4 * n_columns)
+
+
+def encode_labels(
+    values: np.ndarray | None,
+    dtype: np.dtype | type,
+    n_points: int,
+    relpath: str,
+    role: str,
+    item_id: str,
+) -> EncodedFile:
+    """(M,) integer labels -> headerless little-endian `dtype` records, range-checked."""
+    from lads.errors import InputDataError
+
+    dt = np.dtype(dtype).newbyteorder("<")
+    if values is None:
+        raise InputDataError(
+            f"{item_id}: the frame has no '{role}' array but the item has {relpath}; "
+            "stages must carry every per-point array of the item through."
+        )
+    arr = np.asarray(values)
+    if arr.shape != (n_points,):
+        raise InputDataError(
+            f"{item_id}: '{role}' has shape {arr.shape} but the frame has {n_points} points; "
+            f"{relpath} needs exactly one {dt.name} per point."
+        )
+    if arr.dtype != dt.newbyteorder("="):
+        if arr.dtype.kind not in "iub":
+            raise InputDataError(
+                f"{item_id}: '{role}' has dtype {arr.dtype}, expected integers for {relpath}."
+            )
+        info = np.iinfo(dt)
+        if arr.size and (int(arr.min()) < info.min or int(arr.max()) > info.max):
+            raise InputDataError(
+                f"{item_id}: '{role}' values {int(arr.min())}..{int(arr.max())} do not fit "
+                f"{dt.name} ({info.min}..{info.max}) in {relpath}."
+            )
+    payload = np.ascontiguousarray(arr, dtype=dt).tobytes()
+    return EncodedFile(relpath, role, payload, n_points, dt.itemsize)
+
+
+def normalize_sequences(sequences: object) -> tuple[str, ...] | None:
+    """The `sequences` option as sorted unique names; ints and 1-digit names get 2 digits.
+
+    None means every sequence. A single str or int is one sequence (not its characters).
+    """
+    if sequences is None:
+        return None
+    if isinstance(sequences, str | int):
+        sequences = [sequences]
+    names = set()
+    for s in sequences:  # type: ignore[attr-defined]
+        name = f"{s:02d}" if isinstance(s, int) else str(s)
+        names.add(name.zfill(2) if name.isdigit() else name)
+    return tuple(sorted(names))
+
+
+def select_sequences(
+    found: list[str], wanted: tuple[str, ...] | None, where: Path, layout: str
+) -> list[str]:
+    """Sequences of `found` selected by `wanted`; DatasetNotFoundError names missing ones."""
+    from lads.errors import DatasetNotFoundError
+
+    if wanted is None:
+        return sorted(found)
+    missing = sorted(set(wanted) - set(found))
+    if missing:
+        raise DatasetNotFoundError(
+            f"{where}: sequences {missing} not found; expected {layout}. Available: "
+            f"{sorted(found) or 'none'}. Fix the sequences option or the root."
+        )
+    return sorted(wanted)

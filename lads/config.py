@@ -1,0 +1,216 @@
+"""Pipeline configs: `pipelines/*.yaml` in, frozen dataclasses and a config hash out.
+
+A pipeline is data: its variant name, an ordered list of stages with parameters, and the
+writer's point-correspondence mode. Unknown keys are rejected so that a typo never falls
+back to a default silently.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from lads.errors import ConfigError
+
+SCHEMA_VERSION = 1
+PIPELINE_DIR = Path(__file__).resolve().parents[1] / "pipelines"
+POINT_MODES = ("physical", "aligned")
+RETURN_MODES = ("strongest", "last")
+
+# Parameters each stage accepts, with a validator per parameter.
+_STAGE_PARAMS: dict[str, dict[str, str]] = {
+    "rain": {"rate_mm_h": "nonneg", "mode": "return_mode"},
+    "snow": {"rate_mm_h": "nonneg", "mode": "return_mode"},
+    "fog": {"visibility_m": "visibility", "mode": "return_mode"},
+}
+
+
+@dataclass(frozen=True, slots=True)
+class StageConfig:
+    """One stage of a pipeline: its name and parameters (plain JSON-able values)."""
+
+    stage: str
+    params: dict[str, Any] = field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"stage": self.stage, **self.params}
+
+    def params_hash(self) -> str:
+        """sha256 (hex, first 16 chars) of the canonical JSON of this stage's parameters."""
+        return _hash(self.to_dict())[:16]
+
+
+@dataclass(frozen=True, slots=True)
+class PipelineConfig:
+    """An effective pipeline: what `lads build` runs and records.
+
+    Attributes:
+        variant: name of the built variant; part of every item's random-seed identity.
+        stages: ordered stages.
+        points: "physical" or "aligned" (docs/output_tree.md).
+        particle_label: label of particle returns in physical mode; None = reader default.
+        description: free text.
+    """
+
+    variant: str
+    stages: tuple[StageConfig, ...]
+    points: str = "physical"
+    particle_label: int | None = None
+    description: str = ""
+
+    def __post_init__(self) -> None:
+        if not self.variant or not self.variant.replace("-", "").replace("_", "").isalnum():
+            raise ConfigError(
+                f"variant {self.variant!r}: expected a short name of letters, digits, '-' or '_'."
+            )
+        if self.points not in POINT_MODES:
+            raise ConfigError(
+                f"writer.points is {self.points!r}; expected one of {', '.join(POINT_MODES)}."
+            )
+        if self.particle_label is not None and not 0 <= self.particle_label < 2**16:
+            raise ConfigError(
+                f"writer.particle_label is {self.particle_label}; expected a class id in 0..65535."
+            )
+
+    def to_dict(self) -> dict[str, Any]:
+        """Canonical dict, as saved in OUT/pipeline.yaml."""
+        return {
+            "schema_version": SCHEMA_VERSION,
+            "variant": self.variant,
+            "description": self.description,
+            "stages": [s.to_dict() for s in self.stages],
+            "writer": {"points": self.points, "particle_label": self.particle_label},
+        }
+
+    def config_hash(self) -> str:
+        """sha256 hex of the canonical JSON (sorted keys, no spaces) of `to_dict()`."""
+        return _hash(self.to_dict())
+
+    def with_overrides(self, **overrides: Any) -> PipelineConfig:
+        """A copy with command-line overrides applied; None values are ignored.
+
+        Stage parameters (rate_mm_h, visibility_m, mode) go to every stage that accepts
+        them; `points` and `particle_label` go to the writer. A stage parameter no stage
+        accepts is an error, so `--visibility-m` on a snow pipeline is refused.
+        """
+        given = {k: v for k, v in overrides.items() if v is not None}
+        top = {k: given.pop(k) for k in ("points", "particle_label") if k in given}
+        stages = list(self.stages)
+        for key, value in given.items():
+            hit = [i for i, s in enumerate(stages) if key in _STAGE_PARAMS.get(s.stage, {})]
+            if not hit:
+                names = ", ".join(s.stage for s in stages)
+                raise ConfigError(
+                    f"--{key.replace('_', '-')} does not apply to this pipeline (stages: {names})."
+                )
+            for i in hit:
+                stage = stages[i]
+                params = {**stage.params, key: value}
+                _check_stage(stage.stage, params, f"override {key}")
+                stages[i] = StageConfig(stage.stage, params)
+        return replace(self, stages=tuple(stages), **top)
+
+
+def _hash(obj: Any) -> str:
+    text = json.dumps(obj, sort_keys=True, separators=(",", ":"), allow_nan=True)
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def _check_value(kind: str, value: Any, where: str) -> None:
+    if kind == "return_mode":
+        if value not in RETURN_MODES:
+            raise ConfigError(f"{where}: mode is {value!r}; expected one of {RETURN_MODES}.")
+        return
+    if isinstance(value, bool) or not isinstance(value, int | float) or math.isnan(value):
+        raise ConfigError(f"{where}: expected a number, got {value!r}.")
+    if kind == "nonneg" and not (0 <= value < math.inf):
+        raise ConfigError(f"{where}: rate must be a finite number >= 0 mm/h, got {value}.")
+    if kind == "visibility" and not value > 0:
+        raise ConfigError(f"{where}: visibility must be > 0 m (inf = clear air), got {value}.")
+
+
+def _check_stage(name: str, params: dict[str, Any], where: str) -> None:
+    accepted = _STAGE_PARAMS.get(name)
+    if accepted is None:
+        raise ConfigError(
+            f"{where}: unknown stage {name!r}; expected one of {sorted(_STAGE_PARAMS)}."
+        )
+    unknown = sorted(set(params) - set(accepted))
+    if unknown:
+        raise ConfigError(
+            f"{where}: stage {name!r} has unknown parameters {unknown}; "
+            f"it accepts {sorted(accepted)}."
+        )
+    missing = [k for k in accepted if k != "mode" and k not in params]
+    if missing:
+        raise ConfigError(f"{where}: stage {name!r} needs {missing}.")
+    for key, value in params.items():
+        _check_value(accepted[key], value, f"{where}: {key}")
+
+
+def _reject_unknown(mapping: dict[str, Any], allowed: set[str], where: str) -> None:
+    unknown = sorted(set(mapping) - allowed)
+    if unknown:
+        raise ConfigError(f"{where}: unknown keys {unknown}; allowed: {sorted(allowed)}.")
+
+
+def parse_pipeline(data: Any, where: str) -> PipelineConfig:
+    """Validate a loaded pipeline mapping (see pipelines/README.md) into a PipelineConfig."""
+    if not isinstance(data, dict):
+        raise ConfigError(f"{where}: expected a YAML mapping at the top level.")
+    _reject_unknown(data, {"schema_version", "variant", "description", "stages", "writer"}, where)
+    if data.get("schema_version") != SCHEMA_VERSION:
+        raise ConfigError(
+            f"{where}: schema_version is {data.get('schema_version')!r}; this lads reads "
+            f"version {SCHEMA_VERSION}."
+        )
+    raw_stages = data.get("stages")
+    if not isinstance(raw_stages, list) or not raw_stages:
+        raise ConfigError(f"{where}: 'stages' must be a non-empty list.")
+    stages = []
+    for i, raw in enumerate(raw_stages):
+        if not isinstance(raw, dict) or "stage" not in raw:
+            raise ConfigError(f"{where}: stages[{i}] must be a mapping with a 'stage' key.")
+        params = {k: v for k, v in raw.items() if k != "stage"}
+        _check_stage(str(raw["stage"]), params, f"{where}: stages[{i}]")
+        stages.append(StageConfig(str(raw["stage"]), params))
+    writer = data.get("writer") or {}
+    if not isinstance(writer, dict):
+        raise ConfigError(f"{where}: 'writer' must be a mapping.")
+    _reject_unknown(writer, {"points", "particle_label"}, f"{where}: writer")
+    return PipelineConfig(
+        variant=str(data.get("variant", "")),
+        stages=tuple(stages),
+        points=str(writer.get("points", "physical")),
+        particle_label=writer.get("particle_label"),
+        description=str(data.get("description", "")),
+    )
+
+
+def load_pipeline(path: Path) -> PipelineConfig:
+    """Read and validate one pipeline YAML. Raises ConfigError naming the file."""
+    try:
+        data = yaml.safe_load(Path(path).read_text())
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read the pipeline file ({exc}).") from exc
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{path}: not valid YAML ({exc}).") from exc
+    return parse_pipeline(data, str(path))
+
+
+def find_pipeline(source: str, variant: str, directory: Path = PIPELINE_DIR) -> Path:
+    """`pipelines/<source>-<variant>.yaml` if present, else `pipelines/<variant>.yaml`."""
+    for name in (f"{source}-{variant}.yaml", f"{variant}.yaml"):
+        if (directory / name).is_file():
+            return directory / name
+    known = sorted(p.stem for p in directory.glob("*.yaml"))
+    raise ConfigError(
+        f"no pipeline for source {source!r} and variant {variant!r} in {directory}; "
+        f"available: {', '.join(known) or 'none'}. Pass --pipeline FILE to use your own."
+    )

@@ -1,0 +1,79 @@
+"""The provenance store: `OUT/provenance.zarr`, source_index and outcome per output point.
+
+One subgroup per item (named by the url-quoted scan relpath), so parallel workers write
+disjoint nodes and any output point can be traced to its source point.
+"""
+
+from __future__ import annotations
+
+import urllib.parse
+from pathlib import Path
+
+import numpy as np
+import numpy.typing as npt
+import zarr
+
+from lads.errors import ManifestError
+
+STORE_NAME = "provenance.zarr"
+SCHEMA_VERSION = 1
+
+
+def node_name(relpath: str) -> str:
+    """Zarr node name of an item: its relpath with every '/' (and '%') quoted."""
+    return urllib.parse.quote(relpath, safe="")
+
+
+def create_store(out_root: Path, *, points_mode: str, config_hash: str) -> None:
+    """Create (or reopen, if it matches) the store at the root of the output tree."""
+    path = out_root / STORE_NAME
+    group = zarr.open_group(path, mode="a", zarr_format=3)
+    attrs = {
+        "schema_version": SCHEMA_VERSION,
+        "points_mode": points_mode,
+        "config_hash": config_hash,
+    }
+    if dict(group.attrs) != attrs:
+        group.attrs.put(attrs)
+
+
+def write_item(
+    out_root: Path,
+    relpath: str,
+    item_id: str,
+    source_index: npt.NDArray[np.int64],
+    outcome: npt.NDArray[np.uint8],
+    n_source: int,
+) -> None:
+    """Write one item's provenance (overwriting a partial earlier attempt)."""
+    group = zarr.open_group(out_root / STORE_NAME / node_name(relpath), mode="w", zarr_format=3)
+    group.attrs.put(
+        {
+            "item_id": item_id,
+            "relpath": relpath,
+            "n_source": int(n_source),
+            "n_output": int(source_index.size),
+        }
+    )
+    n = max(int(source_index.size), 1)
+    for name, values in (("source_index", source_index.astype(np.int64)), ("outcome", outcome)):
+        array = group.create_array(
+            name, shape=values.shape, chunks=(n,), dtype=values.dtype, fill_value=0
+        )
+        if values.size:
+            array[:] = values
+
+
+def read_item(
+    out_root: Path, relpath: str
+) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.uint8], dict]:
+    """(source_index (M,) int64, outcome (M,) uint8, attrs) of one item."""
+    path = out_root / STORE_NAME / node_name(relpath)
+    try:
+        group = zarr.open_group(path, mode="r", zarr_format=3)
+        return group["source_index"][:], group["outcome"][:], dict(group.attrs)
+    except (FileNotFoundError, KeyError, zarr.errors.NodeNotFoundError) as exc:  # type: ignore[attr-defined]
+        raise ManifestError(
+            f"{path}: no provenance for {relpath}; the build is incomplete. Run the same "
+            "`lads build` again to finish it."
+        ) from exc

@@ -1,0 +1,138 @@
+"""SemanticKITTI: `sequences/SS/velodyne/NNNNNN.bin` scans with `labels/NNNNNN.label`.
+
+Layout (formats.md §1), relative to the reader root (the folder that holds `sequences/`):
+
+    sequences/SS/velodyne/NNNNNN.bin     headerless little-endian float32, N x 4:
+                                         x, y, z in m (Velodyne frame), remission in [0, 0.99]
+    sequences/SS/labels/NNNNNN.label     headerless little-endian uint32, N: semantic id in
+                                         the low 16 bits, instance id in the high 16 bits;
+                                         sequences 00-10 only
+    sequences/SS/{calib,poses,times}.txt copied byte for byte
+
+A sequence with a `labels/` folder needs a `.label` for every scan (a missing one fails that
+item at read time); a sequence without one (the test sequences 11-21) gives unlabelled items.
+Points are never filtered or de-duplicated: labels are matched by index.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from pathlib import Path
+
+import numpy as np
+
+from lads.errors import DatasetNotFoundError
+from lads.frame import Frame, Item
+from lads.readers.base import (
+    EncodedFile,
+    check_finite,
+    encode_labels,
+    encode_points,
+    normalize_sequences,
+    read_labels,
+    read_records,
+    select_sequences,
+)
+
+
+class SemanticKittiReader:
+    """Reader and encoder of the SemanticKITTI layout (also the base of `WadsReader`).
+
+    Args:
+        root: the folder that holds `sequences/`; a folder holding `dataset/sequences/`
+            is accepted too, and `root` then becomes that `dataset/` folder (item relpaths
+            always start with `sequences/`).
+        sequences: sequence names ("00", 8, ...) to restrict to; None for all.
+
+    Frames: columns ("x", "y", "z", "intensity"); points (N, 4) float32, xyz in m, intensity
+    the stored remission; labels (N,) uint32 raw SemanticKITTI ids (instance << 16 | sem).
+    """
+
+    name = "semantickitti"
+    sensor = "hdl64e"
+    particle_label = 1  # "outlier"
+    columns: tuple[str, ...] = ("x", "y", "z", "intensity")
+    label_dtype = np.dtype(np.uint32)
+    copied_names: tuple[str, ...] = ("calib.txt", "poses.txt", "times.txt")
+    scan_what = "SemanticKITTI scan (N x 4 float32: x, y, z, remission)"
+    label_what = "SemanticKITTI labels (uint32 per point)"
+
+    def __init__(self, root: str | Path, *, sequences: Iterable[str | int] | None = None):
+        given = Path(root)
+        if not (given / "sequences").is_dir() and (given / "dataset" / "sequences").is_dir():
+            given = given / "dataset"
+        self.root = given
+        self.sequences = normalize_sequences(sequences)
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}({str(self.root)!r}, sequences={self.sequences!r})"
+
+    def _expected(self) -> str:
+        return (
+            f"the {self.name} layout sequences/SS/velodyne/NNNNNN.bin (+ labels/NNNNNN.label) "
+            f"under {self.root}; pass the folder that holds sequences/"
+        )
+
+    def _selected(self) -> list[str]:
+        seq_root = self.root / "sequences"
+        if not seq_root.is_dir():
+            raise DatasetNotFoundError(f"{seq_root}: no such folder; expected {self._expected()}.")
+        found = [d.name for d in seq_root.iterdir() if (d / "velodyne").is_dir()]
+        return select_sequences(found, self.sequences, seq_root, self._expected())
+
+    def items(self) -> list[Item]:
+        """Every scan of the selected sequences, sorted by relpath."""
+        items = []
+        for seq in self._selected():
+            base = f"sequences/{seq}"
+            labelled = (self.root / base / "labels").is_dir()
+            for scan in (self.root / base / "velodyne").glob("*.bin"):
+                if not scan.is_file():
+                    continue
+                label = f"{base}/labels/{scan.stem}.label" if labelled else None
+                items.append(Item(self.name, f"{base}/velodyne/{scan.name}", label))
+        if not items:
+            raise DatasetNotFoundError(
+                f"{self.root}: no scans found (sequences {self.sequences or 'all'}); "
+                f"expected {self._expected()}."
+            )
+        return sorted(items, key=lambda it: it.relpath)
+
+    def copied_files(self) -> list[str]:
+        """calib.txt, poses.txt and times.txt of every selected sequence that has them."""
+        out = []
+        for seq in self._selected():
+            for name in self.copied_names:
+                rel = f"sequences/{seq}/{name}"
+                if (self.root / rel).is_file():
+                    out.append(rel)
+        return sorted(out)
+
+    def read(self, item: Item) -> Frame:
+        """Scan (N, 4) float32 and, when the item has them, labels (N,) uint32."""
+        path = self.root / item.relpath
+        points = read_records(path, np.float32, 4, self.scan_what)
+        check_finite(points, path, self.columns)
+        labels = None
+        if item.label_relpath is not None:
+            labels = read_labels(
+                self.root / item.label_relpath,
+                self.label_dtype,
+                points.shape[0],
+                self.label_what,
+                path,
+            )
+        return Frame.from_source(item, self.sensor, self.columns, points, labels)
+
+    def encode(self, frame: Frame) -> list[EncodedFile]:
+        """The scan (M x 16 bytes) and, if the item has one, the label file (M x 4 bytes)."""
+        item = frame.item
+        files = [encode_points(frame, 4, item.relpath)]
+        if item.label_relpath is not None:
+            n = frame.points.shape[0]
+            files.append(
+                encode_labels(
+                    frame.labels, self.label_dtype, n, item.label_relpath, "label", item.item_id
+                )
+            )
+        return files

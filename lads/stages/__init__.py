@@ -1,0 +1,27 @@
+"""Pipeline stages: pure functions of (frame, rng) -> frame, built from a StageConfig.
+
+STAGES is the one explicit table of stage names; `build_stage` turns a config entry into a
+callable stage object.
+"""
+
+from __future__ import annotations
+
+from lads.config import StageConfig
+from lads.errors import ConfigError
+from lads.stages.base import Stage
+from lads.stages.weather import WeatherStage
+
+STAGES: dict[str, type] = {
+    "rain": WeatherStage,
+    "snow": WeatherStage,
+    "fog": WeatherStage,
+}
+
+
+def build_stage(config: StageConfig) -> Stage:
+    """The stage object for one pipeline entry. Raises ConfigError for unknown names."""
+    cls = STAGES.get(config.stage)
+    if cls is None:
+        raise ConfigError(f"unknown stage {config.stage!r}; expected one of {sorted(STAGES)}.")
+    stage: Stage = cls.from_config(config)
+    return stage

@@ -1,0 +1,75 @@
+"""Pipelines are validated data; overrides change parameters; the hash tracks every change."""
+
+from __future__ import annotations
+
+import pytest
+
+from lads.config import PIPELINE_DIR, find_pipeline, load_pipeline, parse_pipeline
+from lads.errors import ConfigError
+
+SNOW = {
+    "schema_version": 1,
+    "variant": "snow",
+    "stages": [{"stage": "snow", "rate_mm_h": 2.5}],
+    "writer": {"points": "physical"},
+}
+
+
+def test_shipped_pipelines_load_and_name_their_variant():
+    for variant in ("snow", "rain", "fog"):
+        config = load_pipeline(find_pipeline("semantickitti", variant))
+        assert config.variant == variant
+        assert config.stages[0].stage == variant
+
+
+def test_source_specific_pipeline_wins_over_generic(tmp_path):
+    (tmp_path / "snow.yaml").write_text("x")
+    (tmp_path / "wads-snow.yaml").write_text("x")
+    assert find_pipeline("wads", "snow", tmp_path).name == "wads-snow.yaml"
+    assert find_pipeline("semantickitti", "snow", tmp_path).name == "snow.yaml"
+
+
+def test_unknown_variant_lists_what_exists():
+    with pytest.raises(ConfigError, match="available: .*fog"):
+        find_pipeline("semantickitti", "hail", PIPELINE_DIR)
+
+
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        ({"colour": 1}, "unknown keys"),
+        ({"schema_version": 2}, "schema_version"),
+        ({"stages": []}, "non-empty"),
+        ({"stages": [{"stage": "hail", "rate_mm_h": 1}]}, "unknown stage"),
+        ({"stages": [{"stage": "snow", "rate_mmh": 1}]}, "unknown parameters"),
+        ({"stages": [{"stage": "snow"}]}, "needs"),
+        ({"stages": [{"stage": "rain", "rate_mm_h": -1}]}, ">= 0"),
+        ({"stages": [{"stage": "fog", "visibility_m": 0}]}, "> 0"),
+        ({"stages": [{"stage": "fog", "visibility_m": 50, "mode": "first"}]}, "mode"),
+        ({"writer": {"points": "sparse"}}, "writer.points"),
+        ({"writer": {"points": "physical", "label": 1}}, "unknown keys"),
+    ],
+)
+def test_invalid_pipelines_are_refused_with_the_reason(change, message):
+    with pytest.raises(ConfigError, match=message):
+        parse_pipeline({**SNOW, **change}, "test.yaml")
+
+
+def test_overrides_change_parameters_and_hash():
+    config = parse_pipeline(SNOW, "t")
+    heavier = config.with_overrides(rate_mm_h=10.0, visibility_m=None)
+    assert heavier.stages[0].params["rate_mm_h"] == 10.0
+    assert heavier.config_hash() != config.config_hash()
+    assert config.with_overrides(rate_mm_h=None).config_hash() == config.config_hash()
+    aligned = config.with_overrides(points="aligned", particle_label=110)
+    assert (aligned.points, aligned.particle_label) == ("aligned", 110)
+
+
+def test_override_that_no_stage_accepts_is_an_error():
+    with pytest.raises(ConfigError, match="--visibility-m does not apply"):
+        parse_pipeline(SNOW, "t").with_overrides(visibility_m=30.0)
+
+
+def test_hash_is_stable_across_dict_order():
+    reordered = {"writer": SNOW["writer"], "stages": SNOW["stages"], "variant": "snow", "schema_version": 1}
+    assert parse_pipeline(reordered, "a").config_hash() == parse_pipeline(SNOW, "b").config_hash()
