@@ -28,9 +28,10 @@ lint: install
 	$(PY) -m ruff check lads tests benchmarks
 	$(PY) -m ruff format --check lads tests benchmarks
 
-# Until the dataset builder lands (issue 5) a release is the tested wheel.
-release: test
-	$(PY) -m pip wheel --quiet --no-deps --wheel-dir dist .
+# The LADS table from the dataset roots in LADS_*_ROOT (see lads/release.py); without
+# them, a demo release from synthetic sources. Verified, with cards and manifests.
+release: install
+	$(PY) -m lads.release
 
 clean:
-	rm -rf .venv demo_output dist
+	rm -rf .venv demo_output dist release

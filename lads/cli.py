@@ -295,3 +295,7 @@ def verify(
     click.echo(report.summary_text())
     if not report.ok:
         sys.exit(EXIT_INCOMPLETE)
+
+
+if __name__ == "__main__":
+    main()

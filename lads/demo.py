@@ -1,146 +1,127 @@
-"""`make demo`: rain, snow and fog on a street scan lads ray-casts itself (no dataset needed).
+"""`make demo`: the whole product on data lads makes itself, no dataset needed.
 
-Writes `<out>/weather_demo.png` (bird's-eye views coloured by outcome, and the range
-distribution of particle returns) and `<out>/summary.json` (per weather: outcome counts,
-extinction, particle-return range percentiles, run time).
+1. `lads synth`: ray-cast a short SemanticKITTI-layout sequence through a procedural street.
+2. `lads build`: snow, rain and fog variants of it (same layout, labels rewritten).
+3. `lads verify`: every variant against the source (checksums, layout, counts, a regenerated
+   item).
+4. Figures: bird's-eye view and range image before/after, intensity histograms, and the
+   point-correspondence diagram; `summary.json` and a one-screen summary.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import shutil
+import sys
 import time
 from pathlib import Path
 from typing import Any
 
-import numpy as np
+from lads.config import find_pipeline, load_pipeline
+from lads.figures import correspondence_figure, variant_figure
+from lads.runner import run_build
+from lads.synth import write_synthetic_dataset
+from lads.verify import verify_tree
 
-from lads.physics import weather
-from lads.physics.result import Outcome, WeatherResult
-from lads.sensors.profile import load_profile
-from lads.synthetic import synthetic_scan
-
-SCENARIOS: tuple[tuple[str, str, dict[str, float]], ...] = (
-    ("rain 25 mm/h", "rain", {"rate_mm_h": 25.0}),
-    ("snow 10 mm/h", "snow", {"rate_mm_h": 10.0}),
-    ("fog, visibility 50 m", "fog", {"visibility_m": 50.0}),
-)
-OUTCOME_COLOURS = {
-    Outcome.KEPT: "#4a4a4a",
-    Outcome.ATTENUATED: "#4a4a4a",
-    Outcome.PARTICLE: "#e8112d",
-}
+VARIANTS = ("snow", "rain", "fog")
+MARKER = "lads_demo.json"
 
 
-def run_demo(out_dir: Path, *, sensor: str = "hdl64e", seed: int = 0) -> dict[str, Any]:
-    """Simulate every scenario on one synthetic frame; write the figure and summary.
+def _fresh(out_dir: Path) -> None:
+    """Start from an empty demo folder; only ever delete a folder the demo made."""
+    if out_dir.exists() and any(out_dir.iterdir()):
+        if not (out_dir / MARKER).is_file():
+            from lads.errors import BuildError
 
-    Returns:
-        The summary dict that is also written to `out_dir/summary.json`.
-    """
-    profile = load_profile(sensor)
-    scan = synthetic_scan(profile, seed=seed)
-    results: dict[str, WeatherResult] = {}
-    summary: dict[str, Any] = {
-        "sensor": profile.name,
-        "seed": seed,
-        "input_points": int(scan.xyz.shape[0]),
-        "weather": {},
-    }
-    for title, name, kwargs in SCENARIOS:
-        simulate = getattr(weather, name)
-        # The first call builds the Mie and sampling tables (cached); time the second.
-        simulate(scan.xyz, scan.intensity, sensor=profile, rng=np.random.default_rng(0), **kwargs)
-        rng = np.random.default_rng([seed, len(results)])
-        start = time.perf_counter()
-        result = simulate(scan.xyz, scan.intensity, sensor=profile, rng=rng, **kwargs)
-        elapsed_ms = 1e3 * (time.perf_counter() - start)
-        results[title] = result
-        particle_range = np.linalg.norm(result.xyz[result.outcome == Outcome.PARTICLE], axis=1)
-        summary["weather"][title] = {
-            **kwargs,
-            "counts": result.counts(),
-            "extinction_per_m": result.extinction_per_m,
-            "two_way_transmission_at_50_m": float(np.exp(-2 * result.extinction_per_m * 50.0)),
-            "particle_range_p5_p50_p95_m": (
-                [round(float(v), 3) for v in np.percentile(particle_range, [5, 50, 95])]
-                if particle_range.size
-                else None
-            ),
-            "runtime_ms_after_warm_up": round(elapsed_ms, 2),
-        }
+            raise BuildError(
+                f"{out_dir}: not empty and not a lads demo folder; pass another --out."
+            )
+        shutil.rmtree(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    _write_json(out_dir / "summary.json", summary)
-    _plot(out_dir / "weather_demo.png", scan.xyz, results)
+    (out_dir / MARKER).write_text('{"made_by": "lads demo"}\n')
+
+
+def run_demo(
+    out_dir: Path, *, frames: int = 8, sensor: str = "hdl64e", seed: int = 0, jobs: int = 2
+) -> dict[str, Any]:
+    """Synthesise, build every variant, verify, draw. Returns the summary (also as JSON)."""
+    _fresh(out_dir)
+    start = time.perf_counter()
+    source = out_dir / "source"
+    synth = write_synthetic_dataset(source, sensor=sensor, frames=frames, seed=seed)
+    summary: dict[str, Any] = {
+        "sensor": sensor,
+        "frames": frames,
+        "seed": seed,
+        "source": str(source),
+        "source_points_per_frame": list(synth.points_per_frame),
+        "synth_seconds": round(time.perf_counter() - start, 2),
+        "variants": {},
+    }
+    built: dict[str, Path] = {}
+    for variant in VARIANTS:
+        pipeline = load_pipeline(find_pipeline("semantickitti", variant))
+        out = out_dir / variant
+        report = run_build("semantickitti", source, out, pipeline, seed=seed, jobs=jobs)
+        check = verify_tree(out, source, regenerate=1, seed=seed)
+        rows = [json.loads(x) for x in (out / "manifest.jsonl").read_text().splitlines()]
+        totals = {k: sum(r["points"][k] for r in rows) for k in rows[0]["points"]}
+        built[variant] = out
+        summary["variants"][variant] = {
+            "tree": str(out),
+            "stage": pipeline.stages[0].to_dict(),
+            "complete": report.complete,
+            "frames_per_s": round(report.frames_per_s, 2),
+            "points": totals,
+            "verify_ok": check.ok,
+            "verify_problems": [f"{p.kind}: {p.path}" for p in check.problems],
+        }
+    figures = out_dir / "figures"
+    relpath = "sequences/00/velodyne/000000.bin"
+    variant_figure(source, built, relpath, figures / "variants_000000.png", sensor=sensor)
+    correspondence_figure(figures / "point_correspondence.png")
+    summary["figures"] = sorted(p.name for p in figures.glob("*.png"))
+    summary["seconds"] = round(time.perf_counter() - start, 2)
+    (out_dir / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     return summary
 
 
-def _write_json(path: Path, payload: dict[str, Any]) -> None:
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(json.dumps(payload, indent=2) + "\n")
-    tmp.replace(path)
-
-
-def _plot(path: Path, clear_xyz: np.ndarray, results: dict[str, WeatherResult]) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(1, len(results) + 2, figsize=(5 * (len(results) + 2), 5))
-    extent = 40.0
-
-    def bev(ax: Any, xyz: np.ndarray, colour: Any, title: str) -> None:
-        ax.scatter(xyz[:, 0], xyz[:, 1], s=0.2, c=colour, linewidths=0)
-        ax.set_xlim(-extent, extent)
-        ax.set_ylim(-extent, extent)
-        ax.set_aspect("equal")
-        ax.set_title(title)
-        ax.set_xlabel("x (m)")
-
-    bev(axes[0], clear_xyz, "#4a4a4a", f"clear ({clear_xyz.shape[0]:,} points)")
-    axes[0].set_ylabel("y (m)")
-    for ax, (title, result) in zip(axes[1:-1], results.items(), strict=True):
-        colours = np.array([OUTCOME_COLOURS[Outcome(o)] for o in range(3)])[result.outcome]
-        order = np.argsort(result.outcome == Outcome.PARTICLE, kind="stable")  # particles on top
-        counts = result.counts()
-        bev(ax, result.xyz[order], colours[order],
-            f"{title}\nparticle {counts['particle']:,} · lost {counts['lost']:,}")  # fmt: skip
-    hist_ax = axes[-1]
-    bins = np.linspace(0.0, 30.0, 61)
-    for title, result in results.items():
-        r = np.linalg.norm(result.xyz[result.outcome == Outcome.PARTICLE], axis=1)
-        hist_ax.hist(r, bins=bins, histtype="step", label=f"{title} ({r.size:,})")
-    hist_ax.set_xlabel("range of particle / fog returns (m)")
-    hist_ax.set_ylabel("returns per 0.5 m")
-    hist_ax.legend(fontsize=8)
-    hist_ax.set_title("where weather returns appear")
-    fig.tight_layout()
-    tmp = path.with_name(path.stem + ".tmp.png")
-    fig.savefig(tmp, dpi=110)
-    plt.close(fig)
-    tmp.replace(path)
+def summary_text(summary: dict[str, Any], out_dir: Path) -> str:
+    n = summary["frames"]
+    mean_pts = sum(summary["source_points_per_frame"]) / max(n, 1)
+    lines = [
+        f"lads demo: {n} synthetic {summary['sensor']} frames ({mean_pts:,.0f} points each) "
+        f"in {out_dir / 'source'}",
+        f"{'variant':8s} {'stage':28s} {'particle':>9s} {'lost':>8s} {'frames/s':>9s}  verify",
+    ]
+    for name, info in summary["variants"].items():
+        stage = ", ".join(f"{k}={v}" for k, v in info["stage"].items() if k != "stage")
+        p = info["points"]
+        verdict = "ok" if info["verify_ok"] else f"{len(info['verify_problems'])} problems"
+        lines.append(
+            f"{name:8s} {stage:28s} {p['particle']:9,d} {p['lost']:8,d} "
+            f"{info['frames_per_s']:9.1f}  {verdict}"
+        )
+    lines.append(f"figures: {out_dir / 'figures'} ({', '.join(summary['figures'])})")
+    lines.append(f"total {summary['seconds']:.1f} s; details in {out_dir / 'summary.json'}")
+    return "\n".join(lines)
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=Path("demo_output"))
+    parser.add_argument("--frames", type=int, default=8)
     parser.add_argument("--sensor", default="hdl64e")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--jobs", type=int, default=2)
     args = parser.parse_args(argv)
-    summary = run_demo(args.out, sensor=args.sensor, seed=args.seed)
-    lines = [f"lads demo: {summary['input_points']:,} synthetic {summary['sensor']} points"]
-    for title, info in summary["weather"].items():
-        c = info["counts"]
-        lines.append(
-            f"  {title:22s} attenuated {c['attenuated']:7,}  particle {c['particle']:6,}  "
-            f"lost {c['lost']:6,}  ({info['runtime_ms_after_warm_up']:.1f} ms)"
-        )
-    lines.append(f"wrote {args.out / 'weather_demo.png'} and {args.out / 'summary.json'}")
-    import sys
-
-    sys.stdout.write("\n".join(lines) + "\n")
-    return 0
+    summary = run_demo(
+        args.out, frames=args.frames, sensor=args.sensor, seed=args.seed, jobs=args.jobs
+    )
+    sys.stdout.write(summary_text(summary, args.out) + "\n")
+    ok = all(v["verify_ok"] and v["complete"] for v in summary["variants"].values())
+    return 0 if ok else 1
 
 
 if __name__ == "__main__":

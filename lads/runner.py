@@ -49,6 +49,7 @@ class BuildReport:
     failed: list[tuple[str, str]] = field(default_factory=list)
     seconds: float = 0.0
     stopped_early: bool = False
+    peak_worker_rss_mb: float = 0.0
 
     @property
     def complete(self) -> bool:
@@ -251,7 +252,7 @@ def run_build(
     out_root.mkdir(parents=True, exist_ok=True)
     _claim_output(out_root, plan)
     remove_stray_temps(out_root)
-    copied = _copy_files(reader, source_root, out_root)
+    copied = _copy_files(reader, Path(reader.root), out_root)
     provenance.create_store(
         out_root, points_mode=pipeline.points, config_hash=pipeline.config_hash()
     )
@@ -269,6 +270,7 @@ def run_build(
     with bar:
         for row in _dispatch(todo, plan, jobs, backend, scheduler):
             seconds.append(row.pop("_seconds", 0.0))
+            report.peak_worker_rss_mb = max(report.peak_worker_rss_mb, row.pop("_peak_rss_mb", 0.0))
             rows[row["item_id"]] = row
             bar.update(1)
             if row["status"] == "ok":
@@ -352,6 +354,7 @@ def _write_report(out_root: Path, report: BuildReport, seconds: list[float]) -> 
         "stopped_early": report.stopped_early,
         "seconds": round(report.seconds, 3),
         "frames_per_s": round(report.frames_per_s, 3),
+        "peak_worker_rss_mb": round(report.peak_worker_rss_mb, 1),
         "item_seconds_median": round(sorted(seconds)[len(seconds) // 2], 4) if seconds else None,
     }
     atomic_write(out_root / RUN_REPORT, (json.dumps(data, indent=1) + "\n").encode())

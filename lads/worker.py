@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import functools
 import json
+import resource
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -52,9 +53,14 @@ def _reader(source: str, root: str, options: tuple[tuple[str, Any], ...]) -> Rea
     return get_reader(source, Path(root), **dict(options))
 
 
-@functools.lru_cache(maxsize=4)
+_STAGE_CACHE: dict[str, tuple[Stage, ...]] = {}
+
+
 def _stages(pipeline: PipelineConfig) -> tuple[Stage, ...]:
-    return tuple(build_stage(s) for s in pipeline.stages)
+    key = pipeline.config_hash()
+    if key not in _STAGE_CACHE:
+        _STAGE_CACHE[key] = tuple(build_stage(s) for s in pipeline.stages)
+    return _STAGE_CACHE[key]
 
 
 def reader_for(plan: BuildPlan) -> Reader:
@@ -132,7 +138,7 @@ def process_item(item: Item, plan: BuildPlan) -> dict[str, Any]:
         row: dict[str, Any] = {
             **fields,
             "status": "ok",
-            "source": _source_rows(item, Path(plan.source_root)),
+            "source": _source_rows(item, reader_for(plan).root),
             "outputs": _output_rows(files),
         }
         for f in files:
@@ -144,6 +150,8 @@ def process_item(item: Item, plan: BuildPlan) -> dict[str, Any]:
         row = _failed(item, f"internal error {type(exc).__name__}: {exc} (please report this)")
     atomic_write(state_path(out_root, item.item_id), json.dumps(row, sort_keys=True).encode())
     row["_seconds"] = time.perf_counter() - start
+    # ru_maxrss is in KiB on Linux: the worker's peak resident memory so far.
+    row["_peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     return row
 
 

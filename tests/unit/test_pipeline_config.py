@@ -71,5 +71,10 @@ def test_override_that_no_stage_accepts_is_an_error():
 
 
 def test_hash_is_stable_across_dict_order():
-    reordered = {"writer": SNOW["writer"], "stages": SNOW["stages"], "variant": "snow", "schema_version": 1}
+    reordered = {
+        "writer": SNOW["writer"],
+        "stages": SNOW["stages"],
+        "variant": "snow",
+        "schema_version": 1,
+    }
     assert parse_pipeline(reordered, "a").config_hash() == parse_pipeline(SNOW, "b").config_hash()

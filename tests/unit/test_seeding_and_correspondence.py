@@ -75,11 +75,20 @@ def test_aligned_mode_keeps_n_order_and_labels():
     assert outcome.tolist() == [0, 3, 2, 1, 3, 0]
     assert np.all(frame.points[[1, 4], :4] == 0)  # lost beams at the origin, intensity 0
     assert np.array_equal(frame.points[[1, 4], 4], src.points[[1, 4], 4])  # ring kept
-    assert np.array_equal(frame.points[[0, 5]][:, [0, 1, 2, 4]], src.points[[0, 5]][:, [0, 1, 2, 4]])
+    assert np.array_equal(
+        frame.points[[0, 5]][:, [0, 1, 2, 4]], src.points[[0, 5]][:, [0, 1, 2, 4]]
+    )
     assert frame.points[[0, 2, 3, 5], 3].tolist() == [0.5] * 4  # the stage's intensities
     assert source_index.tolist() == list(range(6))
 
 
 def test_outcome_counts_add_up():
     counts = correspondence.outcome_counts(6, np.array([0, 2, 1, 0], np.uint8), 2)
-    assert counts == {"source": 6, "output": 4, "kept": 2, "attenuated": 1, "particle": 1, "lost": 2}
+    assert counts == {
+        "source": 6,
+        "output": 4,
+        "kept": 2,
+        "attenuated": 1,
+        "particle": 1,
+        "lost": 2,
+    }

@@ -1,0 +1,158 @@
+"""Before/after figures of built variants: bird's-eye view, range image, intensity histogram.
+
+Used by `make demo`, dataset cards and the docs. Figures are drawn from files on disk (the
+source scan, the variant scan and its provenance), so they show what a user downloads.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from lads import provenance
+from lads.physics.projection import project
+from lads.physics.result import Outcome
+from lads.sensors.profile import load_profile
+
+OUTCOME_STYLE = {
+    Outcome.KEPT: ("#4a4a4a", "kept"),
+    Outcome.ATTENUATED: ("#2f7ed8", "attenuated"),
+    Outcome.PARTICLE: ("#e8112d", "particle return"),
+    Outcome.LOST: ("#f5a623", "lost (aligned: at origin)"),
+}
+
+
+def _plt() -> Any:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _save(fig: Any, path: Path) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.stem + ".tmp.png")
+    fig.savefig(tmp, dpi=100)
+    _plt().close(fig)
+    tmp.replace(path)
+
+
+def _scan(path: Path, columns: int) -> npt.NDArray[np.float32]:
+    return np.fromfile(path, dtype="<f4").reshape(-1, columns)
+
+
+def _range_image(xyz: npt.NDArray[np.float32], values: npt.NDArray[Any], sensor: str) -> Any:
+    profile = load_profile(sensor)
+    image = project(xyz, profile)
+    grid = np.full(image.index.shape, np.nan, dtype=np.float32)
+    owned = image.mask
+    grid[owned] = values[image.index[owned]]
+    return grid
+
+
+def variant_figure(
+    source_root: Path, variants: dict[str, Path], relpath: str, path: Path, *, sensor: str,
+    columns: int = 4, extent_m: float = 40.0,
+) -> Path:  # fmt: skip
+    """One row per tree (source first, then each variant): BEV coloured by outcome and a
+    range image of intensity; a last panel overlays the intensity histograms.
+
+    Args:
+        source_root: the source tree; variants: name -> built tree.
+        relpath: the scan to show (same relative path in every tree).
+        sensor: profile used for the range-image projection.
+        columns: float32 columns per point in the scan file.
+    """
+    plt = _plt()
+    rows = 1 + len(variants)
+    fig = plt.figure(figsize=(16, 3.2 * rows))
+    grid = fig.add_gridspec(rows, 3, width_ratios=(1.0, 3.2, 1.3))
+    src = _scan(source_root / relpath, columns)
+    trees = [("source (clear)", src, np.full(src.shape[0], Outcome.KEPT, np.uint8))]
+    for name, root in variants.items():
+        pts = _scan(root / relpath, columns)
+        _, outcome, _ = provenance.read_item(root, relpath)
+        trees.append((name, pts, outcome))
+    hist_ax = fig.add_subplot(grid[:, 2])
+    bins = np.linspace(0.0, float(max(src[:, 3].max(), 1e-3)), 60)
+    for r, (name, pts, outcome) in enumerate(trees):
+        bev = fig.add_subplot(grid[r, 0])
+        order = np.argsort(outcome, kind="stable")  # particles and lost drawn last
+        colours = np.array([OUTCOME_STYLE[Outcome(o)][0] for o in range(4)])[outcome[order]]
+        bev.scatter(pts[order, 0], pts[order, 1], s=0.15, c=colours, linewidths=0)
+        bev.set(xlim=(-extent_m, extent_m), ylim=(-extent_m, extent_m), aspect="equal")
+        counts = np.bincount(outcome, minlength=4)
+        bev.set_title(f"{name}\n{pts.shape[0]:,} pts · particle {counts[2]:,}", fontsize=9)
+        bev.tick_params(labelsize=7)
+        keep = outcome != Outcome.LOST
+        img = fig.add_subplot(grid[r, 1])
+        shown = img.imshow(
+            _range_image(pts[keep, :3], pts[keep, 3], sensor), aspect="auto", cmap="viridis",
+            interpolation="nearest", vmin=0.0, vmax=bins[-1],
+        )  # fmt: skip
+        img.set_title(f"{name}: intensity range image (rows = channels)", fontsize=9)
+        img.tick_params(labelsize=7)
+        fig.colorbar(shown, ax=img, fraction=0.02)
+        hist_ax.hist(pts[keep, 3], bins=bins, histtype="step", density=True, label=name)
+    hist_ax.set_yscale("log")
+    hist_ax.set_xlabel("stored intensity")
+    hist_ax.set_title("intensity histograms", fontsize=9)
+    hist_ax.legend(fontsize=7)
+    handles = [
+        plt.Line2D([], [], marker="o", ls="", color=c, label=label)
+        for c, label in OUTCOME_STYLE.values()
+    ]
+    fig.legend(handles=handles, loc="lower left", fontsize=7, ncol=4)
+    fig.tight_layout(rect=(0, 0.03, 1, 1))
+    _save(fig, path)
+    return path
+
+
+def correspondence_figure(path: Path) -> Path:
+    """Diagram of the two point-correspondence modes (docs/output_tree.md)."""
+    plt = _plt()
+    fig, axes = plt.subplots(1, 3, figsize=(12, 3.4))
+    outcomes = np.array([0, 0, 1, 3, 0, 2, 0, 3, 1, 0], dtype=np.uint8)
+    n = outcomes.size
+    titles = ("source scan: N = 10 points, labels L0..L9",
+              "--points physical: lost removed, particle relabelled",
+              "--points aligned: N and order kept, labels reused")  # fmt: skip
+    for ax, title in zip(axes, titles, strict=True):
+        ax.set_title(title, fontsize=9)
+        ax.set_xlim(-0.5, 3.5)
+        ax.set_ylim(-0.5, n - 0.5)
+        ax.invert_yaxis()
+        ax.axis("off")
+    for i in range(n):
+        axes[0].text(0, i, f"p{i}", ha="center", va="center")
+        axes[0].text(1.5, i, f"L{i}", ha="center", va="center")
+    row = 0
+    for i, o in enumerate(outcomes):
+        colour, name = OUTCOME_STYLE[Outcome(int(o))]
+        label = "L_particle" if o == Outcome.PARTICLE else f"L{i}"
+        axes[2].text(
+            0,
+            i,
+            "(0,0,0), I=0" if o == Outcome.LOST else f"p{i}'",
+            ha="center",
+            va="center",
+            color=colour,
+        )
+        axes[2].text(1.5, i, f"L{i}", ha="center", va="center")
+        axes[2].text(2.9, i, name, ha="center", va="center", color=colour, fontsize=7)
+        if o == Outcome.LOST:
+            continue
+        axes[1].text(0, row, f"p{i}'", ha="center", va="center", color=colour)
+        axes[1].text(1.5, row, label, ha="center", va="center")
+        axes[1].text(
+            2.9, row, f"source_index {i}", ha="center", va="center", color=colour, fontsize=7
+        )
+        row += 1
+    fig.tight_layout()
+    _save(fig, path)
+    return path
