@@ -82,3 +82,36 @@ def street_frame(
     rho[rng.random(t.size) < 0.03] = 0.0
     intensity = profile.intensity.from_reflectivity(rho)
     return hit[valid].astype(np.float32), intensity[valid]
+
+
+# Dataset trees for reader and builder tests (tests/trees.py).
+
+
+@pytest.fixture
+def synthetic_tree(tmp_path):
+    """synthetic_tree(name, **kwargs) -> root of a fresh synthetic tree in tmp_path.
+
+    name is a reader name ("semantickitti", "wads", "voxelscape", "radiate", "nuscenes");
+    kwargs go to the matching `tests.trees.synthetic_<name>` builder.
+    """
+    from tests import trees
+
+    def build(name: str, **kwargs) -> Path:
+        return getattr(trees, f"synthetic_{name}")(tmp_path / f"synthetic_{name}", **kwargs)
+
+    return build
+
+
+@pytest.fixture
+def real_tree(shared_data, tmp_path):
+    """real_tree(name) -> root of a tmp tree of symlinks to the real samples in ../shared/data.
+
+    name: "semantickitti", "wads", "radiate" or "nuscenes" (see `tests.trees.real_<name>`).
+    Skipped when ../shared/data is absent.
+    """
+    from tests import trees
+
+    def build(name: str) -> Path:
+        return getattr(trees, f"real_{name}")(tmp_path / f"real_{name}")
+
+    return build

@@ -121,10 +121,11 @@ def check_finite(points: np.ndarray, path: Path, columns: tuple[str, ...]) -> No
 
 
 def read_labels(
-    path: Path, dtype: np.dtype | type, n_points: int, what: str, scan: Path
+    path: Path, dtype: np.dtype | type, n_points: int, what: str, scan: Path, why: str = ""
 ) -> np.ndarray:
     """Read (N,) per-point labels of `dtype` from `path`, checking it exists and N matches.
 
+    `why` says why the file is expected (for the message when it is missing).
     Raises CorruptItemError naming the file when it is missing, unreadable, mis-sized or
     holds a different number of records than the scan `scan` has points.
     """
@@ -134,8 +135,8 @@ def read_labels(
     if not path.is_file():
         raise CorruptItemError(
             f"{path}: missing {what} for scan {scan}; expected {n_points} {dt.name} records "
-            "(one per point) because this sequence has a labels folder. Restore the file from "
-            "the dataset archive, or remove the scan from the source tree."
+            f"(one per point){' because ' + why if why else ''}. Restore the file from the "
+            "dataset archive, or remove the scan from the source tree."
         )
     labels = read_records(path, dt, 1, what)
     if labels.shape[0] != n_points:

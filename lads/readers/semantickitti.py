@@ -121,6 +121,7 @@ class SemanticKittiReader:
                 points.shape[0],
                 self.label_what,
                 path,
+                why="this sequence has a labels/ folder",
             )
         return Frame.from_source(item, self.sensor, self.columns, points, labels)
 

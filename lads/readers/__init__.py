@@ -1,0 +1,54 @@
+"""Dataset readers: one module per on-disk format, all following `lads.readers.base.Reader`.
+
+`READERS` maps each reader name (the `--source` of `lads build`, the `dataset` of an
+`Item`) to its class; `get_reader` builds one with its options.
+"""
+
+from __future__ import annotations
+
+import inspect
+from pathlib import Path
+from typing import Any
+
+from lads.errors import ConfigError
+from lads.readers.base import EncodedFile, Reader
+from lads.readers.nuscenes import NuScenesReader
+from lads.readers.radiate import RadiateReader
+from lads.readers.semantickitti import SemanticKittiReader
+from lads.readers.voxelscape import VoxelscapeReader
+from lads.readers.wads import WadsReader
+
+READERS: dict[str, type] = {
+    "semantickitti": SemanticKittiReader,
+    "nuscenes": NuScenesReader,
+    "voxelscape": VoxelscapeReader,
+    "wads": WadsReader,
+    "radiate": RadiateReader,
+}
+
+
+def get_reader(name: str, root: str | Path, **options: Any) -> Reader:
+    """Build the reader `name` for the tree at `root` with its keyword `options`.
+
+    Raises:
+        ConfigError: unknown reader name (the message lists the valid ones) or an option the
+            reader does not take (the message lists the ones it does).
+    """
+    try:
+        cls = READERS[name]
+    except KeyError:
+        raise ConfigError(
+            f"unknown dataset reader {name!r}; valid names: {', '.join(sorted(READERS))}."
+        ) from None
+    signature = inspect.signature(cls)
+    try:
+        signature.bind(root, **options)
+    except TypeError as exc:
+        accepted = [p for p in signature.parameters if p != "root"]
+        raise ConfigError(
+            f"reader {name!r}: {exc}; its options are {accepted or 'none'}."
+        ) from None
+    return cls(root, **options)
+
+
+__all__ = ["READERS", "EncodedFile", "Reader", "get_reader"]

@@ -1,0 +1,286 @@
+"""nuScenes-lidarseg: LIDAR_TOP `.pcd.bin` scans with uint8 lidarseg labels.
+
+Layout (formats.md §2), relative to the dataroot:
+
+    samples/LIDAR_TOP/<log>__LIDAR_TOP__<us>.pcd.bin   keyframes; headerless little-endian
+                                                       float32, N x 5: x, y, z in m (sensor
+                                                       frame), intensity 0-255, ring 0-31
+    sweeps/LIDAR_TOP/...pcd.bin                        non-keyframes, same format, no labels
+    lidarseg/<version>/<sd_token>_lidarseg.bin         uint8 per point (category `index`)
+    panoptic/<version>/<sd_token>_panoptic.npz         npz key `data`: uint16 per point,
+                                                       category index * 1000 + instance id
+    <version>/*.json                                   the tables; copied byte for byte
+    maps/**                                            map files; copied byte for byte
+
+Scans are read and written here with all five columns: the devkit's
+`LidarPointCloud.from_file` drops the ring column and must never produce output.
+The devkit only walks the tables (`items()`), which also checks the database the way every
+nuScenes user will (13 tables, #label files == #lidarseg records, map files exist). Loading
+the v1.0-trainval tables this way takes about a minute and several GB of memory, once per
+build.
+
+Panoptic `.npz` files are zip archives whose members carry the time they were written
+(`np.savez_compressed`), so the original bytes cannot be reproduced; encode writes a
+deterministic archive instead (one member `data.npy`, deflated, dated 1980-01-01) that the
+devkit and `np.load` read as the same array. Round trips compare decoded arrays for that
+role; scans and lidarseg labels round-trip byte for byte.
+"""
+
+from __future__ import annotations
+
+import io
+import zipfile
+from pathlib import Path
+
+import numpy as np
+
+from lads.errors import ConfigError, CorruptItemError, DatasetNotFoundError, ReaderError
+from lads.frame import Frame, Item
+from lads.readers.base import (
+    EncodedFile,
+    check_finite,
+    encode_labels,
+    encode_points,
+    read_labels,
+    read_records,
+)
+
+TABLES = (
+    "category",
+    "attribute",
+    "visibility",
+    "instance",
+    "sensor",
+    "calibrated_sensor",
+    "ego_pose",
+    "log",
+    "scene",
+    "sample",
+    "sample_data",
+    "sample_annotation",
+    "map",
+)
+CHANNEL = "LIDAR_TOP"
+PANOPTIC_DTYPE = np.dtype(np.uint16)
+_NPZ_DATE = (1980, 1, 1, 0, 0, 0)
+
+
+def npz_bytes(data: np.ndarray) -> bytes:
+    """A deterministic `.npz` holding `data` under key "data" (what np.savez_compressed
+    writes, minus the write time)."""
+    npy = io.BytesIO()
+    np.lib.format.write_array(npy, np.ascontiguousarray(data), allow_pickle=False)
+    out = io.BytesIO()
+    with zipfile.ZipFile(out, "w", compression=zipfile.ZIP_DEFLATED) as zf:
+        info = zipfile.ZipInfo("data.npy", date_time=_NPZ_DATE)
+        info.compress_type = zipfile.ZIP_DEFLATED
+        info.external_attr = 0o644 << 16
+        zf.writestr(info, npy.getvalue())
+    return out.getvalue()
+
+
+class NuScenesReader:
+    """Reader and encoder of nuScenes LIDAR_TOP scans with lidarseg (and panoptic) labels.
+
+    Args:
+        root: the nuScenes dataroot (holds `samples/`, `lidarseg/`, `v1.0-*/`, `maps/`).
+        version: table folder, e.g. "v1.0-mini"; None picks the only `v1.0-*` folder of root
+            (ConfigError when there are several).
+        include_sweeps: also list the non-keyframe LIDAR_TOP sample_data whose files exist
+            (unlabelled items).
+
+    Items: every LIDAR_TOP keyframe with a lidarseg record (all LIDAR_TOP keyframes whose
+    file exists when the version has no lidarseg.json, e.g. v1.0-test), plus sweeps on
+    request; relpath = sample_data filename, label_relpath = lidarseg filename, extra role
+    "panoptic" when a panoptic record exists, meta (("sample_data_token", token),).
+
+    Frames: columns ("x", "y", "z", "intensity", "ring"); points (N, 5) float32; labels (N,)
+    uint8 lidarseg or None; extra_labels["panoptic"] (N,) uint16.
+    """
+
+    name = "nuscenes"
+    sensor = "hdl32e"
+    particle_label = 0  # "noise": dust, fog, raindrops, smoke
+    columns: tuple[str, ...] = ("x", "y", "z", "intensity", "ring")
+    label_dtype = np.dtype(np.uint8)
+
+    def __init__(
+        self, root: str | Path, *, version: str | None = None, include_sweeps: bool = False
+    ):
+        self.root = Path(root)
+        self.version = version
+        self.include_sweeps = bool(include_sweeps)
+
+    def __repr__(self) -> str:
+        return (
+            f"NuScenesReader({str(self.root)!r}, version={self.version!r}, "
+            f"include_sweeps={self.include_sweeps})"
+        )
+
+    def resolved_version(self) -> str:
+        """The table folder name; DatasetNotFoundError / ConfigError when none or ambiguous."""
+        if not self.root.is_dir():
+            raise DatasetNotFoundError(
+                f"{self.root}: no such folder; expected a nuScenes dataroot holding samples/, "
+                "lidarseg/ and a v1.0-* table folder."
+            )
+        if self.version is not None:
+            if not (self.root / self.version).is_dir():
+                raise DatasetNotFoundError(
+                    f"{self.root / self.version}: no such table folder; expected the nuScenes "
+                    f"tables of version {self.version!r} there. Check the version option."
+                )
+            return self.version
+        found = sorted(d.name for d in self.root.glob("v1.0-*") if d.is_dir())
+        if not found:
+            raise DatasetNotFoundError(
+                f"{self.root}: no v1.0-* table folder; expected a nuScenes dataroot with e.g. "
+                "v1.0-mini/ (unpack the metadata and lidarseg archives there)."
+            )
+        if len(found) > 1:
+            raise ConfigError(
+                f"{self.root}: several nuScenes versions {found}; pass version= one of them."
+            )
+        return found[0]
+
+    def items(self) -> list[Item]:
+        """Walk the tables with nuscenes-devkit; sorted by relpath."""
+        version = self.resolved_version()
+        table_root = self.root / version
+        missing = [f"{t}.json" for t in TABLES if not (table_root / f"{t}.json").is_file()]
+        if missing:
+            raise DatasetNotFoundError(
+                f"{table_root}: missing nuScenes tables {missing}; expected all 13 tables "
+                f"({', '.join(TABLES)}) plus lidarseg.json. Unpack the metadata archive of "
+                f"{version} (and then the lidarseg archive, whose category.json wins) there."
+            )
+        try:
+            from nuscenes.nuscenes import NuScenes
+        except ImportError as exc:
+            raise ReaderError(
+                f"{table_root}: listing nuScenes items needs nuscenes-devkit ({exc}); "
+                "install it with: pip install nuscenes-devkit==1.2.0"
+            ) from exc
+        try:
+            nusc = NuScenes(version=version, dataroot=str(self.root), verbose=False)
+        except Exception as exc:  # devkit asserts and KeyErrors: wrap with context
+            raise ReaderError(
+                f"{table_root}: nuscenes-devkit cannot load this database "
+                f"({type(exc).__name__}: {exc}); expected consistent tables, one label file "
+                f"per lidarseg/panoptic record in lidarseg|panoptic/{version}/ and every "
+                "maps/ file the map table names. Fix or re-extract the dataset."
+            ) from exc
+        has_lidarseg = hasattr(nusc, "lidarseg")
+        lidarseg = {r["sample_data_token"]: r["filename"] for r in getattr(nusc, "lidarseg", [])}
+        panoptic = {r["sample_data_token"]: r["filename"] for r in getattr(nusc, "panoptic", [])}
+        items = []
+        for sd in nusc.sample_data:
+            if sd["channel"] != CHANNEL:
+                continue
+            token, filename = sd["token"], sd["filename"]
+            if sd["is_key_frame"]:
+                if has_lidarseg and token not in lidarseg:
+                    continue
+                if not has_lidarseg and not (self.root / filename).is_file():
+                    continue
+            elif not (self.include_sweeps and (self.root / filename).is_file()):
+                continue
+            extras = (("panoptic", panoptic[token]),) if token in panoptic else ()
+            items.append(
+                Item(
+                    self.name,
+                    filename,
+                    lidarseg.get(token),
+                    extras,
+                    (("sample_data_token", token),),
+                )
+            )
+        if not items:
+            raise DatasetNotFoundError(
+                f"{table_root}: no {CHANNEL} sample_data with lidarseg labels"
+                f"{' or sweep files' if self.include_sweeps else ''}; expected lidarseg.json "
+                "records for the LIDAR_TOP keyframes. Unpack the lidarseg archive."
+            )
+        return sorted(items, key=lambda it: it.relpath)
+
+    def copied_files(self) -> list[str]:
+        """Every file of `<version>/` (the JSON tables) and of `maps/`, recursively."""
+        version = self.resolved_version()
+        out: list[str] = []
+        for folder in (version, "maps"):
+            base = self.root / folder
+            if base.is_dir():
+                out.extend(
+                    p.relative_to(self.root).as_posix() for p in base.rglob("*") if p.is_file()
+                )
+        return sorted(out)
+
+    def read(self, item: Item) -> Frame:
+        """Scan (N, 5) float32, lidarseg labels (N,) uint8, panoptic (N,) uint16."""
+        path = self.root / item.relpath
+        points = read_records(
+            path, np.float32, 5, "nuScenes LIDAR_TOP scan (N x 5 float32: x, y, z, intensity, ring)"
+        )
+        check_finite(points, path, self.columns)
+        n = points.shape[0]
+        labels = None
+        if item.label_relpath is not None:
+            labels = read_labels(
+                self.root / item.label_relpath,
+                self.label_dtype,
+                n,
+                "nuScenes lidarseg labels (uint8 per point)",
+                path,
+                why="lidarseg.json lists it for this sample_data",
+            )
+        extras = {
+            role: self._read_panoptic(self.root / rel, n, path) for role, rel in item.extra_relpaths
+        }
+        return Frame.from_source(item, self.sensor, self.columns, points, labels, extras)
+
+    @staticmethod
+    def _read_panoptic(path: Path, n: int, scan: Path) -> np.ndarray:
+        what = "nuScenes panoptic labels (npz key 'data', uint16 per point)"
+        if not path.is_file():
+            raise CorruptItemError(
+                f"{path}: missing {what} for scan {scan}; panoptic.json lists it. Restore it "
+                "from the panoptic archive."
+            )
+        try:
+            with np.load(path, allow_pickle=False) as npz:
+                data = np.asarray(npz["data"])
+        except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:
+            raise CorruptItemError(
+                f"{path}: cannot read {what} ({type(exc).__name__}: {exc}); re-extract it."
+            ) from exc
+        if data.shape != (n,) or data.dtype.kind not in "iu":
+            raise CorruptItemError(
+                f"{path}: holds {data.dtype} {data.shape} but scan {scan} has {n} points; "
+                f"expected {what}. Re-extract both files from the dataset archives."
+            )
+        if data.size and (int(data.min()) < 0 or int(data.max()) > np.iinfo(PANOPTIC_DTYPE).max):
+            raise CorruptItemError(
+                f"{path}: values {int(data.min())}..{int(data.max())} outside uint16; "
+                f"expected {what}."
+            )
+        return data.astype(PANOPTIC_DTYPE, copy=False)
+
+    def encode(self, frame: Frame) -> list[EncodedFile]:
+        """Scan (M x 20 bytes), lidarseg labels (M bytes), panoptic npz (deterministic)."""
+        item = frame.item
+        n = frame.points.shape[0]
+        files = [encode_points(frame, 5, item.relpath)]
+        if item.label_relpath is not None:
+            files.append(
+                encode_labels(
+                    frame.labels, self.label_dtype, n, item.label_relpath, "label", item.item_id
+                )
+            )
+        for role, rel in item.extra_relpaths:
+            # Checks shape and range via the raw encoding, then wraps it in an npz.
+            raw = encode_labels(
+                frame.extra_labels.get(role), PANOPTIC_DTYPE, n, rel, role, item.item_id
+            )
+            data = np.frombuffer(raw.payload, dtype=PANOPTIC_DTYPE.newbyteorder("<"))
+            files.append(EncodedFile(rel, role, npz_bytes(data), n, 0))
+        return files

@@ -1,0 +1,180 @@
+"""Voxelscape: simulated HDL-64E-like scans with three per-point label files.
+
+Layout (formats.md §3.2), relative to the reader root (the folder that holds the `SS`
+sequence folders, `VoxelScape/dataset/` in the devkit README):
+
+    SS/velodyne/xyz_iom_NNNNNN.bin            headerless little-endian float32, N x 4:
+                                              x, y, z in m, intensity continuous in [0, 1)
+    SS/kitti_labels/xyz_iom_NNNNNN.label      uint32, N: Voxelscape's kitti-label ids; the same
+                                              numbers as SemanticKITTI but 14 of them name other
+                                              classes (formats.md §3.3): never map them with
+                                              SemanticKITTI's label map
+    SS/orig_labels/xyz_iom_NNNNNN.label       int32, N: the 32 raw Voxelscape classes
+    SS/orig_labels/xyz_iom_NNNNNN_subl.label  int32, N: fine sub-labels
+    SS/bboxs/xyz_iom_NNNNNN.pkl               boxes; not per point, copied byte for byte
+
+Each label kind is optional per sequence (decided by what the sequence's folders hold); when
+present, every scan needs its file and every file holds exactly N records. There is no
+calib, poses or times file.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from pathlib import Path
+
+import numpy as np
+
+from lads.errors import DatasetNotFoundError
+from lads.frame import Frame, Item
+from lads.readers.base import (
+    EncodedFile,
+    check_finite,
+    encode_labels,
+    encode_points,
+    normalize_sequences,
+    read_labels,
+    read_records,
+    select_sequences,
+)
+
+_SUBL = "_subl.label"
+EXTRA_DTYPES = {"orig_labels": np.dtype(np.int32), "orig_sublabels": np.dtype(np.int32)}
+
+
+def _sequence_names(folder: Path) -> list[str]:
+    if not folder.is_dir():
+        return []
+    return [d.name for d in folder.iterdir() if (d / "velodyne").is_dir()]
+
+
+class VoxelscapeReader:
+    """Reader and encoder of Voxelscape trees.
+
+    Args:
+        root: the folder that holds the `SS` sequence folders; a folder holding
+            `dataset/SS/` is accepted too, and `root` then becomes that `dataset/` folder.
+        sequences: sequence names ("00", 7, ...) to restrict to; None for all.
+
+    Frames: columns ("x", "y", "z", "intensity"); points (N, 4) float32; labels (N,) uint32
+    (kitti_labels) or None; extra_labels "orig_labels" and "orig_sublabels", (N,) int32 each,
+    when the sequence has them.
+    """
+
+    name = "voxelscape"
+    sensor = "voxelscape64"
+    particle_label = 1  # kitti_labels 1 "outlier" keeps its SemanticKITTI meaning
+    columns: tuple[str, ...] = ("x", "y", "z", "intensity")
+    label_dtype = np.dtype(np.uint32)
+
+    def __init__(self, root: str | Path, *, sequences: Iterable[str | int] | None = None):
+        given = Path(root)
+        if not _sequence_names(given) and _sequence_names(given / "dataset"):
+            given = given / "dataset"
+        self.root = given
+        self.sequences = normalize_sequences(sequences)
+
+    def __repr__(self) -> str:
+        return f"VoxelscapeReader({str(self.root)!r}, sequences={self.sequences!r})"
+
+    def _expected(self) -> str:
+        return (
+            f"the Voxelscape layout SS/velodyne/xyz_iom_NNNNNN.bin (+ kitti_labels/, "
+            f"orig_labels/) under {self.root}; pass the folder that holds the SS folders"
+        )
+
+    def _selected(self) -> list[str]:
+        if not self.root.is_dir():
+            raise DatasetNotFoundError(f"{self.root}: no such folder; expected {self._expected()}.")
+        found = _sequence_names(self.root)
+        return select_sequences(found, self.sequences, self.root, self._expected())
+
+    def items(self) -> list[Item]:
+        """Every scan of the selected sequences, sorted by relpath."""
+        items = []
+        for seq in self._selected():
+            kitti = (self.root / seq / "kitti_labels").is_dir()
+            orig_dir = self.root / seq / "orig_labels"
+            names = [p.name for p in orig_dir.glob("*.label")] if orig_dir.is_dir() else []
+            has_orig = any(not n.endswith(_SUBL) for n in names)
+            has_subl = any(n.endswith(_SUBL) for n in names)
+            for scan in (self.root / seq / "velodyne").glob("*.bin"):
+                if not scan.is_file():
+                    continue
+                stem = scan.stem
+                extras = []
+                if has_orig:
+                    extras.append(("orig_labels", f"{seq}/orig_labels/{stem}.label"))
+                if has_subl:
+                    extras.append(("orig_sublabels", f"{seq}/orig_labels/{stem}{_SUBL}"))
+                items.append(
+                    Item(
+                        self.name,
+                        f"{seq}/velodyne/{scan.name}",
+                        f"{seq}/kitti_labels/{stem}.label" if kitti else None,
+                        tuple(extras),
+                    )
+                )
+        if not items:
+            raise DatasetNotFoundError(
+                f"{self.root}: no scans found (sequences {self.sequences or 'all'}); "
+                f"expected {self._expected()}."
+            )
+        return sorted(items, key=lambda it: it.relpath)
+
+    def copied_files(self) -> list[str]:
+        """The per-frame box files (`SS/bboxs/**`) of the selected sequences, if any."""
+        out: list[str] = []
+        for seq in self._selected():
+            boxes = self.root / seq / "bboxs"
+            if boxes.is_dir():
+                out.extend(p.relative_to(self.root).as_posix() for p in boxes.rglob("*"))
+        return sorted(rel for rel in out if (self.root / rel).is_file())
+
+    def read(self, item: Item) -> Frame:
+        """Scan (N, 4) float32, kitti labels (N,) uint32, extras (N,) int32 each."""
+        path = self.root / item.relpath
+        points = read_records(path, np.float32, 4, "Voxelscape scan (N x 4 float32)")
+        check_finite(points, path, self.columns)
+        n = points.shape[0]
+        labels = None
+        if item.label_relpath is not None:
+            labels = read_labels(
+                self.root / item.label_relpath,
+                self.label_dtype,
+                n,
+                "Voxelscape kitti_labels (uint32 per point)",
+                path,
+                why="this sequence has a kitti_labels/ folder",
+            )
+        extras = {
+            role: read_labels(
+                self.root / rel,
+                EXTRA_DTYPES[role],
+                n,
+                f"Voxelscape {role} (int32 per point)",
+                path,
+                why="this sequence's orig_labels/ folder holds such files",
+            )
+            for role, rel in item.extra_relpaths
+        }
+        return Frame.from_source(item, self.sensor, self.columns, points, labels, extras)
+
+    def encode(self, frame: Frame) -> list[EncodedFile]:
+        """Scan, kitti_labels (uint32) and orig_labels / _subl (int32), as the item has them."""
+        item = frame.item
+        n = frame.points.shape[0]
+        files = [encode_points(frame, 4, item.relpath)]
+        if item.label_relpath is not None:
+            files.append(
+                encode_labels(
+                    frame.labels, self.label_dtype, n, item.label_relpath, "label", item.item_id
+                )
+            )
+        for role, rel in item.extra_relpaths:
+            files.append(
+                encode_labels(
+                    frame.extra_labels.get(role), EXTRA_DTYPES[role], n, rel, role, item.item_id
+                )
+            )
+        return files
