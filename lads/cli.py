@@ -297,5 +297,14 @@ def verify(
         sys.exit(EXIT_INCOMPLETE)
 
 
+def _register_synth() -> None:
+    from lads.synth.command import synth_command
+
+    main.add_command(synth_command)
+
+
+_register_synth()
+
+
 if __name__ == "__main__":
     main()

@@ -311,6 +311,7 @@ def _finalise(
         "lads_version": lads.__version__,
         "git_commit": git_commit(),
         "variant": plan.pipeline.variant,
+        "source_root": plan.source_root,
         "points_mode": plan.pipeline.points,
         "sensor": reader_for(plan).sensor,
         "device": "cpu",

@@ -113,7 +113,7 @@ def check_finite(points: np.ndarray, path: Path, columns: tuple[str, ...]) -> No
     if bad.any():
         rows, cols = np.nonzero(bad)
         raise CorruptItemError(
-            f"{path}: {rows.size} non-finite values (first: point {rows[0]}, column "
+            f"{path}: {rows.size} NaN or infinite values (first: point {rows[0]}, column "
             f"'{columns[cols[0]]}' = {points[rows[0], cols[0]]}); expected finite "
             f"{', '.join(columns)} values. The file is corrupt: re-extract it from the dataset "
             "archive (lads never drops points, since labels are matched by index)."
