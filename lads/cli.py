@@ -44,14 +44,21 @@ def main() -> None:
 @click.option(
     "--out", type=click.Path(path_type=Path), default=Path("demo_output"), show_default=True
 )
+@click.option("--frames", type=int, default=8, show_default=True)
 @click.option("--sensor", default="hdl64e", show_default=True)
 @click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--jobs", type=int, default=2, show_default=True)
 @_lads_errors
-def demo(out: Path, sensor: str, seed: int) -> None:
-    """Rain, snow and fog on a street scan lads builds itself; writes a PNG and summary.json."""
+def demo(out: Path, frames: int, sensor: str, seed: int, jobs: int) -> None:
+    """Synthesise a sequence, build snow/rain/fog, verify them, draw before/after figures."""
     from lads.demo import main as demo_main
 
-    demo_main(["--out", str(out), "--sensor", sensor, "--seed", str(seed)])
+    code = demo_main(
+        ["--out", str(out), "--frames", str(frames), "--sensor", sensor, "--seed", str(seed),
+         "--jobs", str(jobs)]
+    )  # fmt: skip
+    if code:
+        sys.exit(EXIT_INCOMPLETE)
 
 
 @main.command()

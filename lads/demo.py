@@ -93,14 +93,14 @@ def summary_text(summary: dict[str, Any], out_dir: Path) -> str:
     lines = [
         f"lads demo: {n} synthetic {summary['sensor']} frames ({mean_pts:,.0f} points each) "
         f"in {out_dir / 'source'}",
-        f"{'variant':8s} {'stage':28s} {'particle':>9s} {'lost':>8s} {'frames/s':>9s}  verify",
+        f"{'variant':8s} {'stage':34s} {'particle':>9s} {'lost':>8s} {'frames/s':>9s}  verify",
     ]
     for name, info in summary["variants"].items():
         stage = ", ".join(f"{k}={v}" for k, v in info["stage"].items() if k != "stage")
         p = info["points"]
         verdict = "ok" if info["verify_ok"] else f"{len(info['verify_problems'])} problems"
         lines.append(
-            f"{name:8s} {stage:28s} {p['particle']:9,d} {p['lost']:8,d} "
+            f"{name:8s} {stage:34s} {p['particle']:9,d} {p['lost']:8,d} "
             f"{info['frames_per_s']:9.1f}  {verdict}"
         )
     lines.append(f"figures: {out_dir / 'figures'} ({', '.join(summary['figures'])})")

@@ -3,24 +3,38 @@
 import json
 
 import numpy as np
+import pytest
 from click.testing import CliRunner
 
 from lads.cli import EXIT_LADS_ERROR, main
-from lads.demo import run_demo
+from lads.demo import run_demo, summary_text
+from lads.errors import LadsError
 from lads.sensors.profile import load_profile
 from lads.synthetic import synthetic_scan
 
 
-def test_demo_writes_a_figure_and_a_summary_with_weather_effects(tmp_path):
-    summary = run_demo(tmp_path)
-    assert (tmp_path / "weather_demo.png").stat().st_size > 10_000
-    assert json.loads((tmp_path / "summary.json").read_text()) == summary
-    n = summary["input_points"]
-    assert n > 50_000
-    for info in summary["weather"].values():
-        assert sum(info["counts"].values()) == n
-        assert info["counts"]["particle"] > 0
-        assert info["extinction_per_m"] > 0
+def test_demo_synthesises_builds_verifies_and_draws(tmp_path):
+    out = tmp_path / "demo"
+    summary = run_demo(out, frames=2, jobs=1)
+    assert json.loads((out / "summary.json").read_text()) == summary
+    assert set(summary["variants"]) == {"snow", "rain", "fog"}
+    for name, info in summary["variants"].items():
+        assert info["complete"] and info["verify_ok"], (name, info["verify_problems"])
+        assert info["points"]["source"] == sum(summary["source_points_per_frame"])
+        assert (out / name / "sequences/00/velodyne/000001.bin").is_file()
+    assert summary["variants"]["snow"]["points"]["particle"] > 0
+    assert summary["variants"]["fog"]["points"]["attenuated"] > 0
+    for figure in ("variants_000000.png", "point_correspondence.png"):
+        assert (out / "figures" / figure).stat().st_size > 10_000
+    text = summary_text(summary, out)
+    assert "snow" in text and "verify" in text
+
+
+def test_demo_refuses_to_wipe_a_folder_it_did_not_make(tmp_path):
+    (tmp_path / "thesis.tex").write_text("precious")
+    with pytest.raises(LadsError, match="not a lads demo folder"):
+        run_demo(tmp_path, frames=1, jobs=1)
+    assert (tmp_path / "thesis.tex").is_file()
 
 
 def _write_scan(tmp_path, sensor="hdl64e"):
