@@ -292,7 +292,7 @@ def compare(
                 + ("build the missing items." if have < grp.items else "explain the extra items."),
             )
         )
-    strangers = sorted(g for g in counts if g not in members)
+    strangers = sorted(str(g) for g in counts if g not in members)
     if strangers and not (inv.allow_unknown_groups and all(g not in inv.groups for g in strangers)):
         problems.append(
             (
@@ -324,3 +324,19 @@ def _group_path(inv: Inventory, group: str) -> str:
     if inv.group_by == "sequence":
         return f"sequences/{group}"
     return group
+
+
+def tree_version(run: dict[str, Any], output_paths: Iterable[str] = ()) -> str | None:
+    """The nuScenes version of a built tree: run.json "version", else the `v1.0-*/` folder
+    of its copied tables, else the `lidarseg/<version>/` folder of its label outputs."""
+    if isinstance(run.get("version"), str):
+        return str(run["version"])
+    for entry in run.get("copied_files") or ():
+        head = str(entry.get("path", "")).split("/")[0] if isinstance(entry, dict) else ""
+        if head.startswith("v1.0-"):
+            return head
+    for path in output_paths:
+        parts = path.split("/")
+        if len(parts) > 2 and parts[0] == "lidarseg":
+            return parts[1]
+    return None

@@ -371,7 +371,7 @@ def test_radiate_number_format_is_five_significant_digits(tree):
         ("1,2,3,4\n", "line 2 is '1,2,3,4'"),
         ("1,2,3,4,5,6\n", "line 2"),
         ("1,2,x,4,5\n", "could not convert"),
-        ("1,nan,3,4,5\n", "non-finite"),
+        ("1,nan,3,4,5\n", "NaN or infinite"),
         ("\n", "line 2"),
     ],
 )
