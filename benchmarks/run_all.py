@@ -5,6 +5,8 @@ equivalence.json  fast path vs the brute-force reference: speed-up and two-sampl
 anchors.json      rain extinction vs Ulbrich-Atlas, Q_ext, incidence on a real frame
 wads_snow.json    simulated vs real falling snow (WADS), fitted defaults vs LISA settings
 fog_radiate.json  fog model vs real fog (RADIATE), with what that data cannot show
+build_speed.json  lads build end to end: frames/s with 1 and 2 jobs, memory, projected hours
+verify.json       lads verify throughput (MB/s) on a ~450 MB tree
 """
 
 from __future__ import annotations
@@ -20,7 +22,15 @@ import time  # noqa: E402
 
 from tqdm import tqdm  # noqa: E402
 
-BENCHMARKS = ("speed", "equivalence", "anchors", "wads_snow", "fog_radiate")
+BENCHMARKS = (
+    "speed",
+    "equivalence",
+    "anchors",
+    "wads_snow",
+    "fog_radiate",
+    "build_speed",
+    "verify_speed",
+)
 
 
 def main() -> int:

@@ -1,7 +1,7 @@
 """MB/s of `lads verify` on a ~400 MB synthetic tree of 2 MB scan files (target >= 200 MB/s).
 
 Builds, in a temporary directory, a source tree and its variant tree in the exact layout of
-docs/output_tree.md (the fake-tree writer of tests/unit/test_verify.py: random bytes,
+docs/output_tree.md (the fake-tree writer of tests/fake_trees.py: random bytes,
 manifest.jsonl, run.json, provenance.zarr, SHA256SUMS), then times `verify_tree` on the
 tree alone and against its source, and `sha256sum -c` (one core) for comparison. The files
 were just written, so they are read from the page cache: this measures hashing and
@@ -12,7 +12,6 @@ Run: .venv/bin/python -m benchmarks.verify_speed   (writes benchmarks/results/ve
 
 from __future__ import annotations
 
-import importlib.util
 import shutil
 import subprocess
 import sys
@@ -21,20 +20,13 @@ import time
 from pathlib import Path
 from typing import Any
 
-from benchmarks.common import REPO, machine_info, write_result
+from benchmarks.common import machine_info, write_result
 from lads.verify import verify_tree
+from tests.fake_trees import build_fake_tree
 
 N_ITEMS = 160  # 160 x (2 MB scan + 0.5 MB label) = 400 MB per tree
 SCAN_POINTS = 131_072  # x 16 bytes = 2 MiB per scan
 TARGET_MB_S = 200.0
-
-
-def _tree_writer() -> Any:
-    path = REPO / "tests" / "unit" / "test_verify.py"
-    spec = importlib.util.spec_from_file_location("_lads_fake_tree", path)
-    module = importlib.util.module_from_spec(spec)  # type: ignore[arg-type]
-    spec.loader.exec_module(module)  # type: ignore[union-attr]
-    return module.build_fake_tree
 
 
 def _timed_verify(out: Path, src: Path | None) -> dict[str, Any]:
@@ -63,7 +55,6 @@ def _timed_sha256sum(out: Path) -> dict[str, Any] | None:
 
 
 def main() -> dict[str, Any]:
-    build_fake_tree = _tree_writer()
     with tempfile.TemporaryDirectory(prefix="lads-verify-bench-") as tmp:
         start = time.perf_counter()
         src, out = build_fake_tree(Path(tmp), n_items=N_ITEMS, points_base=SCAN_POINTS, card=True)

@@ -222,13 +222,17 @@ def _atomic_write(path: Path, payload: bytes) -> None:
 @click.option("--scheduler", help="Dask scheduler address (with --backend dask).")
 @click.option("--fail-fast", is_flag=True, help="Stop at the first bad item.")
 @click.option("--limit", type=int, help="Only the first N items (trial runs).")
+@click.option(
+    "--figures/--no-figures", default=True, show_default=True,
+    help="Draw a before/after preview for the dataset card.",
+)  # fmt: skip
 @_lads_errors
 def build(
     source: str, variant: str | None, pipeline_file: Path | None, source_root: Path, out_root: Path,
     seed: int, rate_mm_h: float | None, visibility_m: float | None, mode: str | None,
     points: str | None, particle_label: int | None, sequences: str | None,
     nuscenes_version: str | None, include_sweeps: bool, jobs: int, backend: str,
-    scheduler: str | None, fail_fast: bool, limit: int | None,
+    scheduler: str | None, fail_fast: bool, limit: int | None, figures: bool,
 ) -> None:  # fmt: skip
     """Build a variant tree: one output item per source item, same format and layout."""
     from lads.config import find_pipeline, load_pipeline
@@ -251,6 +255,7 @@ def build(
     report = run_build(
         source, source_root, out_root, pipeline, seed=seed, reader_options=options, jobs=jobs,
         backend=backend, scheduler=scheduler, fail_fast=fail_fast, progress=None, limit=limit,
+        figures=figures,
     )  # fmt: skip
     click.echo(report.summary_text())
     if not report.complete:

@@ -156,3 +156,17 @@ def correspondence_figure(path: Path) -> Path:
     fig.tight_layout()
     _save(fig, path)
     return path
+
+
+def main(argv: list[str] | None = None) -> int:
+    """`python -m lads.figures DIR`: draw the documentation figures into DIR."""
+    import sys
+
+    args = sys.argv[1:] if argv is None else argv
+    folder = Path(args[0] if args else "docs")
+    correspondence_figure(folder / "point_correspondence.png")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

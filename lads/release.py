@@ -102,7 +102,7 @@ def build_entry(entry: Entry, out: Path, *, seed: int, jobs: int) -> dict[str, A
     tree = out / entry.name
     report = run_build(
         entry.source, entry.root, tree, pipeline, seed=seed, reader_options=dict(entry.options),
-        jobs=jobs, progress=None,
+        jobs=jobs, progress=None, figures=True,
     )  # fmt: skip
     check = verify_tree(tree, entry.root, regenerate=2, seed=seed, inventory=entry.inventory)
     manifests = out / "manifests" / entry.name

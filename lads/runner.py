@@ -10,8 +10,6 @@ from __future__ import annotations
 
 import json
 import logging
-import os
-import shutil
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -19,23 +17,29 @@ from typing import Any
 
 import yaml
 
-import lads
 from lads import provenance
 from lads.config import PipelineConfig, parse_pipeline
 from lads.errors import BuildError, ManifestError
 from lads.files import atomic_copy, atomic_write, remove_stray_temps, sha256_file
+from lads.finalise import (
+    MANIFEST,
+    NOT_SUMMED,
+    PIPELINE_YAML,
+    RUN_JSON,
+    RUN_REPORT,
+    SHA256SUMS,
+    finalise,
+    identity,
+)
 from lads.frame import Item
-from lads.run_info import git_commit, library_versions
 from lads.worker import STATE_DIR, BuildPlan, process_item, reader_for, state_path
 
-log = logging.getLogger(__name__)
+__all__ = [
+    "MANIFEST", "NOT_SUMMED", "PIPELINE_YAML", "RUN_JSON", "RUN_REPORT", "SHA256SUMS",
+    "BuildReport", "plan_from_tree", "run_build",
+]  # fmt: skip
 
-MANIFEST = "manifest.jsonl"
-RUN_JSON = "run.json"
-PIPELINE_YAML = "pipeline.yaml"
-SHA256SUMS = "SHA256SUMS"
-RUN_REPORT = "run_report.json"
-NOT_SUMMED = {SHA256SUMS, RUN_REPORT}
+log = logging.getLogger(__name__)
 
 
 @dataclass(slots=True)
@@ -94,20 +98,9 @@ def _check_paths(source_root: Path, out_root: Path) -> None:
         )
 
 
-def _identity(plan: BuildPlan) -> dict[str, Any]:
-    return {
-        "source": plan.source,
-        "seed": plan.seed,
-        "reader_options": {
-            k: list(v) if isinstance(v, tuple) else v for k, v in plan.reader_options
-        },
-        "config_hash": plan.pipeline.config_hash(),
-    }
-
-
 def _claim_output(out_root: Path, plan: BuildPlan) -> None:
     """Refuse to mix builds: OUT must be empty, or a (partial) build of the same plan."""
-    ident = _identity(plan)
+    ident = identity(plan)
     marker = out_root / STATE_DIR / "plan.json"
     previous: dict[str, Any] | None = None
     if marker.is_file():
@@ -218,6 +211,7 @@ def run_build(
     fail_fast: bool = False,
     progress: bool | None = None,
     limit: int | None = None,
+    figures: bool = False,
 ) -> BuildReport:
     """Build (or resume building) the variant tree `out_root` from `source_root`.
 
@@ -232,6 +226,8 @@ def run_build(
         fail_fast: stop at the first failed item instead of recording it and going on.
         progress: tqdm bar; None = only when stderr is a terminal.
         limit: build only the first `limit` items (sorted), for trials.
+        figures: draw OUT/figures/preview.png (source vs variant of the first item) for
+            the dataset card; about a second per build.
 
     Returns:
         BuildReport; `complete` is False when any item failed.
@@ -287,62 +283,10 @@ def run_build(
         raise BuildError(
             f"{item_id}: {error} (stopped by --fail-fast; fix it and run again to resume)"
         )
-    _finalise(out_root, plan, items, rows, copied)
+    finalise(out_root, plan, items, rows, copied, figures=figures)
     report.seconds = time.perf_counter() - start
     _write_report(out_root, report, seconds)
     return report
-
-
-def _finalise(
-    out_root: Path,
-    plan: BuildPlan,
-    items: list[Item],
-    rows: dict[str, dict[str, Any]],
-    copied: list[dict[str, Any]],
-) -> None:
-    manifest = [rows[i.item_id] for i in sorted(items, key=lambda i: i.item_id)]
-    lines = "".join(json.dumps(r, sort_keys=True) + "\n" for r in manifest)
-    atomic_write(out_root / MANIFEST, lines.encode())
-    atomic_write(
-        out_root / PIPELINE_YAML, yaml.safe_dump(plan.pipeline.to_dict(), sort_keys=True).encode()
-    )
-    run = {
-        **_identity(plan),
-        "lads_version": lads.__version__,
-        "git_commit": git_commit(),
-        "variant": plan.pipeline.variant,
-        "source_root": plan.source_root,
-        "points_mode": plan.pipeline.points,
-        "sensor": reader_for(plan).sensor,
-        "device": "cpu",
-        "libraries": library_versions(),
-        "items": len(manifest),
-        "failed": sum(r["status"] != "ok" for r in manifest),
-        "copied_files": copied,
-    }
-    atomic_write(out_root / RUN_JSON, (json.dumps(run, sort_keys=True, indent=1) + "\n").encode())
-    try:
-        from lads.card import write_card
-    except ImportError:  # the card module is optional in trimmed installs
-        log.info("lads.card not available; no dataset card written")
-    else:
-        write_card(out_root)
-    shutil.rmtree(out_root / STATE_DIR, ignore_errors=True)
-    known = {o["path"]: o["sha256"] for r in manifest for o in r["outputs"]}
-    atomic_write(out_root / SHA256SUMS, _sha256sums(out_root, known).encode())
-
-
-def _sha256sums(out_root: Path, known: dict[str, str]) -> str:
-    entries = []
-    for folder, dirs, files in os.walk(out_root):
-        dirs[:] = [d for d in dirs if d != STATE_DIR]
-        for name in files:
-            rel = Path(folder, name).relative_to(out_root).as_posix()
-            if rel in NOT_SUMMED:
-                continue
-            entries.append((rel, known.get(rel) or sha256_file(out_root / rel)))
-    entries.sort(key=lambda e: e[0].encode())
-    return "".join(f"{digest}  {rel}\n" for rel, digest in entries)
 
 
 def _write_report(out_root: Path, report: BuildReport, seconds: list[float]) -> None:

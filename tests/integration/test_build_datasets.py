@@ -103,7 +103,9 @@ def test_voxelscape_tree_from_synth_keeps_every_label_file_aligned(tmp_path):
     src = tmp_path / "voxelscape"
     write_synthetic_dataset(src, frames=2, layout="voxelscape", seed=1)
     out = tmp_path / "voxelscape_snow"
-    report = run_build("voxelscape", src, out, pipeline("voxelscape", "snow", rate_mm_h=10.0), seed=0)
+    report = run_build(
+        "voxelscape", src, out, pipeline("voxelscape", "snow", rate_mm_h=10.0), seed=0
+    )
     assert report.complete and report.built == 2
     for row in rows(out):
         records = {o["role"]: o["records"] for o in row["outputs"]}

@@ -8,7 +8,6 @@ from pathlib import Path
 
 import pytest
 import yaml
-from test_verify import build_fake_tree, read_run, write_run, write_sums
 
 from lads.card import (
     CARD_NAME,
@@ -21,6 +20,7 @@ from lads.card import (
 )
 from lads.errors import ManifestError
 from lads.verify import verify_tree
+from tests.fake_trees import build_fake_tree, read_run, write_run, write_sums
 
 
 def front_matter(text: str) -> dict:

@@ -1,0 +1,108 @@
+"""The end of a build: manifest, effective pipeline, run.json, card, SHA256SUMS.
+
+Everything here is deterministic (sorted rows, no timestamps), so a resumed build and an
+uninterrupted one finish with the same bytes.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+import lads
+from lads.files import atomic_write, sha256_file
+from lads.frame import Item
+from lads.run_info import git_commit, library_versions
+from lads.worker import STATE_DIR, BuildPlan, reader_for
+
+MANIFEST = "manifest.jsonl"
+RUN_JSON = "run.json"
+PIPELINE_YAML = "pipeline.yaml"
+SHA256SUMS = "SHA256SUMS"
+RUN_REPORT = "run_report.json"
+NOT_SUMMED = {SHA256SUMS, RUN_REPORT}
+
+
+def identity(plan: BuildPlan) -> dict[str, Any]:
+    return {
+        "source": plan.source,
+        "seed": plan.seed,
+        "reader_options": {
+            k: list(v) if isinstance(v, tuple) else v for k, v in plan.reader_options
+        },
+        "config_hash": plan.pipeline.config_hash(),
+    }
+
+
+def finalise(
+    out_root: Path,
+    plan: BuildPlan,
+    items: list[Item],
+    rows: dict[str, dict[str, Any]],
+    copied: list[dict[str, Any]],
+    *,
+    figures: bool,
+) -> None:
+    manifest = [rows[i.item_id] for i in sorted(items, key=lambda i: i.item_id)]
+    lines = "".join(json.dumps(r, sort_keys=True) + "\n" for r in manifest)
+    atomic_write(out_root / MANIFEST, lines.encode())
+    atomic_write(
+        out_root / PIPELINE_YAML, yaml.safe_dump(plan.pipeline.to_dict(), sort_keys=True).encode()
+    )
+    run = {
+        **identity(plan),
+        "lads_version": lads.__version__,
+        "git_commit": git_commit(),
+        "variant": plan.pipeline.variant,
+        "source_root": plan.source_root,
+        "points_mode": plan.pipeline.points,
+        "sensor": reader_for(plan).sensor,
+        "device": "cpu",
+        "libraries": library_versions(),
+        "items": len(manifest),
+        "failed": sum(r["status"] != "ok" for r in manifest),
+        "copied_files": copied,
+    }
+    atomic_write(out_root / RUN_JSON, (json.dumps(run, sort_keys=True, indent=1) + "\n").encode())
+    from lads.card import write_card
+
+    drawn = _preview(out_root, plan, manifest) if figures else []
+    write_card(out_root, figures=drawn)
+    shutil.rmtree(out_root / STATE_DIR, ignore_errors=True)
+    known = {o["path"]: o["sha256"] for r in manifest for o in r["outputs"]}
+    atomic_write(out_root / SHA256SUMS, _sha256sums(out_root, known).encode())
+
+
+def _preview(out_root: Path, plan: BuildPlan, manifest: list[dict[str, Any]]) -> list[str]:
+    """Draw the card's preview figure from the first built item; [] for text formats."""
+    from lads.figures import variant_figure
+
+    first = next((r for r in manifest if r["status"] == "ok"), None)
+    scan = next((o for o in first["outputs"] if o["role"] == "scan"), None) if first else None
+    if scan is None or scan["record_bytes"] == 0:
+        return []
+    reader = reader_for(plan)
+    relpath = "figures/preview.png"
+    variant_figure(
+        Path(reader.root), {plan.pipeline.variant: out_root}, scan["path"], out_root / relpath,
+        sensor=reader.sensor, columns=scan["record_bytes"] // 4,
+    )  # fmt: skip
+    return [relpath]
+
+
+def _sha256sums(out_root: Path, known: dict[str, str]) -> str:
+    entries = []
+    for folder, dirs, files in os.walk(out_root):
+        dirs[:] = [d for d in dirs if d != STATE_DIR]
+        for name in files:
+            rel = Path(folder, name).relative_to(out_root).as_posix()
+            if rel in NOT_SUMMED:
+                continue
+            entries.append((rel, known.get(rel) or sha256_file(out_root / rel)))
+    entries.sort(key=lambda e: e[0].encode())
+    return "".join(f"{digest}  {rel}\n" for rel, digest in entries)

@@ -1,0 +1,97 @@
+"""`verify_tree`: the order of the checks on one tree, and the dataset card check."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+from lads.verify import hashing, manifest_checks, provenance, source_checks
+from lads.verify.report import VerifyReport
+from lads.verify.state import Verifier
+
+
+def verify_tree(
+    out_root: Path,
+    source_root: Path | None,
+    *,
+    regenerate: int = 0,
+    seed: int = 0,
+    inventory: str | None = None,
+    progress: bool | None = False,
+    source_items: list[str] | None = None,
+) -> VerifyReport:
+    """Verify a built tree `out_root` (and its correspondence with `source_root`, if given).
+
+    Args:
+        out_root: the output tree (docs/output_tree.md).
+        source_root: the source tree it was built from, or None to check the tree alone.
+        regenerate: re-process this many random ok items (needs source_root) with
+            `lads.runner.regenerate_outputs` and compare their hashes with the manifest.
+        seed: seed of the random choice of regenerated items.
+        inventory: expected release inventory, e.g. "semantickitti-00-10" (manifests/).
+        progress: show a tqdm bar while hashing (None: only on a terminal).
+        source_items: item ids of the source tree; when None they are listed with
+            `lads.readers.get_reader` if available, otherwise the check is skipped (noted).
+
+    Returns:
+        VerifyReport listing every problem found.
+
+    Raises:
+        ConfigError: unknown inventory name or subset.
+    """
+    start = time.perf_counter()
+    v = Verifier(Path(out_root), None if source_root is None else Path(source_root), progress)
+    _run(v, regenerate=regenerate, seed=seed, inventory=inventory, source_items=source_items)
+    return VerifyReport(
+        out_root=str(out_root),
+        problems=sorted(v.problems, key=lambda p: (p.path, p.kind, p.message)),
+        files_checked=v.files_checked,
+        bytes_hashed=v.bytes_hashed,
+        items=len(v.rows),
+        source_files_checked=v.source_files_checked,
+        regenerated=v.regenerated,
+        seconds=time.perf_counter() - start,
+        notes=v.notes,
+    )
+
+
+def _run(
+    v: Verifier,
+    *,
+    regenerate: int,
+    seed: int,
+    inventory: str | None,
+    source_items: list[str] | None,
+) -> None:
+    if not v.out.is_dir():
+        v.add(".", "missing_output", f"{v.out} is not a directory")
+        return
+    if v.src is not None and not v.src.is_dir():
+        v.add(".", "source_unreadable", f"source root {v.src} is not a directory")
+        v.src = None
+    v.walk()
+    manifest_checks.load_metadata(v)
+    hashing.hash_everything(v)
+    hashing.check_sums(v)
+    manifest_checks.check_run_json(v)
+    manifest_checks.check_rows(v)
+    source_checks.check_copied(v)
+    provenance.check_provenance(v)
+    if v.src is not None:
+        source_checks.check_sources(v)
+        source_checks.check_source_items(v, source_items)
+    if regenerate > 0:
+        source_checks.check_regenerated(v, regenerate, seed)
+    if inventory:
+        source_checks.check_inventory(v, inventory)
+    _check_card(v)
+
+
+def _check_card(v: Verifier) -> None:
+    if "README.md" not in v.files:
+        v.notes.append("no dataset card (README.md); `lads card` writes one")
+        return
+    from lads.card import validate_card
+
+    for msg in validate_card((v.out / "README.md").read_text(errors="replace")):
+        v.add("README.md", "card_invalid", msg)
