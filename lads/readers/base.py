@@ -236,3 +236,18 @@ def select_sequences(
             f"{sorted(found) or 'none'}. Fix the sequences option or the root."
         )
     return sorted(wanted)
+
+
+def encode_scan_and_labels(frame: Frame, columns: int, label_dtype: np.dtype) -> list[EncodedFile]:
+    """The scan (M x columns float32) and, when the item has one, its label file (M labels).
+
+    The common first part of every binary reader's `encode`; extra roles follow per reader.
+    """
+    item = frame.item
+    files = [encode_points(frame, columns, item.relpath)]
+    if item.label_relpath is not None:
+        n = frame.points.shape[0]
+        files.append(
+            encode_labels(frame.labels, label_dtype, n, item.label_relpath, "label", item.item_id)
+        )
+    return files

@@ -40,7 +40,7 @@ from lads.readers.base import (
     EncodedFile,
     check_finite,
     encode_labels,
-    encode_points,
+    encode_scan_and_labels,
     read_labels,
     read_records,
 )
@@ -269,13 +269,7 @@ class NuScenesReader:
         """Scan (M x 20 bytes), lidarseg labels (M bytes), panoptic npz (deterministic)."""
         item = frame.item
         n = frame.points.shape[0]
-        files = [encode_points(frame, 5, item.relpath)]
-        if item.label_relpath is not None:
-            files.append(
-                encode_labels(
-                    frame.labels, self.label_dtype, n, item.label_relpath, "label", item.item_id
-                )
-            )
+        files = encode_scan_and_labels(frame, 5, self.label_dtype)
         for role, rel in item.extra_relpaths:
             # Checks shape and range via the raw encoding, then wraps it in an npz.
             raw = encode_labels(

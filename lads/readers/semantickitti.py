@@ -26,8 +26,7 @@ from lads.frame import Frame, Item
 from lads.readers.base import (
     EncodedFile,
     check_finite,
-    encode_labels,
-    encode_points,
+    encode_scan_and_labels,
     normalize_sequences,
     read_labels,
     read_records,
@@ -127,13 +126,4 @@ class SemanticKittiReader:
 
     def encode(self, frame: Frame) -> list[EncodedFile]:
         """The scan (M x 16 bytes) and, if the item has one, the label file (M x 4 bytes)."""
-        item = frame.item
-        files = [encode_points(frame, 4, item.relpath)]
-        if item.label_relpath is not None:
-            n = frame.points.shape[0]
-            files.append(
-                encode_labels(
-                    frame.labels, self.label_dtype, n, item.label_relpath, "label", item.item_id
-                )
-            )
-        return files
+        return encode_scan_and_labels(frame, 4, self.label_dtype)

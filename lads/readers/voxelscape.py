@@ -31,7 +31,7 @@ from lads.readers.base import (
     EncodedFile,
     check_finite,
     encode_labels,
-    encode_points,
+    encode_scan_and_labels,
     normalize_sequences,
     read_labels,
     read_records,
@@ -164,13 +164,7 @@ class VoxelscapeReader:
         """Scan, kitti_labels (uint32) and orig_labels / _subl (int32), as the item has them."""
         item = frame.item
         n = frame.points.shape[0]
-        files = [encode_points(frame, 4, item.relpath)]
-        if item.label_relpath is not None:
-            files.append(
-                encode_labels(
-                    frame.labels, self.label_dtype, n, item.label_relpath, "label", item.item_id
-                )
-            )
+        files = encode_scan_and_labels(frame, 4, self.label_dtype)
         for role, rel in item.extra_relpaths:
             files.append(
                 encode_labels(
