@@ -10,8 +10,8 @@ roots come from environment variables:
     LADS_RELEASE_OUT          where the release goes (default: release/)
     LADS_JOBS                 worker processes (default: all cores)
 
-Without any root it builds the same table from synthetic sources (`lads synth`, both the
-SemanticKITTI and the Voxelscape layout) into a demo release and says so: that exercises
+Without any root it builds the same table from synthetic sources (`lads synth` in the
+SemanticKITTI, nuScenes and Voxelscape layouts) into a demo release and says so: that exercises
 every step a real release runs. Each built tree gets its dataset card (README.md), and its
 SHA256SUMS, manifest.jsonl and run.json are collected under <out>/manifests/<entry>/.
 """
@@ -78,22 +78,23 @@ def table_from_env(env: dict[str, str]) -> list[Entry]:
     ]
 
 
+# Demo-release sources: (table source = reader, `lads synth` layout), in table order.
+SYNTHETIC_SOURCES = ("semantickitti", "nuscenes", "voxelscape")
+
+
 def synthetic_table(out: Path, frames: int, seed: int) -> list[Entry]:
-    """The same table from synthetic sources lads writes itself (demo release)."""
+    """The same table from synthetic sources lads writes itself (demo release): one
+    `lads synth` tree per source under <out>/sources/synthetic-<source>, each in its own
+    sensor (hdl64e; hdl32e for nuScenes), written once and reused when present."""
     from lads.synth import write_synthetic_dataset
 
-    kitti, voxel = (
-        out / "sources" / "synthetic-semantickitti",
-        out / "sources" / "synthetic-voxelscape",
-    )
-    for root, layout in ((kitti, "semantickitti"), (voxel, "voxelscape")):
+    entries = []
+    for source in SYNTHETIC_SOURCES:
+        root = out / "sources" / f"synthetic-{source}"
         if not root.exists():
-            write_synthetic_dataset(root, frames=frames, layout=layout, seed=seed)
-    return [
-        Entry(source, root, variant, (), None)
-        for source, root in (("semantickitti", kitti), ("voxelscape", voxel))
-        for variant in RELEASE_VARIANTS
-    ]
+            write_synthetic_dataset(root, frames=frames, layout=source, seed=seed)
+        entries += [Entry(source, root, variant, (), None) for variant in RELEASE_VARIANTS]
+    return entries
 
 
 def build_entry(entry: Entry, out: Path, *, seed: int, jobs: int) -> dict[str, Any]:

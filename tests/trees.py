@@ -14,53 +14,21 @@ Every function returns the root to hand to the reader.
 
 from __future__ import annotations
 
-import hashlib
 import json
-import re
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+
+# The nuScenes tables come from the package (one implementation); tests use trees.token and
+# trees.NuscSampleData as before.
+from lads.synth.nuscenes import NuscSampleData, lidarseg_classes, nuscenes_tables, token
 
 SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 
 KITTI_GRID = (np.arange(100, dtype=np.float64) * 0.01).astype(np.float32)  # 0.00..0.99
 
 # lidarseg category order of the data and devkit (formats.md §2.3); `index` = position.
-NUSCENES_CATEGORIES = (
-    "noise",
-    "animal",
-    "human.pedestrian.adult",
-    "human.pedestrian.child",
-    "human.pedestrian.construction_worker",
-    "human.pedestrian.personal_mobility",
-    "human.pedestrian.police_officer",
-    "human.pedestrian.stroller",
-    "human.pedestrian.wheelchair",
-    "movable_object.barrier",
-    "movable_object.debris",
-    "movable_object.pushable_pullable",
-    "movable_object.trafficcone",
-    "static_object.bicycle_rack",
-    "vehicle.bicycle",
-    "vehicle.bus.bendy",
-    "vehicle.bus.rigid",
-    "vehicle.car",
-    "vehicle.construction",
-    "vehicle.emergency.ambulance",
-    "vehicle.emergency.police",
-    "vehicle.motorcycle",
-    "vehicle.trailer",
-    "vehicle.truck",
-    "flat.driveable_surface",
-    "flat.other",
-    "flat.sidewalk",
-    "flat.terrain",
-    "static.manmade",
-    "static.other",
-    "static.vegetation",
-    "vehicle.ego",
-)
+NUSCENES_CATEGORIES = lidarseg_classes().categories
 
 
 def _write(path: Path, payload: bytes | str) -> Path:
@@ -77,11 +45,6 @@ def _link(target: Path, link: Path) -> Path:
     link.parent.mkdir(parents=True, exist_ok=True)
     link.symlink_to(target)
     return link
-
-
-def token(text: str) -> str:
-    """A deterministic 32-hex nuScenes-style token."""
-    return hashlib.md5(text.encode()).hexdigest()
 
 
 def synthetic_points(
@@ -278,161 +241,12 @@ def real_radiate(root: Path) -> Path:
 # nuScenes
 
 
-@dataclass(frozen=True)
-class NuscSampleData:
-    """One LIDAR_TOP sample_data record to put in the tables (its files already written)."""
-
-    token: str
-    filename: str  # relative to the dataroot
-    key_frame: bool
-    lidarseg: str | None = None  # filename of its lidarseg label file, if any
-    panoptic: str | None = None  # filename of its panoptic npz, if any
-
-
-def _timestamp(filename: str) -> int:
-    match = re.search(r"__(\d+)\.pcd\.bin$", filename)
-    return int(match.group(1)) if match else 0
-
-
 def write_nuscenes_tables(root: Path, version: str, records: list[NuscSampleData]) -> Path:
-    """The 13 tables (+ lidarseg.json / panoptic.json when any record has labels) of a
-    one-log, one-scene database around `records`, and an empty `maps/` PNG.
-
-    What NuScenes() asserts (formats.md §2.5): all 13 tables load; category has `index` when
-    lidarseg.json exists; #label files == #records; each map PNG exists; maps have log_tokens.
-    Keyframes become consecutive samples; each sweep belongs to the next keyframe's sample.
-    """
-    tables = root / version
-    tables.mkdir(parents=True, exist_ok=True)
-    log, scene, sensor, calib, map_token = (
-        token(f"{version}:{k}") for k in ("log", "scene", "sensor", "calib", "map")
-    )
-    ordered = sorted(records, key=lambda r: (_timestamp(r.filename), r.filename))
-    keys = [r for r in ordered if r.key_frame]
-    samples = [token(f"sample:{r.token}") for r in keys]
-    sample_rows = [
-        {
-            "token": s,
-            "timestamp": _timestamp(r.filename),
-            "prev": samples[i - 1] if i else "",
-            "next": samples[i + 1] if i + 1 < len(samples) else "",
-            "scene_token": scene,
-        }
-        for i, (s, r) in enumerate(zip(samples, keys, strict=True))
-    ]
-    sd_rows, ego_rows = [], []
-    for i, r in enumerate(ordered):
-        later = [
-            s
-            for s, k in zip(samples, keys, strict=True)
-            if _timestamp(k.filename) >= _timestamp(r.filename)
-        ]
-        sample = samples[keys.index(r)] if r.key_frame else (later[0] if later else samples[-1])
-        ego = token(f"ego:{r.token}")
-        ego_rows.append(
-            {
-                "token": ego,
-                "timestamp": _timestamp(r.filename),
-                "rotation": [1.0, 0.0, 0.0, 0.0],
-                "translation": [0.0, 0.0, 0.0],
-            }
-        )
-        sd_rows.append(
-            {
-                "token": r.token,
-                "sample_token": sample,
-                "ego_pose_token": ego,
-                "calibrated_sensor_token": calib,
-                "timestamp": _timestamp(r.filename),
-                "fileformat": "pcd",
-                "is_key_frame": r.key_frame,
-                "height": 0,
-                "width": 0,
-                "filename": r.filename,
-                "prev": ordered[i - 1].token if i else "",
-                "next": ordered[i + 1].token if i + 1 < len(ordered) else "",
-            }
-        )
-    map_file = f"maps/{map_token}.png"
-    _write(root / map_file, b"")  # NuScenes() only asserts it exists (pixels load lazily)
-    content = {
-        "category": [
-            {"token": token(f"category:{name}"), "name": name, "description": name, "index": i}
-            for i, name in enumerate(NUSCENES_CATEGORIES)
-        ],
-        "attribute": [],
-        "visibility": [
-            {
-                "token": "1",
-                "level": "v0-40",
-                "description": "visibility of whole object is between 0 and 40%",
-            }
-        ],
-        "instance": [],
-        "sensor": [{"token": sensor, "channel": "LIDAR_TOP", "modality": "lidar"}],
-        "calibrated_sensor": [
-            {
-                "token": calib,
-                "sensor_token": sensor,
-                "translation": [0.943713, 0.0, 1.84023],
-                "rotation": [
-                    0.7077955119163518,
-                    -0.006492242056004365,
-                    0.010646214713995808,
-                    -0.7063073142877817,
-                ],
-                "camera_intrinsic": [],
-            }
-        ],
-        "ego_pose": ego_rows,
-        "log": [
-            {
-                "token": log,
-                "logfile": "n015-2018-07-24-11-22-45+0800",
-                "vehicle": "n015",
-                "date_captured": "2018-07-24",
-                "location": "singapore-onenorth",
-            }
-        ],
-        "scene": [
-            {
-                "token": scene,
-                "log_token": log,
-                "nbr_samples": len(samples),
-                "first_sample_token": samples[0],
-                "last_sample_token": samples[-1],
-                "name": "scene-0001",
-                "description": "lads test scene",
-            }
-        ],
-        "sample": sample_rows,
-        "sample_data": sd_rows,
-        "sample_annotation": [],
-        "map": [
-            {
-                "category": "semantic_prior",
-                "token": map_token,
-                "filename": map_file,
-                "log_tokens": [log],
-            }
-        ],
-    }
-    lidarseg = [
-        {"token": r.token, "sample_data_token": r.token, "filename": r.lidarseg}
-        for r in ordered
-        if r.lidarseg
-    ]
-    panoptic = [
-        {"token": r.token, "sample_data_token": r.token, "filename": r.panoptic}
-        for r in ordered
-        if r.panoptic
-    ]
-    if lidarseg:
-        content["lidarseg"] = lidarseg
-    if panoptic:
-        content["panoptic"] = panoptic
-    for name, rows in content.items():
-        _write(tables / f"{name}.json", json.dumps(rows, indent=0))
+    """The tables of `lads.synth.nuscenes.nuscenes_tables` (13 tables, lidarseg.json /
+    panoptic.json when any record has labels, a one-log one-scene database with the real
+    LIDAR_TOP calibration) and its map PNG, written under `root`."""
+    for rel, payload in nuscenes_tables(version, records).items():
+        _write(root / rel, payload)
     return root
 
 

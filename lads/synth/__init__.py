@@ -1,7 +1,8 @@
 """Procedural synthetic LiDAR datasets: a seeded street ray-cast for any sensor profile.
 
 `synth_frames` yields frames in memory; `write_synthetic_dataset` writes them as a
-SemanticKITTI or Voxelscape tree. The CLI command is `lads.synth.command.synth_command`.
+SemanticKITTI, nuScenes-lidarseg or Voxelscape tree. The CLI command is
+`lads.synth.command.synth_command`.
 """
 
 from lads.synth.frames import SynthFrame, synth_frames

@@ -1,4 +1,5 @@
-"""`lads synth`: write a synthetic SemanticKITTI or Voxelscape sequence (no dataset needed)."""
+"""`lads synth`: write a synthetic SemanticKITTI, nuScenes or Voxelscape sequence (no dataset
+needed)."""
 
 from __future__ import annotations
 
@@ -8,21 +9,24 @@ import click
 
 from lads.errors import ConfigError, LadsError
 
-_LAYOUTS = ("semantickitti", "voxelscape")  # lads.synth.LAYOUTS, without importing numpy
+# lads.synth.LAYOUTS, without importing numpy
+_LAYOUTS = ("semantickitti", "nuscenes", "voxelscape")
 
 
 @click.command("synth")
-@click.option("--sensor", default="hdl64e", show_default=True,
-              help="Sensor profile name or YAML path (see `lads profiles`).")  # fmt: skip
+@click.option("--sensor", default=None,
+              help="Sensor profile name or YAML path (see `lads profiles`). Default: hdl64e, "
+                   "or hdl32e for --layout nuscenes.")  # fmt: skip
 @click.option("--frames", type=int, default=20, show_default=True, help="Frames at 10 Hz.")
 @click.option("--layout", type=click.Choice(_LAYOUTS), default="semantickitti",
               show_default=True, help="Dataset tree to write.")  # fmt: skip
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path), required=True,
               help="Root of the tree (created if missing).")  # fmt: skip
-@click.option("--sequence", default="00", show_default=True, help="Sequence folder name.")
+@click.option("--sequence", default="00", show_default=True,
+              help="Sequence folder name (nuscenes: scene-00SS).")  # fmt: skip
 @click.option("--seed", type=int, default=0, show_default=True)
 def synth_command(
-    sensor: str, frames: int, layout: str, out: Path, sequence: str, seed: int
+    sensor: str | None, frames: int, layout: str, out: Path, sequence: str, seed: int
 ) -> None:
     """Ray-cast a seeded procedural street for SENSOR and write it as a dataset tree."""
     from lads.synth.writer import write_synthetic_dataset

@@ -1,9 +1,13 @@
-"""Write a synthetic sequence as a SemanticKITTI or Voxelscape dataset tree (formats.md §1, §3).
+"""Write a synthetic sequence as a SemanticKITTI, Voxelscape or nuScenes-lidarseg dataset tree
+(formats.md §1-§3).
 
 SemanticKITTI: `sequences/SS/{velodyne/NNNNNN.bin, labels/NNNNNN.label, calib.txt, poses.txt,
 times.txt}`. Voxelscape: `SS/{velodyne, kitti_labels, orig_labels}/xyz_iom_NNNNNN.*` plus
-`orig_labels/xyz_iom_NNNNNN_subl.label`, no calib, poses or times. Every file is written to
-`<name>.tmp` and renamed into place.
+`orig_labels/xyz_iom_NNNNNN_subl.label`, no calib, poses or times. nuScenes: a v1.0-mini
+dataroot, `samples/LIDAR_TOP/<log>__LIDAR_TOP__<us>.pcd.bin`, `lidarseg/v1.0-mini/
+<token>_lidarseg.bin`, `v1.0-mini/*.json` and `maps/<token>.png`, one log and one scene whose
+samples are the frames (lads/synth/nuscenes.py). Every file is written to `<name>.tmp` and
+renamed into place.
 """
 
 from __future__ import annotations
@@ -19,11 +23,14 @@ import numpy.typing as npt
 from tqdm import tqdm
 
 from lads.errors import BuildError, ConfigError
-from lads.sensors.profile import load_profile
+from lads.sensors.profile import SensorProfile, load_profile
+from lads.synth import nuscenes as nusc
 from lads.synth.frames import SynthFrame, synth_frames
 from lads.synth.voxelscape import voxelscape_ids
 
-LAYOUTS = ("semantickitti", "voxelscape")
+LAYOUTS = ("semantickitti", "nuscenes", "voxelscape")
+# Sensor profile when the caller gives none: the one each dataset was recorded with.
+DEFAULT_SENSOR = {"semantickitti": "hdl64e", "nuscenes": "hdl32e", "voxelscape": "hdl64e"}
 
 # KITTI odometry sequence 00 calibration (data_odometry_calib, sequences/00/calib.txt): P0-P3
 # are the rectified camera projections, Tr maps velodyne -> left grey camera (cam0).
@@ -48,7 +55,7 @@ class SynthSummary:
 
     Attributes:
         out_root: the tree's root directory.
-        layout: "semantickitti" or "voxelscape".
+        layout: "semantickitti", "nuscenes" or "voxelscape".
         sensor: profile name.
         frames: number of frames.
         points_per_frame: points in each frame, in frame order.
@@ -66,7 +73,7 @@ class SynthSummary:
 def write_synthetic_dataset(
     out_root: Path,
     *,
-    sensor: str = "hdl64e",
+    sensor: str | None = None,
     frames: int = 20,
     layout: str = "semantickitti",
     sequence: str = "00",
@@ -78,10 +85,15 @@ def write_synthetic_dataset(
 
     Args:
         out_root: root of the tree (created if missing).
-        sensor: profile name or YAML path (lads.sensors.profile.load_profile).
-        frames: number of 10 Hz frames, >= 1.
-        layout: "semantickitti" or "voxelscape".
-        sequence: sequence folder name, digits only (e.g. "00").
+        sensor: profile name or YAML path (lads.sensors.profile.load_profile); None picks
+            the layout's own sensor (DEFAULT_SENSOR: hdl64e, or hdl32e for nuscenes). Any
+            profile works with any layout (nuscenes: ring = channel index, intensity
+            re-encoded as nuScenes bytes).
+        frames: number of 10 Hz frames, >= 1 (nuscenes: each one a keyframe, NUSC_KEYFRAME_US
+            apart).
+        layout: "semantickitti", "nuscenes" or "voxelscape".
+        sequence: sequence folder name, digits only (e.g. "00"); for nuscenes the scene is
+            named `scene-<sequence as 4 digits>`.
         seed: non-negative; the same arguments give byte-identical trees.
         progress: show a tqdm bar (on stderr, only when it is a terminal).
         azimuth_bins: beams per channel; default the profile's range_image_width.
@@ -103,9 +115,9 @@ def write_synthetic_dataset(
         raise ConfigError(f"sequence '{sequence}' must be digits only, e.g. '00'.")
     if seed < 0:
         raise ConfigError(f"seed={seed}; give a non-negative integer.")
-    profile = load_profile(sensor)
+    profile = load_profile(DEFAULT_SENSOR[layout] if sensor is None else sensor)
     out_root = Path(out_root)
-    write_frame, frame_dirs, finish = _LAYOUT_WRITERS[layout](out_root, sequence)
+    write_frame, frame_dirs, finish = _LAYOUT_WRITERS[layout](out_root, sequence, seed, profile)
     names = [f"{k:06d}" for k in range(frames)]
     _refuse_stale_files(out_root, frame_dirs, names)
     written: list[Path] = []
@@ -166,7 +178,7 @@ _FrameWriter = Callable[[str, SynthFrame], list[Path]]
 _Finisher = Callable[[list[npt.NDArray[np.float64]], list[float]], list[Path]]
 
 
-def _semantickitti(out_root: Path, sequence: str) -> tuple[
+def _semantickitti(out_root: Path, sequence: str, seed: int, profile: SensorProfile) -> tuple[
     _FrameWriter, dict[Path, Callable[[str], set[str]]], _Finisher
 ]:  # fmt: skip
     seq = out_root / "sequences" / sequence
@@ -192,7 +204,7 @@ def _semantickitti(out_root: Path, sequence: str) -> tuple[
     return write_frame, dirs, finish
 
 
-def _voxelscape(out_root: Path, sequence: str) -> tuple[
+def _voxelscape(out_root: Path, sequence: str, seed: int, profile: SensorProfile) -> tuple[
     _FrameWriter, dict[Path, Callable[[str], set[str]]], _Finisher
 ]:  # fmt: skip
     seq, ids = out_root / sequence, voxelscape_ids()
@@ -225,7 +237,71 @@ def _voxelscape(out_root: Path, sequence: str) -> tuple[
     return write_frame, dirs, lambda poses, times: []
 
 
-_LAYOUT_WRITERS = {"semantickitti": _semantickitti, "voxelscape": _voxelscape}
+# nuScenes layout. nuScenes keyframes are 2 Hz (LiDAR sweeps 20 Hz); every synthetic frame
+# (10 Hz, 1 m apart) becomes a keyframe with timestamps NUSC_KEYFRAME_US apart, so the
+# timestamps say 2 m/s while the poses move 10 m/s. No sweeps are written.
+NUSC_T0_US = 1_530_000_000_000_000  # 2018-06-26 08:00:00 UTC
+NUSC_KEYFRAME_US = 500_000
+NUSC_LOG = "n000-2018-06-26-08-00-00+0000"  # the real naming pattern; vehicle n000 = synthetic
+
+
+def _nuscenes(out_root: Path, sequence: str, seed: int, profile: SensorProfile) -> tuple[
+    _FrameWriter, dict[Path, Callable[[str], set[str]]], _Finisher
+]:  # fmt: skip
+    version, classes = nusc.VERSION, nusc.lidarseg_classes()
+    scene = nusc.NuscScene(
+        logfile=NUSC_LOG,
+        vehicle=NUSC_LOG[:4],
+        date_captured=NUSC_LOG[5:15],
+        location="lads-synthetic-street",
+        name=f"scene-{int(sequence):04d}",
+        description=f"lads synth street, seed {seed}, sensor {profile.name}",
+        sensor_translation=nusc.SENSOR_TRANSLATION,
+        sensor_rotation=nusc.SENSOR_ROTATION,
+        salt=f"lads-synth:{seed}:{sequence}:",
+    )
+    records: list[nusc.NuscSampleData] = []
+
+    def scan_name(name: str) -> str:
+        return f"{NUSC_LOG}__{nusc.CHANNEL}__{NUSC_T0_US + NUSC_KEYFRAME_US * int(name)}.pcd.bin"
+
+    def label_name(name: str) -> str:
+        return f"{nusc.token(scene.salt + scan_name(name))}_lidarseg.bin"
+
+    def write_frame(name: str, f: SynthFrame) -> list[Path]:
+        scan = f"samples/{nusc.CHANNEL}/{scan_name(name)}"
+        labels = f"lidarseg/{version}/{label_name(name)}"
+        translation, rotation = nusc.ego_pose_of(f.pose)
+        records.append(nusc.NuscSampleData(
+            nusc.token(scene.salt + scan_name(name)), scan, True, labels,
+            ego_translation=translation, ego_rotation=rotation,
+        ))  # fmt: skip
+        payload = nusc.nuscenes_scan(f.xyz, f.intensity, f.reflectivity, f.ring, profile)
+        return [
+            _atomic_write(out_root / scan, payload),
+            _atomic_write(out_root / labels, classes.labels(f.labels).tobytes()),
+        ]
+
+    def finish(poses: list[npt.NDArray[np.float64]], times: list[float]) -> list[Path]:
+        tables = nusc.nuscenes_tables(version, records, scene)
+        return [_atomic_write(out_root / rel, payload) for rel, payload in tables.items()]
+
+    tables = {Path(p).name for p in nusc.table_files(version, lidarseg=True)}
+    map_png = Path(nusc.map_relpath(version, scene))
+    dirs: dict[Path, Callable[[str], set[str]]] = {
+        out_root / "samples" / nusc.CHANNEL: lambda n: {scan_name(n)},
+        out_root / "lidarseg" / version: lambda n: {label_name(n)},
+        out_root / version: lambda n: tables,
+        out_root / map_png.parent: lambda n: {map_png.name},
+    }
+    return write_frame, dirs, finish
+
+
+_LAYOUT_WRITERS = {
+    "semantickitti": _semantickitti,
+    "nuscenes": _nuscenes,
+    "voxelscape": _voxelscape,
+}
 
 
 def _floats(values: npt.ArrayLike, fmt: str) -> str:

@@ -1,5 +1,7 @@
-"""lads.synth writes complete, KITTI-like SemanticKITTI and Voxelscape trees from nothing."""
+"""lads.synth writes complete, KITTI-like SemanticKITTI, nuScenes and Voxelscape trees from
+nothing."""
 
+import json
 import re
 
 import numpy as np
@@ -8,10 +10,13 @@ from click.testing import CliRunner
 
 from lads.errors import ConfigError, SensorProfileError
 from lads.physics.materials import class_materials
+from lads.readers.nuscenes import TABLES, NuScenesReader
+from lads.release import RELEASE_VARIANTS, synthetic_table
 from lads.sensors.measure import rings_from_scan_order
 from lads.sensors.profile import load_profile
 from lads.synth import SynthSummary, synth_frames, write_synthetic_dataset
 from lads.synth.command import synth_command
+from lads.synth.nuscenes import SENSOR_TRANSLATION, lidarseg_classes, quaternion_wxyz
 from lads.synth.parts import Part
 from lads.synth.voxelscape import voxelscape_ids
 
@@ -39,6 +44,17 @@ def kitti_tree(tmp_path_factory):
 def voxel_tree(tmp_path_factory):
     root = tmp_path_factory.mktemp("voxelscape")
     return root, write_synthetic_dataset(root, frames=2, seed=0, layout="voxelscape")
+
+
+@pytest.fixture(scope="module")
+def nusc_tree(tmp_path_factory):
+    root = tmp_path_factory.mktemp("nuscenes")
+    return root, write_synthetic_dataset(root, sensor="hdl32e", frames=3, layout="nuscenes")
+
+
+@pytest.fixture(scope="module")
+def frames32():
+    return list(synth_frames("hdl32e", frames=3, seed=0))
 
 
 def _world(frame):
@@ -273,3 +289,190 @@ def test_synth_command_writes_a_tree_and_maps_errors_to_usage(tmp_path):
     assert bad.exit_code == 2 and "frames=0" in bad.output
     bad = CliRunner().invoke(synth_command, ["--sensor", "nope", "--out", str(tmp_path / "y")])
     assert bad.exit_code == 2 and "not found" in bad.output
+
+
+# ----------------------------------------------------------------------------------------
+# nuScenes layout
+
+NUSC_LABELS = {  # SemanticKITTI raw id -> nuScenes lidarseg index (category.json `index`)
+    10: 17, 252: 17, 30: 2, 254: 2, 40: 24, 60: 24, 48: 26, 72: 27,
+    50: 28, 51: 28, 80: 28, 81: 28, 70: 30, 71: 30, 0: 0,
+}  # fmt: skip
+
+
+def _nusc_scans(root):
+    return sorted((root / "samples/LIDAR_TOP").glob("*.pcd.bin"))
+
+
+def test_nuscenes_tree_loads_with_the_devkit(nusc_tree):
+    from nuscenes.nuscenes import NuScenes
+    from nuscenes.utils.data_classes import LidarPointCloud
+    from nuscenes.utils.data_io import load_bin_file
+    from PIL import Image
+
+    root, summary = nusc_tree
+    assert (summary.layout, summary.sensor, summary.frames) == ("nuscenes", "hdl32e", 3)
+    assert summary.files == tuple(_tree_files(root))
+    tables = {f"v1.0-mini/{t}.json" for t in (*TABLES, "lidarseg")}
+    assert tables == {f for f in summary.files if f.startswith("v1.0-mini/")}
+    nusc = NuScenes("v1.0-mini", dataroot=str(root), verbose=False)
+    assert len(nusc.lidarseg) == len(nusc.sample) == len(nusc.sample_data) == 3
+    (scene,) = nusc.scene
+    assert scene["nbr_samples"] == 3 and scene["name"] == "scene-0000"
+    sample, stamps, counts = nusc.get("sample", scene["first_sample_token"]), [], []
+    while True:  # samples linked prev/next, each with its LIDAR_TOP keyframe
+        sd = nusc.get("sample_data", sample["data"]["LIDAR_TOP"])
+        assert sd["is_key_frame"] and sd["fileformat"] == "pcd"
+        assert sd["filename"].startswith("samples/LIDAR_TOP/n000-")
+        rec = nusc.get("lidarseg", sd["token"])
+        assert rec["filename"] == f"lidarseg/v1.0-mini/{sd['token']}_lidarseg.bin"
+        pc = LidarPointCloud.from_file(str(root / sd["filename"]))
+        labels = load_bin_file(str(root / rec["filename"]), "lidarseg")
+        assert pc.points.shape == (4, labels.size) and labels.dtype == np.uint8
+        stamps.append(sd["timestamp"])
+        counts.append(labels.size)
+        if not sample["next"]:
+            break
+        assert nusc.get("sample", sample["next"])["prev"] == sample["token"]
+        sample = nusc.get("sample", sample["next"])
+    assert sample["token"] == scene["last_sample_token"]
+    assert np.diff(stamps).tolist() == [500_000, 500_000]  # keyframes at 2 Hz
+    assert counts == list(summary.points_per_frame)
+    assert [(c["index"], c["name"]) for c in nusc.category] == [
+        (i, name) for i, (name, _) in sorted(class_materials("nuscenes").items())
+    ]
+    assert nusc.lidarseg_name2idx_mapping["vehicle.car"] == 17
+    (map_rec,) = nusc.map
+    assert map_rec["log_tokens"] == [nusc.log[0]["token"]]
+    assert Image.open(root / map_rec["filename"]).size == (1, 1)
+
+
+def test_nuscenes_scans_are_the_frames_in_lidar_top_axes(nusc_tree, frames32):
+    root, _ = nusc_tree
+    channels = load_profile("hdl32e").channels
+    for path, frame in zip(_nusc_scans(root), frames32, strict=True):
+        scan = np.fromfile(path, dtype="<f4").reshape(-1, 5)
+        assert scan.shape[0] == frame.xyz.shape[0]
+        # x right, y forward: x_n = -y, y_n = x, exactly
+        assert np.array_equal(scan[:, :3], np.column_stack([-frame.xyz[:, 1], frame.xyz[:, 0],
+                                                            frame.xyz[:, 2]]))  # fmt: skip
+        ring, intensity = scan[:, 4], scan[:, 3]
+        assert np.array_equal(ring, np.round(ring)) and np.array_equal(ring, frame.ring)
+        assert 0 <= ring.min() and ring.max() <= channels - 1
+        assert len(np.unique(ring)) == channels
+        assert np.array_equal(intensity, np.round(intensity))
+        assert 0 <= intensity.min() and intensity.max() <= 255 and len(np.unique(intensity)) > 20
+        assert np.array_equal(intensity, frame.intensity)  # the hdl32e byte encoding
+        load_profile("hdl32e").intensity.validate(intensity, path.name)
+
+
+def test_nuscenes_labels_map_semantickitti_ids_to_lidarseg_indices(nusc_tree, frames32):
+    root, _ = nusc_tree
+    reader = NuScenesReader(root)
+    for item, frame in zip(reader.items(), frames32, strict=True):
+        labels = np.fromfile(root / item.label_relpath, dtype=np.uint8)
+        sem = frame.labels & 0xFFFF
+        assert labels.size == sem.size
+        for raw, index in NUSC_LABELS.items():
+            assert (labels[sem == raw] == index).all(), raw
+        assert set(np.unique(sem).tolist()) <= set(NUSC_LABELS)
+    classes = lidarseg_classes()
+    assert len(classes.categories) == 32 and classes.categories[31] == "vehicle.ego"
+    assert classes.labels(np.array([(7 << 16) | 252, 48, 999], dtype=np.uint32)).tolist() == [
+        17, 26, 0,
+    ]  # fmt: skip
+
+
+def test_nuscenes_poses_put_points_where_the_frame_has_them(nusc_tree, frames32):
+    from nuscenes.nuscenes import NuScenes
+    from nuscenes.utils.data_classes import LidarPointCloud
+    from pyquaternion import Quaternion
+
+    root, _ = nusc_tree
+    nusc = NuScenes("v1.0-mini", dataroot=str(root), verbose=False)
+    sds = sorted(nusc.sample_data, key=lambda sd: sd["timestamp"])
+    for sd, frame in zip(sds, frames32, strict=True):
+        cs = nusc.get("calibrated_sensor", sd["calibrated_sensor_token"])
+        ego = nusc.get("ego_pose", sd["ego_pose_token"])
+        assert cs["translation"] == list(SENSOR_TRANSLATION)
+        assert ego["translation"][2] == 0.0  # the ego frame sits on the road
+        pc = LidarPointCloud.from_file(str(root / sd["filename"]))
+        for record in (cs, ego):  # sensor -> ego -> global, as the devkit does it
+            pc.rotate(Quaternion(record["rotation"]).rotation_matrix)
+            pc.translate(np.array(record["translation"]))
+        np.testing.assert_allclose(pc.points[:3].T, _world(frame), atol=1e-3)
+
+
+def test_quaternions_match_pyquaternion():
+    from pyquaternion import Quaternion
+
+    rng = np.random.default_rng(0)
+    for _ in range(50):
+        q = rng.normal(size=4)
+        rot = Quaternion(q / np.linalg.norm(q)).rotation_matrix
+        got = Quaternion(quaternion_wxyz(rot))
+        assert got.w >= 0 and np.allclose(got.rotation_matrix, rot, atol=1e-12)
+    assert quaternion_wxyz(np.eye(3)) == (1.0, 0.0, 0.0, 0.0)
+
+
+def test_nuscenes_reader_round_trips_the_tree_byte_for_byte(nusc_tree):
+    root, summary = nusc_tree
+    reader = NuScenesReader(root)
+    items = reader.items()
+    assert len(items) == summary.frames
+    for item in items:
+        token = dict(item.meta)["sample_data_token"]
+        assert item.label_relpath == f"lidarseg/v1.0-mini/{token}_lidarseg.bin"
+        frame = reader.read(item)
+        assert frame.points.shape[1] == 5 and frame.labels.shape == (frame.points.shape[0],)
+        for encoded in reader.encode(frame):
+            assert encoded.payload == (root / encoded.relpath).read_bytes(), encoded.relpath
+    assert set(reader.copied_files()) == {f for f in summary.files if f.startswith(("v1", "maps"))}
+
+
+def test_nuscenes_same_seed_same_bytes_and_stale_files_refused(tmp_path):
+    trees = []
+    for name, seed in (("a", 5), ("b", 5), ("c", 6)):
+        out = tmp_path / name
+        write_synthetic_dataset(out, frames=2, seed=seed, layout="nuscenes", azimuth_bins=256)
+        trees.append({f: (out / f).read_bytes() for f in _tree_files(out)})
+    assert trees[0] == trees[1]
+    assert trees[0].keys() != trees[2].keys()  # other tokens
+    scans = [{k: v for k, v in t.items() if k.startswith("samples/")} for t in trees]
+    assert scans[0].keys() == scans[2].keys() and scans[0] != scans[2]
+    with pytest.raises(ConfigError, match="_lidarseg.bin"):  # another seed's label files
+        write_synthetic_dataset(tmp_path / "a", frames=2, seed=6, layout="nuscenes",
+                                azimuth_bins=256)  # fmt: skip
+
+
+def test_nuscenes_default_sensor_is_hdl32e_and_any_profile_works(tmp_path):
+    default = write_synthetic_dataset(tmp_path / "d", frames=1, layout="nuscenes", azimuth_bins=64)
+    assert default.sensor == "hdl32e"
+    assert write_synthetic_dataset(tmp_path / "k", frames=1, azimuth_bins=64).sensor == "hdl64e"
+    summary = write_synthetic_dataset(
+        tmp_path / "n", sensor="hdl64e", frames=1, layout="nuscenes", azimuth_bins=64
+    )
+    scan = np.fromfile(_nusc_scans(tmp_path / "n")[0], dtype="<f4").reshape(-1, 5)
+    assert summary.sensor == "hdl64e" and scan[:, 4].max() == 63  # ring = channel index
+    intensity = scan[:, 3]  # re-encoded from the KITTI [0, 1) remission to nuScenes bytes
+    assert np.array_equal(intensity, np.round(intensity)) and intensity.max() > 1
+    assert len(NuScenesReader(tmp_path / "n").items()) == 1
+
+
+def test_synth_command_writes_a_nuscenes_tree(tmp_path):
+    out = tmp_path / "nusc"
+    args = ["--frames", "1", "--layout", "nuscenes", "--out", str(out), "--sequence", "3"]
+    result = CliRunner().invoke(synth_command, args)
+    assert result.exit_code == 0, result.output
+    assert re.search(r"1 nuscenes frames .*hdl32e", result.output)
+    assert json.loads((out / "v1.0-mini/scene.json").read_text())[0]["name"] == "scene-0003"
+
+
+def test_synthetic_release_table_has_every_source_and_variant(tmp_path):
+    table = synthetic_table(tmp_path, frames=2, seed=0)
+    assert len(table) == 6
+    assert [e.source for e in table[::2]] == ["semantickitti", "nuscenes", "voxelscape"]
+    assert [e.variant for e in table] == list(RELEASE_VARIANTS) * 3
+    assert [e.name for e in table[2:4]] == ["nuscenes-snow", "nuscenes-rain"]
+    assert table[2].root == tmp_path / "sources" / "synthetic-nuscenes"
+    assert len(NuScenesReader(table[2].root).items()) == 2

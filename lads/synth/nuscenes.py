@@ -1,0 +1,400 @@
+"""nuScenes-lidarseg dataroots: the JSON tables, labels and scans (formats.md §2).
+
+`nuscenes_tables` builds the 13 tables (+ lidarseg.json / panoptic.json) of a one-log,
+one-scene database around LIDAR_TOP sample_data records, plus the map PNG the map table
+names; it is used by `lads synth --layout nuscenes` (lads/synth/writer.py) and by the tests'
+tree builders (tests/trees.py). What `NuScenes(version, dataroot)` asserts (formats.md §2.5):
+all 13 tables load; category has `index` when lidarseg.json exists; #label files ==
+#lidarseg records; every map PNG exists; map records have log_tokens.
+
+Synthetic frames become nuScenes data as follows:
+
+- Axes. nuScenes LIDAR_TOP has x right, y forward, z up; the synthetic sensor (KITTI
+  convention) has x forward, y left. Scans are rotated by +90 deg about z (x_n = -y, y_n =
+  x: a swap and a sign flip, exact in float32), and calibrated_sensor holds the matching
+  exact -90 deg yaw (sensor -> ego), as the real LIDAR_TOP does (about -90 deg plus a small
+  tilt). The ego frame is the synthetic sensor frame moved down and back by
+  SENSOR_TRANSLATION, so ego_pose (ego -> global) sits on the road (z = 0) and global is the
+  synthetic world frame.
+- Mount. SENSOR_TRANSLATION = (0.943713, 0, 1.73): the real LIDAR_TOP's forward offset, but
+  the synthetic street's sensor height (KITTI's 1.73 m, not nuScenes' 1.84 m), so geometry
+  stays consistent.
+- Points keep the synthetic order (ring by ring, top first), not the HDL-32E firing order
+  (rings interleaved); the ring column is the channel, 0 = lowest beam.
+- Intensity is the hdl32e profile's byte encoding (integers 0-255 as float32) of the
+  frame's continuous reflectivity (the frame's own encoding when it already is that one).
+- Labels: SemanticKITTI raw ids -> lidarseg `index` via nuscenes_lidarseg.yaml.
+"""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+import importlib.resources
+import json
+import re
+import struct
+import zlib
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+import yaml
+
+from lads.errors import ConfigError
+from lads.physics.materials import class_materials
+from lads.readers.nuscenes import CHANNEL, TABLES
+from lads.sensors.profile import SensorProfile, load_profile
+from lads.synth.parts import SEMANTICKITTI_OF_PART
+
+CLASSES_FILE = "nuscenes_lidarseg.yaml"
+VERSION = "v1.0-mini"
+# Real nuScenes LIDAR_TOP calibration (v1.0-mini, calibrated_sensor of scene-0061).
+REAL_SENSOR_TRANSLATION = (0.943713, 0.0, 1.84023)
+REAL_SENSOR_ROTATION = (
+    0.7077955119163518,
+    -0.006492242056004365,
+    0.010646214713995808,
+    -0.7063073142877817,
+)
+NUSCENES_INTENSITY_PROFILE = "hdl32e"  # whose intensity encoding the scans use
+# nuScenes sensor frame from the synthetic (KITTI-convention) one: x_n = -y, y_n = x, z_n = z.
+NUSC_FROM_SYNTH = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+
+
+def token(text: str) -> str:
+    """A deterministic 32-hex nuScenes-style token (first half of the text's SHA-256)."""
+    return hashlib.sha256(text.encode()).hexdigest()[:32]
+
+
+@dataclass(frozen=True)
+class NuscSampleData:
+    """One LIDAR_TOP sample_data record to put in the tables (its files written elsewhere).
+
+    Attributes:
+        token: sample_data token (also the lidarseg/panoptic record's token).
+        filename: relative to the dataroot; its `__<us>.pcd.bin` suffix is the timestamp.
+        key_frame: a sample (keyframe) or a sweep.
+        lidarseg: filename of its lidarseg label file, if any.
+        panoptic: filename of its panoptic npz, if any.
+        ego_translation: ego -> global translation of its ego_pose, m.
+        ego_rotation: ego -> global rotation of its ego_pose, quaternion w, x, y, z.
+    """
+
+    token: str
+    filename: str
+    key_frame: bool
+    lidarseg: str | None = None
+    panoptic: str | None = None
+    ego_translation: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    ego_rotation: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0)
+
+
+@dataclass(frozen=True)
+class NuscScene:
+    """The one log, scene and LIDAR_TOP calibration of a database (defaults: a real log name
+    and the real LIDAR_TOP calibration).
+
+    Attributes:
+        salt: prefix of every table-level token (log, scene, sensor, calibration, map), so
+            databases from different seeds get different tokens.
+    """
+
+    logfile: str = "n015-2018-07-24-11-22-45+0800"
+    vehicle: str = "n015"
+    date_captured: str = "2018-07-24"
+    location: str = "singapore-onenorth"
+    name: str = "scene-0001"
+    description: str = "lads test scene"
+    sensor_translation: tuple[float, float, float] = REAL_SENSOR_TRANSLATION
+    sensor_rotation: tuple[float, float, float, float] = REAL_SENSOR_ROTATION
+    salt: str = field(default="")
+
+
+@dataclass(frozen=True, slots=True)
+class LidarsegClasses:
+    """The lidarseg class list and the SemanticKITTI -> lidarseg map (nuscenes_lidarseg.yaml).
+
+    Attributes:
+        categories: the 32 class names; a class's `index` is its position.
+        of_semantickitti: (65536,) uint8 lidarseg index per SemanticKITTI raw id (ids not
+            listed map to 0 noise; every id the generator emits is listed).
+    """
+
+    categories: tuple[str, ...]
+    of_semantickitti: npt.NDArray[np.uint8]
+
+    def labels(self, semantickitti: npt.ArrayLike) -> npt.NDArray[np.uint8]:
+        """(N,) uint8 lidarseg indices of SemanticKITTI labels (instance bits ignored)."""
+        raw = np.asarray(semantickitti).astype(np.uint32) & np.uint32(0xFFFF)
+        return self.of_semantickitti[raw]
+
+
+@functools.cache
+def lidarseg_classes() -> LidarsegClasses:
+    """Load and check the shipped class table (cached).
+
+    Raises:
+        ConfigError: the YAML is malformed, the class list differs from the `nuscenes` label
+            set of lads/physics/materials.yaml, a mapped name is not a class, or an id the
+            generator emits is not mapped.
+    """
+    where = f"lads/synth/{CLASSES_FILE}"
+    try:
+        raw: Any = yaml.safe_load(
+            importlib.resources.files("lads.synth").joinpath(CLASSES_FILE).read_text()
+        )
+        categories = tuple(str(c) for c in raw["categories"])
+        mapping = {int(k): str(v) for k, v in raw["from_semantickitti"].items()}
+    except (OSError, yaml.YAMLError, KeyError, TypeError, ValueError, AttributeError) as exc:
+        raise ConfigError(f"{where}: cannot read the class table ({exc}); fix the file.") from exc
+    known = {i: name for i, (name, _) in class_materials("nuscenes").items()}
+    problems = []
+    if dict(enumerate(categories)) != known:
+        problems.append(
+            "categories differ from the nuscenes label set of lads/physics/materials.yaml "
+            f"({len(categories)} vs {len(known)} classes)"
+        )
+    problems += [f"id {k} maps to unknown class '{v}'" for k, v in mapping.items()
+                 if v not in categories]  # fmt: skip
+    problems += [f"id {k} is outside 0..65535" for k in mapping if not 0 <= k <= 0xFFFF]
+    emitted = sorted(set(SEMANTICKITTI_OF_PART.tolist()))
+    problems += [f"generator id {s} is not mapped" for s in emitted if s not in mapping]
+    if problems:
+        raise ConfigError(f"{where}: " + "; ".join(problems) + ".")
+    lut = np.zeros(0x10000, dtype=np.uint8)
+    for k, v in mapping.items():
+        lut[k] = categories.index(v)
+    return LidarsegClasses(categories=categories, of_semantickitti=lut)
+
+
+def quaternion_wxyz(rotation: npt.ArrayLike) -> tuple[float, float, float, float]:
+    """Unit quaternion (w, x, y, z), w >= 0, of a (3, 3) rotation matrix (Shepperd's method)."""
+    m = np.asarray(rotation, dtype=np.float64)
+    trace = m[0, 0] + m[1, 1] + m[2, 2]
+    if trace > 0.0:
+        s = 2.0 * np.sqrt(trace + 1.0)
+        q = [0.25 * s, (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s]
+    elif m[0, 0] > m[1, 1] and m[0, 0] > m[2, 2]:
+        s = 2.0 * np.sqrt(1.0 + m[0, 0] - m[1, 1] - m[2, 2])
+        q = [(m[2, 1] - m[1, 2]) / s, 0.25 * s, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s]
+    elif m[1, 1] > m[2, 2]:
+        s = 2.0 * np.sqrt(1.0 + m[1, 1] - m[0, 0] - m[2, 2])
+        q = [(m[0, 2] - m[2, 0]) / s, (m[0, 1] + m[1, 0]) / s, 0.25 * s, (m[1, 2] + m[2, 1]) / s]
+    else:
+        s = 2.0 * np.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1])
+        q = [(m[1, 0] - m[0, 1]) / s, (m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, 0.25 * s]
+    arr = np.asarray(q) / np.linalg.norm(q)
+    if arr[0] < 0.0:
+        arr = -arr
+    w, x, y, z = (float(v) + 0.0 for v in arr)  # + 0.0 turns -0.0 into 0.0
+    return w, x, y, z
+
+
+# ----------------------------------------------------------------------------------------
+# Synthetic frames as nuScenes data
+
+# Synthetic sensor -> ego: the ego frame is the sensor frame shifted (see the module doc).
+SENSOR_TRANSLATION = (0.943713, 0.0, 1.73)
+SENSOR_ROTATION = quaternion_wxyz(NUSC_FROM_SYNTH.T)  # exact -90 deg yaw: (0.7071, 0, 0, -0.7071)
+
+
+def nuscenes_scan(
+    xyz: npt.NDArray[np.float32],
+    intensity: npt.NDArray[np.float32],
+    reflectivity: npt.NDArray[np.float32],
+    ring: npt.NDArray[np.int64],
+    profile: SensorProfile,
+) -> bytes:
+    """`.pcd.bin` bytes (N x 5 little-endian float32 x, y, z, intensity, ring) of a synthetic
+    frame: axes rotated to nuScenes LIDAR_TOP, intensity in the hdl32e byte encoding."""
+    target = load_profile(NUSCENES_INTENSITY_PROFILE).intensity
+    values = intensity if profile.intensity == target else target.from_reflectivity(reflectivity)
+    cols = [-xyz[:, 1], xyz[:, 0], xyz[:, 2], values, ring.astype(np.float32)]
+    return np.column_stack(cols).astype("<f4").tobytes()
+
+
+def ego_pose_of(
+    sensor_pose: npt.NDArray[np.float64],
+) -> tuple[tuple[float, float, float], tuple[float, float, float, float]]:
+    """ego -> global (translation, quaternion w, x, y, z) of a synthetic sensor -> world pose:
+    R = R_sensor, t = t_sensor - R_sensor @ SENSOR_TRANSLATION."""
+    rot = np.asarray(sensor_pose, dtype=np.float64)[:3, :3]
+    t = np.asarray(sensor_pose, dtype=np.float64)[:3, 3] - rot @ np.asarray(SENSOR_TRANSLATION)
+    x, y, z = (float(v) + 0.0 for v in t)
+    return (x, y, z), quaternion_wxyz(rot)
+
+
+# ----------------------------------------------------------------------------------------
+# Tables
+
+
+def _timestamp(filename: str) -> int:
+    match = re.search(r"__(\d+)\.pcd\.bin$", filename)
+    return int(match.group(1)) if match else 0
+
+
+def tiny_png() -> bytes:
+    """A valid 1 x 1 black 8-bit greyscale PNG (uncompressed deflate, so byte-stable)."""
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        crc = zlib.crc32(kind + data)
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", crc)
+
+    header = struct.pack(">IIBBBBB", 1, 1, 8, 0, 0, 0, 0)
+    return (
+        b"\x89PNG\r\n\x1a\n"
+        + chunk(b"IHDR", header)
+        + chunk(b"IDAT", zlib.compress(b"\x00\x00", 0))
+        + chunk(b"IEND", b"")
+    )
+
+
+def map_relpath(version: str, scene: NuscScene) -> str:
+    """The map PNG the map table of `nuscenes_tables(version, ..., scene)` names."""
+    return f"maps/{token(f'{scene.salt}{version}:map')}.png"
+
+
+def table_files(version: str, *, lidarseg: bool, panoptic: bool = False) -> list[str]:
+    """Relative paths of the JSON tables `nuscenes_tables` writes."""
+    names = [*TABLES, *(["lidarseg"] if lidarseg else []), *(["panoptic"] if panoptic else [])]
+    return [f"{version}/{n}.json" for n in names]
+
+
+def nuscenes_tables(
+    version: str, records: list[NuscSampleData], scene: NuscScene | None = None
+) -> dict[str, bytes]:
+    """File contents by relative path: `<version>/*.json` and the map PNG.
+
+    One log and one scene; keyframes become consecutive samples linked prev/next; each sweep
+    belongs to the next keyframe's sample (the last one's after the last keyframe); all
+    records are chained prev/next in timestamp order; one ego_pose per record. lidarseg.json
+    and panoptic.json are written when any record has such a file; category.json always
+    carries `index` (the lidarseg edition).
+    """
+    scene = scene or NuscScene()
+    salt = scene.salt
+    log, scene_token, sensor, calib, map_token = (
+        token(f"{salt}{version}:{k}") for k in ("log", "scene", "sensor", "calib", "map")
+    )
+    ordered = sorted(records, key=lambda r: (_timestamp(r.filename), r.filename))
+    keys = [r for r in ordered if r.key_frame]
+    if not keys:
+        raise ConfigError("nuScenes tables need at least one keyframe record.")
+    samples = [token(f"sample:{r.token}") for r in keys]
+    sample_rows = [
+        {
+            "token": s,
+            "timestamp": _timestamp(r.filename),
+            "prev": samples[i - 1] if i else "",
+            "next": samples[i + 1] if i + 1 < len(samples) else "",
+            "scene_token": scene_token,
+        }
+        for i, (s, r) in enumerate(zip(samples, keys, strict=True))
+    ]
+    sd_rows, ego_rows = [], []
+    for i, r in enumerate(ordered):
+        later = [
+            s
+            for s, k in zip(samples, keys, strict=True)
+            if _timestamp(k.filename) >= _timestamp(r.filename)
+        ]
+        sample = samples[keys.index(r)] if r.key_frame else (later[0] if later else samples[-1])
+        ego = token(f"ego:{r.token}")
+        ego_rows.append(
+            {
+                "token": ego,
+                "timestamp": _timestamp(r.filename),
+                "rotation": list(r.ego_rotation),
+                "translation": list(r.ego_translation),
+            }
+        )
+        sd_rows.append(
+            {
+                "token": r.token,
+                "sample_token": sample,
+                "ego_pose_token": ego,
+                "calibrated_sensor_token": calib,
+                "timestamp": _timestamp(r.filename),
+                "fileformat": "pcd",
+                "is_key_frame": r.key_frame,
+                "height": 0,
+                "width": 0,
+                "filename": r.filename,
+                "prev": ordered[i - 1].token if i else "",
+                "next": ordered[i + 1].token if i + 1 < len(ordered) else "",
+            }
+        )
+    map_file = map_relpath(version, scene)
+    content: dict[str, list[dict[str, Any]]] = {
+        "category": [
+            {"token": token(f"category:{name}"), "name": name, "description": name, "index": i}
+            for i, name in enumerate(lidarseg_classes().categories)
+        ],
+        "attribute": [],
+        "visibility": [
+            {
+                "token": "1",
+                "level": "v0-40",
+                "description": "visibility of whole object is between 0 and 40%",
+            }
+        ],
+        "instance": [],
+        "sensor": [{"token": sensor, "channel": CHANNEL, "modality": "lidar"}],
+        "calibrated_sensor": [
+            {
+                "token": calib,
+                "sensor_token": sensor,
+                "translation": list(scene.sensor_translation),
+                "rotation": list(scene.sensor_rotation),
+                "camera_intrinsic": [],
+            }
+        ],
+        "ego_pose": ego_rows,
+        "log": [
+            {
+                "token": log,
+                "logfile": scene.logfile,
+                "vehicle": scene.vehicle,
+                "date_captured": scene.date_captured,
+                "location": scene.location,
+            }
+        ],
+        "scene": [
+            {
+                "token": scene_token,
+                "log_token": log,
+                "nbr_samples": len(samples),
+                "first_sample_token": samples[0],
+                "last_sample_token": samples[-1],
+                "name": scene.name,
+                "description": scene.description,
+            }
+        ],
+        "sample": sample_rows,
+        "sample_data": sd_rows,
+        "sample_annotation": [],
+        "map": [
+            {
+                "category": "semantic_prior",
+                "token": map_token,
+                "filename": map_file,
+                "log_tokens": [log],
+            }
+        ],
+    }
+    for role in ("lidarseg", "panoptic"):
+        rows = [
+            {"token": r.token, "sample_data_token": r.token, "filename": getattr(r, role)}
+            for r in ordered
+            if getattr(r, role)
+        ]
+        if rows:
+            content[role] = rows
+    files = {
+        f"{version}/{name}.json": json.dumps(rows, indent=0).encode()
+        for name, rows in content.items()
+    }
+    files[map_file] = tiny_png()  # NuScenes() asserts it exists; pixels load lazily
+    return files
