@@ -17,6 +17,7 @@ import click
 import numpy as np
 
 from lads.errors import InputDataError, LadsError
+from lads.files import atomic_write
 
 EXIT_INCOMPLETE = 1
 EXIT_LADS_ERROR = 2
@@ -150,7 +151,7 @@ def weather(
     out = points[result.source_index].copy()
     out[:, :3] = result.xyz
     out[:, 3] = result.intensity
-    _atomic_write(output, out.tobytes())
+    atomic_write(output, out.tobytes())
     if labels_in is not None:
         labels = np.fromfile(labels_in, dtype=np.uint32)
         if labels.size != points.shape[0]:
@@ -159,19 +160,12 @@ def weather(
                 "expected one uint32 label per point."
             )
         target = labels_out or output.with_suffix(".label")
-        _atomic_write(target, labels[result.source_index].tobytes())
+        atomic_write(target, labels[result.source_index].tobytes())
     c = result.counts()
     click.echo(
         f"{output}: {out.shape[0]} points (attenuated {c['attenuated']}, particle {c['particle']}, "
         f"lost {c['lost']}); alpha = {result.extinction_per_m:.3e} 1/m"
     )
-
-
-def _atomic_write(path: Path, payload: bytes) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_bytes(payload)
-    tmp.replace(path)
 
 
 @main.command()
@@ -303,7 +297,7 @@ def verify(
         out_root, source_root, regenerate=regenerate, seed=seed, inventory=inventory, progress=None
     )
     if json_out is not None:
-        _atomic_write(json_out, report.to_json().encode())
+        atomic_write(json_out, report.to_json().encode())
     click.echo(report.summary_text())
     if not report.ok:
         sys.exit(EXIT_INCOMPLETE)

@@ -329,3 +329,16 @@ def real_nuscenes(root: Path, version: str = "v1.0-mini") -> Path:
         NuscSampleData(token(NUSC_TINY_SWEEP), NUSC_TINY_SWEEP, False),
     ]
     return write_nuscenes_tables(root, version, records)
+
+
+def write_like_the_runner(reader, out: Path) -> None:
+    """What the runner writes for a reader, without stages: copied files and encode(read())."""
+    import shutil
+
+    for rel in reader.copied_files():
+        (out / rel).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(reader.root / rel, out / rel)
+    for item in reader.items():
+        for e in reader.encode(reader.read(item)):
+            (out / e.relpath).parent.mkdir(parents=True, exist_ok=True)
+            (out / e.relpath).write_bytes(e.payload)

@@ -12,7 +12,6 @@ renamed into place.
 
 from __future__ import annotations
 
-import os
 import re
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -23,6 +22,7 @@ import numpy.typing as npt
 from tqdm import tqdm
 
 from lads.errors import BuildError, ConfigError
+from lads.files import atomic_write
 from lads.sensors.profile import SensorProfile, load_profile
 from lads.synth import nuscenes as nusc
 from lads.synth.frames import SynthFrame, synth_frames
@@ -142,11 +142,8 @@ def write_synthetic_dataset(
 
 
 def _atomic_write(path: Path, payload: bytes) -> Path:
-    tmp = path.with_name(path.name + ".tmp")
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp.write_bytes(payload)
-        os.replace(tmp, path)
+        atomic_write(path, payload)
     except OSError as exc:
         raise BuildError(
             f"{path}: cannot write ({exc}); give an --out directory that is writable and has "

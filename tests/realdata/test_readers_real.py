@@ -7,7 +7,6 @@ nuScenes database built around two real keyframes and one real sweep (tests/tree
 from __future__ import annotations
 
 import hashlib
-import shutil
 from pathlib import Path
 
 import numpy as np
@@ -134,16 +133,6 @@ def test_nuscenes_real_keyframes_keep_the_ring_column_and_round_trip(nusc_root):
     _assert_round_trip(reader, nusc_root)
 
 
-def _write_like_the_runner(reader, out: Path) -> None:
-    for rel in reader.copied_files():
-        (out / rel).parent.mkdir(parents=True, exist_ok=True)
-        shutil.copyfile(reader.root / rel, out / rel)
-    for item in reader.items():
-        for e in reader.encode(reader.read(item)):
-            (out / e.relpath).parent.mkdir(parents=True, exist_ok=True)
-            (out / e.relpath).write_bytes(e.payload)
-
-
 def test_nuscenes_runner_like_output_loads_with_the_devkit(nusc_root, tmp_path):
     from nuscenes.nuscenes import NuScenes
     from nuscenes.utils.data_classes import LidarPointCloud
@@ -151,7 +140,7 @@ def test_nuscenes_runner_like_output_loads_with_the_devkit(nusc_root, tmp_path):
 
     reader = get_reader("nuscenes", nusc_root)
     out = tmp_path / "out"
-    _write_like_the_runner(reader, out)
+    trees.write_like_the_runner(reader, out)
     source = NuScenes("v1.0-mini", dataroot=str(nusc_root), verbose=False)
     nusc = NuScenes("v1.0-mini", dataroot=str(out), verbose=False)
     assert len(nusc.lidarseg) == len(source.lidarseg) == 2

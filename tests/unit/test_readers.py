@@ -10,7 +10,6 @@ import io
 import pickle
 import shutil
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -620,16 +619,6 @@ def test_nuscenes_corrupt_panoptic_names_the_file(tree):
         reader.read(item)
 
 
-def _write_like_the_runner(reader, out: Path) -> None:
-    for rel in reader.copied_files():
-        (out / rel).parent.mkdir(parents=True, exist_ok=True)
-        shutil.copyfile(reader.root / rel, out / rel)
-    for item in reader.items():
-        for e in reader.encode(reader.read(item)):
-            (out / e.relpath).parent.mkdir(parents=True, exist_ok=True)
-            (out / e.relpath).write_bytes(e.payload)
-
-
 def test_nuscenes_output_tree_loads_with_the_devkit(tree, tmp_path):
     from nuscenes.nuscenes import NuScenes
     from nuscenes.utils.data_classes import LidarPointCloud
@@ -637,7 +626,7 @@ def test_nuscenes_output_tree_loads_with_the_devkit(tree, tmp_path):
 
     reader, root = tree("nuscenes", panoptic=True)
     out = tmp_path / "out"
-    _write_like_the_runner(reader, out)
+    trees.write_like_the_runner(reader, out)
     source = NuScenes("v1.0-mini", dataroot=str(root), verbose=False)
     nusc = NuScenes("v1.0-mini", dataroot=str(out), verbose=False)
     assert len(nusc.lidarseg) == len(source.lidarseg) == 3
