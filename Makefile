@@ -3,7 +3,7 @@
 PY := .venv/bin/python
 STAMP := .venv/.installed
 
-.PHONY: install demo test bench lint release clean
+.PHONY: install demo test bench lint release train clean
 
 install: $(STAMP)
 
@@ -32,6 +32,12 @@ lint: install
 # them, a demo release from synthetic sources. Verified, with cards and manifests.
 release: install
 	$(PY) -m lads.release
+
+# The shipped intensity weights and their model cards, from ../shared/data (CPU, ~30 min).
+TRAIN_CONFIGS = synth-to-kitti synth-to-nuscenes weather
+train: install
+	for c in $(TRAIN_CONFIGS); do $(PY) -m lads.cli train $$c || exit 1; done
+	$(PY) -m lads.intensity.model_card $(TRAIN_CONFIGS)
 
 clean:
 	rm -rf .venv demo_output dist release

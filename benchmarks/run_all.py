@@ -7,6 +7,8 @@ wads_snow.json    simulated vs real falling snow (WADS), fitted defaults vs LISA
 fog_radiate.json  fog model vs real fog (RADIATE), with what that data cannot show
 build_speed.json  lads build end to end: frames/s with 1 and 2 jobs, memory, projected hours
 verify.json       lads verify throughput (MB/s) on a ~450 MB tree
+intensity_speed.json  intensity generator ms per 64-beam frame on one core
+intensity_eval.json   held-out evaluation of the shipped generators against the baselines
 """
 
 from __future__ import annotations
@@ -30,6 +32,8 @@ BENCHMARKS = (
     "fog_radiate",
     "build_speed",
     "verify_speed",
+    "intensity_speed",
+    "intensity_eval",
 )
 
 

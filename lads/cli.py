@@ -207,6 +207,15 @@ def weather(
 )
 @click.option("--particle-label", type=int, help="Label of particle returns in physical mode.")
 @click.option(
+    "--intensity", "intensity_model",
+    help="'physics' keeps the physics intensity (drops the learned intensity stage); a shipped "
+    "model name or .pt path replaces the pipeline's model.",
+)
+@click.option(
+    "--device", type=click.Choice(["cpu", "cuda"]),
+    help="Device of the learned intensity stage (default cpu; cuda when present).",
+)  # fmt: skip
+@click.option(
     "--sequences", help="Comma-separated sequences to build (SemanticKITTI, WADS, Voxelscape)."
 )
 @click.option("--version", "nuscenes_version", help="nuScenes table version, e.g. v1.0-trainval.")
@@ -224,8 +233,8 @@ def weather(
 def build(
     source: str, variant: str | None, pipeline_file: Path | None, source_root: Path, out_root: Path,
     seed: int, rate_mm_h: float | None, visibility_m: float | None, mode: str | None,
-    points: str | None, particle_label: int | None, sequences: str | None,
-    nuscenes_version: str | None, include_sweeps: bool, jobs: int, backend: str,
+    points: str | None, particle_label: int | None, intensity_model: str | None,
+    device: str | None, sequences: str | None, nuscenes_version: str | None, include_sweeps: bool, jobs: int, backend: str,
     scheduler: str | None, fail_fast: bool, limit: int | None, figures: bool,
 ) -> None:  # fmt: skip
     """Build a variant tree: one output item per source item, same format and layout."""
@@ -237,8 +246,10 @@ def build(
     path = pipeline_file or find_pipeline(source, variant)  # type: ignore[arg-type]
     pipeline = load_pipeline(path).with_overrides(
         rate_mm_h=rate_mm_h, visibility_m=visibility_m, mode=mode, points=points,
-        particle_label=particle_label,
+        particle_label=particle_label, intensity=intensity_model,
     )  # fmt: skip
+    if device is not None:
+        pipeline = pipeline.with_overrides(device=device)
     options: dict[str, Any] = {}
     if sequences:
         options["sequences"] = [s.strip() for s in sequences.split(",") if s.strip()]
@@ -310,6 +321,17 @@ def _register_synth() -> None:
 
 
 _register_synth()
+
+
+def _register_intensity() -> None:
+    from lads.intensity.commands import eval_intensity_command, train_command
+
+    for command in (train_command, eval_intensity_command):
+        command.callback = _lads_errors(command.callback)  # type: ignore[arg-type]
+        main.add_command(command)
+
+
+_register_intensity()
 
 
 if __name__ == "__main__":

@@ -28,7 +28,12 @@ _STAGE_PARAMS: dict[str, dict[str, str]] = {
     "rain": {"rate_mm_h": "nonneg", "mode": "return_mode"},
     "snow": {"rate_mm_h": "nonneg", "mode": "return_mode"},
     "fog": {"visibility_m": "visibility", "mode": "return_mode"},
+    "intensity": {"model": "text", "target": "optional_text", "device": "device"},
 }
+_OPTIONAL_KINDS = {"return_mode", "optional_text", "device"}
+DEVICES = ("cpu", "cuda")
+# `--intensity physics` removes the learned intensity stage (physics intensity is kept).
+PHYSICS_INTENSITY = "physics"
 
 
 @dataclass(frozen=True, slots=True)
@@ -95,13 +100,31 @@ class PipelineConfig:
     def with_overrides(self, **overrides: Any) -> PipelineConfig:
         """A copy with command-line overrides applied; None values are ignored.
 
-        Stage parameters (rate_mm_h, visibility_m, mode) go to every stage that accepts
-        them; `points` and `particle_label` go to the writer. A stage parameter no stage
+        Stage parameters (rate_mm_h, visibility_m, mode, device) go to every stage that
+        accepts them; `intensity="physics"` drops the learned intensity stage and any other
+        value names its model; `points` and `particle_label` go to the writer. A stage parameter no stage
         accepts is an error, so `--visibility-m` on a snow pipeline is refused.
         """
         given = {k: v for k, v in overrides.items() if v is not None}
         top = {k: given.pop(k) for k in ("points", "particle_label") if k in given}
         stages = list(self.stages)
+        intensity = given.pop("intensity", None)
+        if intensity is not None:
+            learned = [s for s in stages if s.stage == "intensity"]
+            if intensity == PHYSICS_INTENSITY:
+                stages = [s for s in stages if s.stage != "intensity"]
+            elif not learned:
+                raise ConfigError(
+                    "--intensity MODEL: this pipeline has no intensity stage; add one to the "
+                    "pipeline file, or pass --intensity physics."
+                )
+            else:
+                stages = [StageConfig(s.stage, {**s.params, "model": intensity})
+                          if s.stage == "intensity" else s for s in stages]  # fmt: skip
+            if not stages:
+                raise ConfigError(
+                    "--intensity physics leaves no stage: this pipeline only changes intensity."
+                )
         for key, value in given.items():
             hit = [i for i, s in enumerate(stages) if key in _STAGE_PARAMS.get(s.stage, {})]
             if not hit:
@@ -123,6 +146,14 @@ def _hash(obj: Any) -> str:
 
 
 def _check_value(kind: str, value: Any, where: str) -> None:
+    if kind in ("text", "optional_text"):
+        if (value is None and kind == "optional_text") or (isinstance(value, str) and value):
+            return
+        raise ConfigError(f"{where}: expected a non-empty string, got {value!r}.")
+    if kind == "device":
+        if value not in DEVICES:
+            raise ConfigError(f"{where}: device {value!r}; expected one of {DEVICES}.")
+        return
     if kind == "return_mode":
         if value not in RETURN_MODES:
             raise ConfigError(f"{where}: mode is {value!r}; expected one of {RETURN_MODES}.")
@@ -147,7 +178,7 @@ def _check_stage(name: str, params: dict[str, Any], where: str) -> None:
             f"{where}: stage {name!r} has unknown parameters {unknown}; "
             f"it accepts {sorted(accepted)}."
         )
-    missing = [k for k in accepted if k != "mode" and k not in params]
+    missing = [k for k, kind in accepted.items() if kind not in _OPTIONAL_KINDS and k not in params]
     if missing:
         raise ConfigError(f"{where}: stage {name!r} needs {missing}.")
     for key, value in params.items():

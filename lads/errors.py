@@ -61,3 +61,11 @@ class ManifestError(LadsError):
 
 class VerifyError(LadsError):
     """An output tree does not verify against its source (raised only by the CLI layer)."""
+
+
+class ModelError(LadsError):
+    """Intensity model weights missing, corrupt, or made for another sensor or input."""
+
+
+class TrainingError(LadsError):
+    """An intensity training run cannot start or continue (config, cache or checkpoint)."""

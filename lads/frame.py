@@ -70,6 +70,8 @@ class Frame:
         outcome: (M,) uint8 `lads.physics.result.Outcome` per point (KEPT when read).
         lost_index: (K,) int64 source rows that no longer return; M + K = n_source.
         n_source: N, the point count of the source scan.
+        conditions: what earlier stages did to the whole frame, as (key, value) pairs,
+            e.g. ("style", "snow"), ("extinction_per_m", 0.004); later stages read them.
     """
 
     item: Item
@@ -82,6 +84,11 @@ class Frame:
     outcome: npt.NDArray[np.uint8] = field(default_factory=lambda: np.zeros(0, np.uint8))
     lost_index: npt.NDArray[np.int64] = field(default_factory=_empty_index)
     n_source: int = -1
+    conditions: tuple[tuple[str, str | float], ...] = ()
+
+    def condition(self, key: str, default: str | float | None = None) -> str | float | None:
+        """The value an earlier stage recorded under `key`, else `default`."""
+        return dict(self.conditions).get(key, default)
 
     @classmethod
     def from_source(

@@ -9,12 +9,14 @@ from __future__ import annotations
 from lads.config import StageConfig
 from lads.errors import ConfigError
 from lads.stages.base import Stage
+from lads.stages.intensity import IntensityStage
 from lads.stages.weather import WeatherStage
 
 STAGES: dict[str, type] = {
     "rain": WeatherStage,
     "snow": WeatherStage,
     "fog": WeatherStage,
+    "intensity": IntensityStage,
 }
 
 

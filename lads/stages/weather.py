@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -53,6 +53,8 @@ class WeatherStage:
         points = frame.points[result.source_index]
         points[:, :3] = result.xyz
         points[:, 3] = result.intensity
-        return frame.select(
+        out = frame.select(
             result.source_index, outcome=result.outcome, lost_rows=result.lost_index, points=points
         )
+        conditions = (("style", self.name), ("extinction_per_m", float(result.extinction_per_m)))
+        return replace(out, conditions=out.conditions + conditions)

@@ -102,6 +102,31 @@ def synth_frames(
         yield _frame(scene, profile, columns, int(seed), k)
 
 
+def synth_frame(
+    profile: SensorProfile | str,
+    *,
+    frames: int,
+    seed: int,
+    index: int,
+    azimuth_bins: int | None = None,
+) -> SynthFrame:
+    """Frame `index` (0-based) of the `frames`-sweep sequence `synth_frames` would yield,
+    computed on its own so that frames can be made in parallel.
+
+    Raises:
+        ConfigError: index outside [0, frames), or the arguments `synth_frames` refuses.
+    """
+    if not 0 <= int(index) < int(frames):
+        raise ConfigError(f"synthetic frame index {index}: expected 0 <= index < {frames}.")
+    if isinstance(profile, str):
+        profile = load_profile(profile)
+    columns = profile.range_image_width if azimuth_bins is None else int(azimuth_bins)
+    if int(seed) < 0 or columns < 4:
+        raise ConfigError(f"synthetic frames: seed={seed}, azimuth_bins={azimuth_bins}.")
+    scene = build_scene(int(seed), (int(frames) - 1) * FRAME_PERIOD_S)
+    return _frame(scene, profile, columns, int(seed), int(index))
+
+
 def _cast_ground(
     beams: geo.Beams, ego_y: float, ego_z: float
 ) -> tuple[geo.F64, npt.NDArray[np.int32]]:

@@ -1,0 +1,89 @@
+"""Intensity generator inference speed on one CPU core -> intensity_speed.json.
+
+Times, on the real SemanticKITTI frames (64 x 2048 range image, ~124k points), with
+torch.set_num_threads(1):
+- network: the shipped synth-to-kitti generator's forward pass on the prepared image;
+- features: projection, incidence, materials and I_P (numpy, `frame_image`);
+- frame: all of `predict_points` (features + network + every point's value + encoding).
+Target (issue 6): <= 100 ms per 64-beam frame for the network on one core.
+"""
+
+from __future__ import annotations
+
+import statistics
+import sys
+import time
+from typing import Any
+
+import numpy as np
+import torch
+
+from benchmarks.common import machine_info, write_result
+from lads.intensity.checkpoint import resolve_model
+from lads.intensity.features import frame_image
+from lads.intensity.predict import predict_image, predict_points
+from lads.readers import get_reader
+from lads.sensors.profile import load_profile
+
+TARGET_MS = 100.0
+REPEATS = 5
+KITTI_ROOT = "../shared/data/semantickitti"
+
+
+def _median_ms(fn: Any) -> float:
+    fn()  # warm-up
+    times = []
+    for _ in range(REPEATS):
+        start = time.perf_counter()
+        fn()
+        times.append((time.perf_counter() - start) * 1e3)
+    return round(statistics.median(times), 1)
+
+
+def main() -> dict[str, Any]:
+    torch.set_num_threads(1)
+    model = resolve_model("synth-to-kitti")
+    profile = load_profile("hdl64e")
+    reader = get_reader("semantickitti", KITTI_ROOT)
+    rows = []
+    for item in reader.items():
+        frame = reader.read(item)
+        fi = frame_image(frame.xyz, profile, labels=frame.labels, label_set="semantickitti",
+                         range_exponent=model.meta.range_exponent)  # fmt: skip
+        rows.append(
+            {
+                "frame": item.relpath,
+                "points": int(len(frame.xyz)),
+                "image": list(fi.inputs.shape[1:]),
+                "network_ms": _median_ms(lambda fi=fi: predict_image(model, fi)),
+                "features_ms": _median_ms(
+                    lambda f=frame: frame_image(f.xyz, profile, labels=f.labels,
+                                                label_set="semantickitti")  # fmt: skip
+                ),
+                "frame_ms": _median_ms(
+                    lambda f=frame: predict_points(model, f.xyz, profile, labels=f.labels,
+                                                   label_set="semantickitti")  # fmt: skip
+                ),
+            }
+        )
+    network = float(np.median([r["network_ms"] for r in rows]))
+    result = {
+        "what": "synth-to-kitti generator on real SemanticKITTI frames, torch 1 thread",
+        "parameters": sum(p.numel() for p in model.generator.parameters()),
+        "frames": rows,
+        "network_ms_median": network,
+        "frame_ms_median": float(np.median([r["frame_ms"] for r in rows])),
+        "target_network_ms": TARGET_MS,
+        "meets_target": network <= TARGET_MS,
+        "machine": machine_info(),
+    }
+    path = write_result("intensity_speed.json", result)
+    sys.stdout.write(
+        f"intensity: network {network} ms, whole frame {result['frame_ms_median']} ms per "
+        f"64-beam frame on one core -> {path}\n"
+    )
+    return result
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,341 @@
+"""The range-image cache of a training run: every training frame's model inputs, in zarr.
+
+Layout: `RUN/cache.zarr/<pair>/<role>/<frame>/` with arrays `inputs` (C, H, W) float32 and
+`target` (H, W) float32 reflectivity (when the frame has an intensity), and attributes
+`key` (hash of what decides the content), `labelled`, `extinction_per_m`, `sensor` and
+`done`. A frame is complete once `done` is written, after its arrays; a rerun skips complete
+frames whose key matches and rebuilds the rest, so a killed preparation resumes. Frames are
+made in parallel with joblib (each job writes only its own group).
+
+Statistics for normalisation and decoding are computed from the cache over *occupied
+pixels only* and keyed to the run's data hash (physics.md §10.4, §10.7 item 6).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import urllib.parse
+from collections.abc import Iterator
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+import zarr
+from joblib import Parallel, delayed
+from tqdm.auto import tqdm
+
+from lads.errors import LadsError, TrainingError
+from lads.intensity.features import (
+    FEATURE_VERSION,
+    NORMALISED_CHANNELS,
+    PHYSICS_FLOOR,
+    FrameImage,
+    frame_image,
+    label_set_for,
+)
+from lads.frame import Frame, Item
+from lads.intensity.train_config import DomainSpec, PairSpec, TrainConfig
+from lads.sensors.profile import load_profile
+
+CACHE_NAME = "cache.zarr"
+# Bare nuScenes LIDAR_TOP .pcd.bin files under a root (no devkit tables, no labels).
+RAW_NUSCENES = "nuscenes-scans"
+ROLES = ("source", "target")
+
+
+@dataclass(frozen=True, slots=True)
+class CacheJob:
+    """One frame to cache: pair key, role, its domain, and which frame (relpath or index)."""
+
+    pair: str
+    role: str
+    domain: DomainSpec
+    frame: str
+    kind: str
+    range_exponent: float
+
+    @property
+    def key(self) -> str:
+        payload = {"job": asdict(self), "features": FEATURE_VERSION}
+        return hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()[:20]
+
+    @property
+    def node(self) -> str:
+        return f"{self.pair}/{self.role}/{urllib.parse.quote(self.frame, safe='')}"
+
+
+@dataclass(frozen=True, slots=True)
+class CachedFrame:
+    """One cached frame, read back into memory."""
+
+    pair: str
+    role: str
+    frame: str
+    inputs: npt.NDArray[np.float32]
+    target: npt.NDArray[np.float32] | None
+    labelled: bool
+    extinction_per_m: float
+    sensor: str
+
+
+def list_jobs(cfg: TrainConfig) -> list[CacheJob]:
+    """Every training frame of every pair and role (held-out frames excluded).
+
+    Raises:
+        TrainingError: a domain yields no frame, or a held-out path matches nothing.
+    """
+    jobs = []
+    for pair in cfg.pairs:
+        for role in ROLES:
+            domain = pair.source if role == "source" else pair.target
+            frames = _frame_names(domain, f"pairs.{pair.key}.{role}")
+            jobs.extend(
+                CacheJob(pair.key, role, domain, f, cfg.kind, cfg.range_exponent) for f in frames
+            )
+    return jobs
+
+
+def _frame_names(domain: DomainSpec, where: str) -> list[str]:
+    if domain.dataset == "synth":
+        if domain.frames < 1:
+            raise TrainingError(f"{where}: synth domains need frames >= 1.")
+        return [f"synth-{i:06d}" for i in range(domain.frames)]
+    if domain.dataset == RAW_NUSCENES:
+        names = _raw_scan_names(domain)
+    else:
+        names = [item.relpath for item in _reader(domain).items()]
+    missing = sorted(set(domain.holdout) - set(names))
+    if missing:
+        raise TrainingError(
+            f"{where}: held-out frames {missing} are not in {domain.root}; fix the holdout list "
+            "(paths as the reader names items, e.g. sequences/00/velodyne/000002.bin)."
+        )
+    kept = [n for n in names if n not in set(domain.holdout)]
+    if domain.frames:
+        kept = kept[: domain.frames]
+    if not kept:
+        raise TrainingError(f"{where}: no training frame left in {domain.root} after holdout.")
+    return kept
+
+
+def _raw_scan_names(domain: DomainSpec) -> list[str]:
+    root = domain.root_path()
+    if root is None or not root.is_dir():
+        raise TrainingError(f"{domain.root}: folder of nuScenes .pcd.bin scans not found.")
+    return sorted(p.relative_to(root).as_posix() for p in root.rglob("*.pcd.bin"))
+
+
+def _raw_nuscenes_frame(domain: DomainSpec, relpath: str) -> Frame:
+    """A bare nuScenes LIDAR_TOP scan (x, y, z, intensity 0-255, ring), no labels: the
+    nuScenes reader needs the devkit tables, which a lone keyframe does not come with."""
+    path = domain.root_path() / relpath  # type: ignore[operator]
+    raw = np.fromfile(path, dtype="<f4")
+    if raw.size % 5:
+        raise TrainingError(f"{path}: {raw.size} floats, not a multiple of 5 (x,y,z,i,ring).")
+    points = raw.reshape(-1, 5).astype(np.float32)
+    item = Item(RAW_NUSCENES, relpath)
+    return Frame.from_source(item, "hdl32e", ("x", "y", "z", "intensity", "ring"), points, None)
+
+
+def _reader(domain: DomainSpec) -> Any:
+    from lads.readers import get_reader
+
+    return get_reader(domain.dataset, str(domain.root_path()))
+
+
+def job_image(job: CacheJob) -> tuple[FrameImage, float, str]:
+    """The FrameImage of one job, the extinction (1/m) it was made with and its sensor
+    profile name (pure computation apart from reading the source frame)."""
+    from lads.seeding import rng_for
+    from lads.stages.weather import WeatherStage
+
+    domain = job.domain
+    styles = job.kind == "weather"
+    style = job.pair if styles else None
+    if domain.dataset == "synth":
+        from lads.synth import synth_frame
+
+        sensor = domain.sensor or "hdl64e"
+        index = int(job.frame.split("-")[1])
+        sf = synth_frame(
+            sensor, frames=domain.frames, seed=domain.seed, index=index,
+            azimuth_bins=domain.azimuth_bins,
+        )  # fmt: skip
+        profile = load_profile(sensor)
+        fi = frame_image(
+            sf.xyz, profile, labels=sf.labels, label_set="semantickitti", ring=sf.ring,
+            intensity=sf.intensity, style=style, styles=styles,
+            range_exponent=job.range_exponent,
+        )  # fmt: skip
+        return fi, 0.0, profile.name
+    if domain.dataset == RAW_NUSCENES:
+        reader = None
+        frame = _raw_nuscenes_frame(domain, job.frame)
+    else:
+        reader = _reader(domain)
+        frame = reader.read(next(i for i in reader.items() if i.relpath == job.frame))
+    item = frame.item
+    extinction = domain.extinction_per_m
+    if domain.weather:
+        params = {k: v for k, v in domain.weather.items() if k != "stage"}
+        stage = WeatherStage(name=domain.weather["stage"], **params)
+        frame = stage(frame, rng_for(domain.seed, item.item_id, "train", stage.name))
+        extinction = float(frame.condition("extinction_per_m", 0.0))  # type: ignore[arg-type]
+    profile = load_profile(domain.sensor or frame.sensor)
+    label_set = label_set_for(domain.dataset) if frame.labels is not None else None
+    particle = None
+    if styles and reader is not None and frame.labels is not None and not domain.weather:
+        # Real weather recordings label their particles (WADS 110 = falling snow).
+        particle = (frame.labels.astype(np.int64) & 0xFFFF) == reader.particle_label
+    ring = frame.points[:, frame.columns.index("ring")] if "ring" in frame.columns else None
+    nonzero = np.linalg.norm(frame.xyz, axis=1) > 1e-6  # lost or ego points at the origin
+    fi = frame_image(
+        frame.xyz[nonzero], profile,
+        labels=None if frame.labels is None else frame.labels[nonzero],
+        label_set=label_set,
+        ring=None if ring is None else ring[nonzero],
+        intensity=frame.intensity[nonzero],
+        outcome=frame.outcome[nonzero],
+        particle=None if particle is None else particle[nonzero],
+        style=style, styles=styles, range_exponent=job.range_exponent,
+        extinction_per_m=extinction,
+    )  # fmt: skip
+    return fi, extinction, profile.name
+
+
+def _build_one(root: str, job: CacheJob) -> str:
+    try:
+        fi, extinction_per_m, sensor = job_image(job)
+    except LadsError as exc:
+        raise TrainingError(
+            f"cache: frame {job.frame} of pair {job.pair} ({job.role}): {exc}"
+        ) from None
+    group = zarr.open_group(Path(root) / job.node, mode="w", zarr_format=3)
+    arrays = {"inputs": fi.inputs} if fi.target is None else {"inputs": fi.inputs,
+                                                               "target": fi.target}  # fmt: skip
+    for name, values in arrays.items():
+        arr = group.create_array(name, shape=values.shape, chunks=values.shape, dtype="float32")
+        arr[:] = values
+    group.attrs.put(
+        {
+            "key": job.key,
+            "labelled": bool(fi.labelled),
+            "extinction_per_m": float(extinction_per_m),
+            "sensor": sensor,
+            "done": True,  # written last: the frame is complete
+        }
+    )
+    return job.node
+
+
+def build_cache(
+    run_dir: Path, cfg: TrainConfig, *, jobs: int | None = None, progress: bool = True
+) -> list[CacheJob]:
+    """Make (or complete) the cache of a run; returns its jobs. Raises TrainingError."""
+    root = run_dir / CACHE_NAME
+    top = zarr.open_group(root, mode="a", zarr_format=3)
+    for pair in cfg.pairs:
+        for role in ROLES:
+            top.require_group(f"{pair.key}/{role}")
+    all_jobs = list_jobs(cfg)
+    todo = [j for j in all_jobs if not _complete(root, j)]
+    if todo:
+        n_jobs = jobs or cfg.workers
+        runner = Parallel(n_jobs=n_jobs, backend="loky", return_as="generator_unordered")
+        stream = runner(delayed(_build_one)(str(root), j) for j in todo)
+        for _ in tqdm(stream, total=len(todo), desc="cache", unit="frame", disable=not progress):
+            pass
+    return all_jobs
+
+
+def _complete(root: Path, job: CacheJob) -> bool:
+    try:
+        group = zarr.open_group(root / job.node, mode="r", zarr_format=3)
+    except (FileNotFoundError, KeyError, ValueError, zarr.errors.GroupNotFoundError):
+        return False
+    attrs = dict(group.attrs)
+    return bool(attrs.get("done")) and attrs.get("key") == job.key
+
+
+def read_frame(run_dir: Path, job: CacheJob) -> CachedFrame:
+    group = zarr.open_group(run_dir / CACHE_NAME / job.node, mode="r", zarr_format=3)
+    attrs = dict(group.attrs)
+    target = np.asarray(group["target"][:]) if "target" in group else None
+    return CachedFrame(
+        pair=job.pair, role=job.role, frame=job.frame,
+        inputs=np.asarray(group["inputs"][:]), target=target,
+        labelled=bool(attrs["labelled"]), extinction_per_m=float(attrs["extinction_per_m"]),
+        sensor=str(attrs["sensor"]),
+    )  # fmt: skip
+
+
+def iter_frames(run_dir: Path, jobs: list[CacheJob]) -> Iterator[CachedFrame]:
+    for job in jobs:
+        yield read_frame(run_dir, job)
+
+
+@dataclass(frozen=True, slots=True)
+class Statistics:
+    """Normalisation and decoding statistics of a run.
+
+    Attributes:
+        mean, std: per raw input channel over occupied pixels of every cached frame.
+        targets: per pair key: {"sensor", "log_mean", "log_std", "floor", "log_k"}.
+        calibration: ln k per sensor (from every frame with a measured intensity).
+    """
+
+    mean: dict[str, float]
+    std: dict[str, float]
+    targets: dict[str, dict[str, Any]]
+    calibration: dict[str, float]
+
+
+def compute_statistics(
+    frames: list[CachedFrame], channels: tuple[str, ...], pairs: tuple[PairSpec, ...]
+) -> Statistics:
+    """Statistics over occupied pixels only. Raises TrainingError on a target without data."""
+    mask_i = channels.index("mask")
+    sums: dict[str, list[npt.NDArray[np.float64]]] = {c: [] for c in NORMALISED_CHANNELS}
+    log_ratio: dict[str, list[npt.NDArray[np.float64]]] = {}
+    target_logs: dict[str, list[npt.NDArray[np.float64]]] = {p.key: [] for p in pairs}
+    floors: dict[str, float] = {}
+    sensors: dict[str, str] = {}
+    for f in frames:
+        occ = f.inputs[mask_i] > 0.5
+        for c in NORMALISED_CHANNELS:
+            sums[c].append(f.inputs[channels.index(c)][occ].astype(np.float64))
+        if f.target is None:
+            continue
+        profile = load_profile(f.sensor)
+        floor = profile.intensity.detection_floor
+        refl = f.target[occ].astype(np.float64)
+        ln_refl = np.log(refl + floor)
+        ln_phys = f.inputs[channels.index("ln_physics")][occ].astype(np.float64)
+        phys = np.maximum(np.exp(ln_phys) - PHYSICS_FLOOR, 1e-12)
+        # Calibration from surface returns with a measured signal only.
+        particle = f.inputs[channels.index("particle")][occ] > 0.5
+        good = (refl > floor) & ~particle
+        log_ratio.setdefault(f.sensor, []).append(np.log(refl[good]) - np.log(phys[good]))
+        if f.role == "target":
+            target_logs[f.pair].append(ln_refl)
+            floors[f.pair] = floor
+            sensors[f.pair] = f.sensor
+    mean = {c: float(np.mean(np.concatenate(v))) for c, v in sums.items()}
+    std = {c: float(np.std(np.concatenate(v))) for c, v in sums.items()}
+    calibration = {s: float(np.median(np.concatenate(v))) for s, v in log_ratio.items() if v}
+    targets = {}
+    for key, logs in target_logs.items():
+        if not logs:
+            raise TrainingError(f"pair {key}: no target frame with an intensity in the cache.")
+        values = np.concatenate(logs)
+        targets[key] = {
+            "sensor": sensors[key],
+            "log_mean": float(values.mean()),
+            "log_std": float(max(values.std(), 1e-3)),
+            "floor": floors[key],
+            "log_k": calibration.get(sensors[key], 0.0),
+        }
+    return Statistics(mean, std, targets, calibration)

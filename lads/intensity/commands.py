@@ -1,0 +1,147 @@
+"""`lads train` and `lads eval-intensity`: the CLI side of the intensity models."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import click
+import numpy as np
+
+from lads.errors import TrainingError
+from lads.files import atomic_write
+from lads.intensity.train_config import DomainSpec, PairSpec, TrainConfig, load_train_config
+
+
+def _frames_of(domain: DomainSpec, relpaths: list[str], kind: str) -> list[Any]:
+    """EvalFrames of some items of a (real) domain."""
+    from lads.intensity.cache import RAW_NUSCENES, _raw_nuscenes_frame, _reader
+    from lads.intensity.evaluate import EvalFrame
+    from lads.intensity.features import label_set_for
+    from lads.sensors.profile import load_profile
+
+    out = []
+    reader = None if domain.dataset == RAW_NUSCENES else _reader(domain)
+    items = {} if reader is None else {i.relpath: i for i in reader.items()}
+    for rel in relpaths:
+        if reader is None:
+            frame = _raw_nuscenes_frame(domain, rel)
+        else:
+            frame = reader.read(items[rel])
+        keep = np.linalg.norm(frame.xyz.astype(np.float64), axis=1) > 1e-6
+        labels = None if frame.labels is None else frame.labels[keep]
+        particle = None
+        if kind == "weather" and labels is not None and reader is not None:
+            particle = (labels.astype(np.int64) & 0xFFFF) == reader.particle_label
+        ring = frame.points[keep, frame.columns.index("ring")] if "ring" in frame.columns else None
+        out.append(
+            EvalFrame(
+                name=rel, xyz=frame.xyz[keep], intensity=frame.intensity[keep],
+                profile=load_profile(domain.sensor or frame.sensor), labels=labels,
+                label_set=label_set_for(domain.dataset) if labels is not None else None,
+                ring=ring, particle=particle, extinction_per_m=domain.extinction_per_m,
+            )  # fmt: skip
+        )
+    return out
+
+
+def training_relpaths(domain: DomainSpec) -> list[str]:
+    from lads.intensity.cache import _frame_names
+
+    return _frame_names(domain, "eval")
+
+
+def evaluate_pair(
+    cfg: TrainConfig, pair: PairSpec, model_path: str, out_dir: Path, *, figures: bool = True
+) -> dict[str, Any]:
+    """Held-out evaluation of one pair: generator against every baseline; writes the report
+    and figures under out_dir/<pair>/ and returns the JSON result."""
+    from lads.intensity import eval_figures
+    from lads.intensity.checkpoint import resolve_model
+    from lads.intensity.evaluate import evaluate, fit_baselines, write_report
+    from lads.intensity.predict import predict_points
+
+    target = pair.target
+    if not target.holdout:
+        raise TrainingError(
+            f"{cfg.name}: pair {pair.key} holds out no target frame, so there is nothing to "
+            "evaluate on; add a holdout list to the config."
+        )
+    heldout = _frames_of(target, list(target.holdout), cfg.kind)
+    reference = _frames_of(target, training_relpaths(target), cfg.kind)
+    methods = fit_baselines(reference, range_exponent=cfg.range_exponent)
+    model = resolve_model(model_path)
+
+    def generator(frame: Any) -> np.ndarray:
+        return predict_points(
+            model, frame.xyz, frame.profile, target=pair.key, labels=frame.labels,
+            label_set=frame.label_set, ring=frame.ring, particle=frame.particle,
+            extinction_per_m=frame.extinction_per_m, where=frame.name,
+        ).encoded  # fmt: skip
+
+    methods["generator"] = generator
+    result = evaluate(heldout, methods)
+    folder = out_dir / pair.key
+    context = {
+        "model": model_path, "config": cfg.name, "pair": pair.key,
+        "heldout": list(target.holdout), "reference_frames": len(reference),
+    }  # fmt: skip
+    write_report(result, folder, title=f"{cfg.name} / {pair.key}: held-out evaluation",
+                 context=context)  # fmt: skip
+    if figures:
+        first = heldout[0]
+        preds = {name: result.predictions[first.name][name] for name in ("unchanged", "generator")}
+        eval_figures.range_panels(first, preds, folder / "range_panels.png")
+        eval_figures.histograms(first, result.predictions[first.name], folder / "histograms.png")
+    return {"context": context, **result.to_json()}
+
+
+@click.command("train")
+@click.argument("config")
+@click.option("--run-dir", type=click.Path(file_okay=False, path_type=Path),
+              help="Run folder (cache, checkpoints, loss.png); default runs/<name>.")  # fmt: skip
+@click.option("--device", type=click.Choice(["cpu", "cuda"]), default=None,
+              help="Default: cuda when present, else cpu.")  # fmt: skip
+@click.option("--steps", type=int, help="Override the number of steps.")
+@click.option("--jobs", type=int, help="Parallel jobs for the range-image cache.")
+def train_command(
+    config: str, run_dir: Path | None, device: str | None, steps: int | None, jobs: int | None
+) -> None:
+    """Train an intensity generator from a config (pipelines/train/*.yaml or a path)."""
+    from dataclasses import replace
+
+    import torch
+
+    from lads.intensity.train import train
+
+    cfg = load_train_config(config)
+    if steps is not None:
+        cfg = replace(cfg, steps=steps)
+    if jobs is not None:
+        cfg = replace(cfg, workers=jobs)
+    dev = device or ("cuda" if torch.cuda.is_available() else "cpu")
+    summary = train(cfg, run_dir=run_dir, device=dev, progress=True)
+    click.echo(json.dumps(summary, indent=2))
+
+
+@click.command("eval-intensity")
+@click.argument("config")
+@click.option("--model", "model_path", help="Weights to evaluate (default: the config's output).")
+@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path),
+              default=Path("eval-intensity"), show_default=True)  # fmt: skip
+@click.option("--no-figures", is_flag=True)
+def eval_intensity_command(
+    config: str, model_path: str | None, out_dir: Path, no_figures: bool
+) -> None:
+    """Evaluate a generator on the config's held-out real frames against the baselines."""
+    cfg = load_train_config(config)
+    path = model_path or str(cfg.output_path())
+    results = {}
+    for pair in cfg.pairs:
+        if not pair.target.holdout:
+            click.echo(f"{pair.key}: no held-out frame in the config; skipped.")
+            continue
+        results[pair.key] = evaluate_pair(cfg, pair, path, out_dir, figures=not no_figures)
+    atomic_write(out_dir / "eval.json", json.dumps(results, indent=2, sort_keys=True).encode())
+    click.echo(f"wrote {out_dir}/eval.json and per-pair reports")

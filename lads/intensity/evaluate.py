@@ -1,0 +1,863 @@
+"""Score intensity methods on held-out real frames: paired errors, distributions, baselines.
+
+Pure computation on frames the caller has loaded (only `write_report` writes files). A
+*method* maps an `EvalFrame` to (N,) predicted intensity in the frame profile's encoding;
+the learned generator is one, wrapped by the caller. Four baselines are fitted here on
+*reference* frames, the real training frames of the same target domain (never held-out):
+
+    unchanged            what a physics simulator stores: rho cos(theta) exp(-2 alpha R),
+                         encoded; no fitting
+    physics_rescaled     k I_P, I_P = rho cos(theta) / R^n exp(-2 alpha R), with
+                         ln k = median(ln(refl_real + floor) - ln(I_P + 1e-6))
+    histogram_global     the frame's points ranked by I_P, ranks mapped to the quantiles of
+                         the pooled reference reflectivity
+    histogram_per_class  the same within each semantic class against that class's
+                         reference quantiles; classes with < 20 reference points (and
+                         unlabelled frames) keep the global value
+
+Metrics are computed on every point of a frame, per frame and pooled over frames (pooled
+= the same metric on the concatenated points, so big frames weigh more):
+
+    paired         MAE (encoding and reflectivity units), Pearson r, Spearman rho, mean
+                   predicted / mean real per class (classes with >= 50 points)
+    distributional Wasserstein-1 (reflectivity units) and the KS statistic per cell of
+                   class x range bin x incidence bin, averaged over cells with >= 30
+                   points weighted by point count; and both on all points at once
+    retro contrast mean intensity of retro-reflective classes (materials.yaml
+                   `retroreflective_sheeting`) / mean of all other points
+
+Reflectivity is encoded intensity / the profile's full scale (`IntensityEncoding`), so
+reflectivity-unit numbers compare across sensors; encoded ones only within one encoding,
+which is why held-out frames must share one encoding.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Callable, Iterable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+from scipy import stats
+
+from lads.errors import ConfigError, InputDataError, InvalidPointsError
+from lads.files import atomic_write
+from lads.intensity.features import PHYSICS_FLOOR, FrameImage, frame_image
+from lads.physics.materials import LABEL_SETS, class_materials
+from lads.sensors.profile import SensorProfile
+
+FloatArray = npt.NDArray[np.float32]
+Method = Callable[["EvalFrame"], FloatArray]
+
+BASELINES: tuple[str, ...] = (
+    "unchanged", "physics_rescaled", "histogram_global", "histogram_per_class",
+)  # fmt: skip
+SUBJECT = "generator"
+RANGE_EDGES_M: tuple[float, ...] = (0.0, 5.0, 10.0, 20.0, 40.0, math.inf)
+COS_EDGES: tuple[float, ...] = (0.0, 0.25, 0.5, 0.75, 1.0)
+MIN_CELL_POINTS = 30
+MIN_RATIO_POINTS = 50
+MIN_CLASS_REFERENCE_POINTS = 20
+# A handful of sign-edge points would make the contrast mostly noise.
+MIN_RETRO_POINTS = 10
+RETRO_MATERIAL = "retroreflective_sheeting"
+ALL_CLASS = "all"
+# Above this many pooled reference values the quantile function is kept as this many exact
+# order statistics: the probability error is < 1e-5, the memory bounded.
+MAX_QUANTILES = 100_001
+# Label sets whose stored labels carry an instance id in the upper 16 bits (materials.yaml
+# `instance_bits`); their class is label & 0xFFFF.
+INSTANCE_BIT_SETS = frozenset({"semantickitti", "voxelscape", "wads"})
+CLASS_MASK = 0xFFFF
+# The pooled metrics the subject is compared on in `summary["beats"]`.
+SUMMARY_METRICS: tuple[str, ...] = ("mae_reflectivity", "cell_w1_reflectivity")
+SIGNIFICANT_DIGITS = 6
+# What one method scores on one frame (or pooled); NaN (None in JSON) where undefined.
+METRIC_KEYS: dict[str, str] = {
+    "points": "number of points N",
+    "mae_encoded": "mean |pred - real|, encoding units",
+    "mae_reflectivity": "mean |pred - real| / full scale, reflectivity units",
+    "pearson_r": "Pearson correlation of pred and real",
+    "spearman_rho": "Spearman rank correlation of pred and real",
+    "class_ratio": "{class: mean pred / mean real} for classes with >= 50 points",
+    "class_ratio_count": "number of classes in class_ratio",
+    "class_ratio_mean_abs_log": "mean over class_ratio of |ln ratio| (0 is ideal)",
+    "cell_w1_reflectivity": "point-weighted mean Wasserstein-1 over cells, reflectivity",
+    "cell_ks": "point-weighted mean two-sample KS statistic over cells",
+    "cells": "cells (class x range bin x incidence bin) with >= 30 points",
+    "cell_coverage": "share of the points that lie in those cells",
+    "global_w1_reflectivity": "Wasserstein-1 of all pred vs all real, reflectivity",
+    "global_ks": "KS statistic of all pred vs all real",
+    "retro_contrast_pred": "mean pred of retro-reflective classes / mean pred of the rest",
+    "retro_contrast_real": "the same for the real intensity",
+    "retro_contrast_ratio": "retro_contrast_pred / retro_contrast_real (1 is ideal)",
+}
+
+
+@dataclass(frozen=True, eq=False)
+class EvalFrame:
+    """One real frame with its measured intensity, as evaluation input.
+
+    Attributes:
+        name: unique name of the frame (e.g. "00/000123"), used as a key in results.
+        xyz: (N, 3) float32 coordinates in m, sensor frame.
+        intensity: (N,) float32 measured intensity in `profile`'s encoding.
+        profile: the frame's own sensor profile (geometry and intensity encoding).
+        labels: (N,) integer class labels of `label_set`, or None (unlabelled).
+        label_set: material label set of `labels` (`lads.physics.materials.LABEL_SETS`).
+        ring: optional (N,) ring column, 0 = lowest beam.
+        particle: optional (N,) bool, True for weather particle returns (WADS label 110).
+        extinction_per_m: alpha of the frame's weather in 1/m (0 in clear weather).
+
+    Raises:
+        InvalidPointsError: arrays of the wrong shape. IntensityEncodingError: intensities
+        outside the encoding. ConfigError: labels without a known label set, bad alpha.
+    """
+
+    name: str
+    xyz: npt.NDArray[np.floating[Any]]
+    intensity: FloatArray
+    profile: SensorProfile
+    labels: npt.NDArray[np.integer[Any]] | None = None
+    label_set: str | None = None
+    ring: npt.NDArray[Any] | None = None
+    particle: npt.NDArray[np.bool_] | None = None
+    extinction_per_m: float = 0.0
+
+    def __post_init__(self) -> None:
+        where = f"evaluation frame '{self.name}'"
+        xyz = np.asarray(self.xyz)
+        if xyz.ndim != 2 or xyz.shape[1] != 3:
+            raise InvalidPointsError(f"{where}: xyz has shape {xyz.shape}, expected (N, 3) in m.")
+        n = len(xyz)
+        # Normalising to arrays once spares every metric an np.asarray; the frame stays frozen.
+        object.__setattr__(self, "xyz", xyz)
+        intensity = np.asarray(self.intensity, dtype=np.float32)
+        object.__setattr__(self, "intensity", intensity)
+        for name in ("intensity", "labels", "ring", "particle"):
+            value = getattr(self, name)
+            if value is None:
+                continue
+            arr = np.asarray(value)
+            if arr.shape != (n,):
+                raise InvalidPointsError(
+                    f"{where}: {name} has shape {arr.shape}, expected ({n},) like xyz."
+                )
+            object.__setattr__(self, name, arr)
+        self.profile.intensity.validate(intensity, f"{where}: intensity")
+        if self.labels is not None and self.label_set not in LABEL_SETS:
+            raise ConfigError(
+                f"{where}: labels need a label_set, one of {', '.join(LABEL_SETS)}; got "
+                f"{self.label_set!r}. Pass the dataset's label set or labels=None."
+            )
+        if not (math.isfinite(self.extinction_per_m) and self.extinction_per_m >= 0):
+            raise ConfigError(
+                f"{where}: extinction_per_m = {self.extinction_per_m}; expected a finite "
+                "value >= 0 in 1/m."
+            )
+
+    @property
+    def n_points(self) -> int:
+        return len(self.xyz)
+
+
+def class_ids(labels: npt.ArrayLike, label_set: str) -> npt.NDArray[np.int64]:
+    """(N,) int64 semantic class of each label: label & 0xFFFF where instance bits exist."""
+    arr = np.asarray(labels).astype(np.int64, copy=False)
+    return arr & CLASS_MASK if label_set in INSTANCE_BIT_SETS else arr
+
+
+def retro_classes(label_set: str) -> frozenset[int]:
+    """Class ids of `label_set` whose material is retro-reflective sheeting (materials.yaml)."""
+    return frozenset(
+        cid for cid, (_, material) in class_materials(label_set).items()
+        if material == RETRO_MATERIAL
+    )  # fmt: skip
+
+
+def physics_image(frame: EvalFrame, range_exponent: float = 1.0) -> FrameImage:
+    """`lads.intensity.features.frame_image` of a frame (per-point I_P, cos, rho, range)."""
+    return frame_image(
+        frame.xyz, frame.profile, labels=frame.labels, label_set=frame.label_set,
+        ring=frame.ring, particle=frame.particle, range_exponent=range_exponent,
+        extinction_per_m=frame.extinction_per_m,
+    )  # fmt: skip
+
+
+def unchanged_intensity(frame: EvalFrame, image: FrameImage | None = None) -> FloatArray:
+    """(N,) float32 simulator intensity rho cos(theta) exp(-2 alpha R), frame's encoding."""
+    fi = physics_image(frame) if image is None else image
+    refl = fi.reflectance.astype(np.float64) * fi.cos_incidence
+    if frame.extinction_per_m > 0:
+        refl *= np.exp(-2.0 * frame.extinction_per_m * fi.range_m.astype(np.float64))
+    return frame.profile.intensity.from_reflectivity(refl)
+
+
+class _LastImage:
+    """frame_image of the frame seen last. `evaluate` runs every method on one frame before
+    the next, so the baselines share one projection per frame instead of one each."""
+
+    def __init__(self, range_exponent: float) -> None:
+        self.range_exponent = range_exponent
+        self._frame: EvalFrame | None = None
+        self._image: FrameImage | None = None
+
+    def __call__(self, frame: EvalFrame) -> FrameImage:
+        if self._frame is not frame or self._image is None:
+            self._image = physics_image(frame, self.range_exponent)
+            self._frame = frame
+        return self._image
+
+
+@dataclass(frozen=True)
+class Quantiles:
+    """An empirical quantile function: `value[j]` is the quantile at `probability[j]`.
+
+    Attributes:
+        probability: (M,) float64 increasing in (0, 1), (j + 0.5) / count of order stats.
+        value: (M,) float64 non-decreasing reflectivity.
+        count: number of values it was built from.
+    """
+
+    probability: npt.NDArray[np.float64]
+    value: npt.NDArray[np.float64]
+    count: int
+
+    @classmethod
+    def of(cls, values: npt.ArrayLike) -> Quantiles:
+        ordered = np.sort(np.asarray(values, dtype=np.float64))
+        m = len(ordered)
+        j = np.arange(m)
+        if m > MAX_QUANTILES:
+            j = np.unique(np.linspace(0, m - 1, MAX_QUANTILES).round().astype(np.int64))
+        return cls((j + 0.5) / m, ordered[j], m)
+
+    def at(self, q: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+        """Values at probabilities q in [0, 1], linear between order statistics."""
+        return np.interp(q, self.probability, self.value)
+
+
+def quantile_match(physics: npt.ArrayLike, table: Quantiles) -> npt.NDArray[np.float64]:
+    """Give the i-th smallest of n physics values the reference quantile at (i + 0.5) / n.
+
+    Ties keep input order (stable sort), so equal I_P still spread over the quantiles.
+    """
+    x = np.asarray(physics)
+    order = np.argsort(x, kind="stable")
+    q = np.empty(len(x), dtype=np.float64)
+    q[order] = (np.arange(len(x)) + 0.5) / max(len(x), 1)
+    return table.at(q)
+
+
+@dataclass(frozen=True)
+class Unchanged:
+    """Baseline: the simulator's own intensity, rho cos(theta) exp(-2 alpha R), encoded."""
+
+    images: _LastImage = field(repr=False)
+
+    def __call__(self, frame: EvalFrame) -> FloatArray:
+        return unchanged_intensity(frame, self.images(frame))
+
+
+@dataclass(frozen=True)
+class PhysicsRescaled:
+    """Baseline: k I_P encoded; k (unitless per m^-n) fitted on the reference frames."""
+
+    k: float
+    images: _LastImage = field(repr=False)
+
+    def __call__(self, frame: EvalFrame) -> FloatArray:
+        refl = self.k * self.images(frame).physics.astype(np.float64)
+        return frame.profile.intensity.from_reflectivity(refl)
+
+
+@dataclass(frozen=True)
+class HistogramGlobal:
+    """Baseline: I_P ranks mapped onto the pooled reference reflectivity quantiles."""
+
+    table: Quantiles = field(repr=False)
+    images: _LastImage = field(repr=False)
+
+    def __call__(self, frame: EvalFrame) -> FloatArray:
+        refl = quantile_match(self.images(frame).physics, self.table)
+        return frame.profile.intensity.from_reflectivity(refl)
+
+
+@dataclass(frozen=True)
+class HistogramPerClass:
+    """Baseline: quantile matching within each class against that class's reference.
+
+    Points of a class without a reference table (fewer than MIN_CLASS_REFERENCE_POINTS
+    reference points) keep the global baseline's value, i.e. their rank among all the
+    frame's points, which places them where their I_P sits in the scene.
+
+    Attributes:
+        table: global reference quantiles.
+        class_tables: (label set, class id) -> that class's reference quantiles.
+    """
+
+    table: Quantiles = field(repr=False)
+    class_tables: dict[tuple[str, int], Quantiles] = field(repr=False)
+    images: _LastImage = field(repr=False)
+
+    def __call__(self, frame: EvalFrame) -> FloatArray:
+        physics = self.images(frame).physics
+        refl = quantile_match(physics, self.table)
+        if frame.labels is not None and frame.label_set is not None:
+            cls = class_ids(frame.labels, frame.label_set)
+            for cid in np.unique(cls):
+                table = self.class_tables.get((frame.label_set, int(cid)))
+                if table is not None:
+                    members = np.flatnonzero(cls == cid)
+                    refl[members] = quantile_match(physics[members], table)
+        return frame.profile.intensity.from_reflectivity(refl)
+
+
+def fit_baselines(
+    reference: Iterable[EvalFrame], *, range_exponent: float = 1.0
+) -> dict[str, Method]:
+    """Fit the four baselines on real reference frames of the target domain.
+
+    Args:
+        reference: real training frames of the target domain (never the held-out frames).
+        range_exponent: n of I_P = rho cos(theta) / R^n exp(-2 alpha R).
+
+    Returns:
+        {name: method} for the names in BASELINES, in that order.
+
+    Raises:
+        InputDataError: no reference frames, or none with points.
+    """
+    frames = list(reference)
+    if not frames:
+        raise InputDataError(
+            "fit_baselines: no reference frames; pass the real training frames of the target "
+            "domain (not the held-out frames) to fit the baselines on."
+        )
+    log_ratio: list[npt.NDArray[np.float64]] = []
+    reflectivity: list[npt.NDArray[np.float64]] = []
+    by_class: dict[tuple[str, int], list[npt.NDArray[np.float64]]] = {}
+    for frame in frames:
+        if frame.n_points == 0:
+            continue
+        physics = physics_image(frame, range_exponent).physics.astype(np.float64)
+        encoding = frame.profile.intensity
+        refl = encoding.to_reflectivity(frame.intensity)
+        log_ratio.append(np.log(refl + encoding.detection_floor) - np.log(physics + PHYSICS_FLOOR))
+        reflectivity.append(refl)
+        if frame.labels is not None and frame.label_set is not None:
+            cls = class_ids(frame.labels, frame.label_set)
+            for cid in np.unique(cls):
+                by_class.setdefault((frame.label_set, int(cid)), []).append(refl[cls == cid])
+    if not reflectivity:
+        raise InputDataError(
+            f"fit_baselines: the {len(frames)} reference frames hold no points; pass frames "
+            "with returns (a loader that dropped everything?)."
+        )
+    k = float(np.exp(np.median(np.concatenate(log_ratio))))
+    table = Quantiles.of(np.concatenate(reflectivity))
+    class_tables = {
+        key: Quantiles.of(np.concatenate(parts))
+        for key, parts in by_class.items()
+        if sum(len(p) for p in parts) >= MIN_CLASS_REFERENCE_POINTS
+    }
+    images = _LastImage(range_exponent)
+    return {
+        "unchanged": Unchanged(images),
+        "physics_rescaled": PhysicsRescaled(k, images),
+        "histogram_global": HistogramGlobal(table, images),
+        "histogram_per_class": HistogramPerClass(table, class_tables, images),
+    }
+
+
+@dataclass(frozen=True)
+class _Points:
+    """Per-point context of the metrics for one frame or the pooled frames."""
+
+    real: npt.NDArray[np.float64]  # encoded
+    full_scale: float
+    cls: npt.NDArray[np.int64]  # code into the class vocabulary
+    cell: npt.NDArray[np.int64]  # (class, range bin, cos bin) cell id
+    retro: npt.NDArray[np.bool_] | None  # None: no retro-reflective class is known
+
+    @property
+    def real_refl(self) -> npt.NDArray[np.float64]:
+        return self.real / self.full_scale
+
+
+@dataclass(frozen=True, eq=False)
+class EvalResult:
+    """Metrics of every method on every held-out frame and pooled, plus the predictions.
+
+    Attributes:
+        methods: method names, in the order given.
+        frame_names: held-out frame names, in order.
+        per_frame: frame -> method -> metrics (keys: see `METRIC_KEYS`).
+        pooled: method -> metrics on all held-out points together.
+        summary: {"subject", "metrics", "beats": {metric: {baseline: bool}}, "best":
+            {metric: [methods]}}; `beats` is empty when there is no subject method.
+        predictions: frame -> method -> (N,) float32 prediction in the frame's encoding.
+        real: frame -> (N,) float32 measured intensity.
+        classes: frame -> (N,) int32 index into `class_names` of every point.
+        class_names: class vocabulary ("all" for unlabelled frames).
+        encoding: the held-out profile's name (the units of "encoded" metrics).
+    """
+
+    methods: tuple[str, ...]
+    frame_names: tuple[str, ...]
+    per_frame: dict[str, dict[str, dict[str, Any]]]
+    pooled: dict[str, dict[str, Any]]
+    summary: dict[str, Any]
+    predictions: dict[str, dict[str, FloatArray]] = field(repr=False)
+    real: dict[str, FloatArray] = field(repr=False)
+    classes: dict[str, npt.NDArray[np.int32]] = field(repr=False)
+    class_names: tuple[str, ...] = ()
+    encoding: str = ""
+
+    def pooled_values(
+        self,
+    ) -> tuple[FloatArray, dict[str, FloatArray], npt.NDArray[np.int32]]:
+        """(real (M,), {method: prediction (M,)}, class index (M,)) over all frames."""
+        names = self.frame_names
+        real = np.concatenate([self.real[f] for f in names])
+        preds = {m: np.concatenate([self.predictions[f][m] for f in names]) for m in self.methods}
+        return real, preds, np.concatenate([self.classes[f] for f in names])
+
+    def to_json(self) -> dict[str, Any]:
+        """JSON-able dict: floats to 6 significant digits, NaN and inf as None."""
+        return jsonable(
+            {
+                "methods": list(self.methods),
+                "frames": list(self.frame_names),
+                "encoding": self.encoding,
+                "definitions": {
+                    "range_bin_edges_m": list(RANGE_EDGES_M[:-1]),
+                    "range_bins": "[e_i, e_i+1), the last one open-ended",
+                    "cos_incidence_bin_edges": list(COS_EDGES),
+                    "min_cell_points": MIN_CELL_POINTS,
+                    "min_class_ratio_points": MIN_RATIO_POINTS,
+                    "min_retro_points": MIN_RETRO_POINTS,
+                    "retro_material": RETRO_MATERIAL,
+                    "w1_units": "reflectivity (encoded / full scale)",
+                    "metrics": METRIC_KEYS,
+                },
+                "pooled": self.pooled,
+                "per_frame": self.per_frame,
+                "summary": self.summary,
+            }
+        )
+
+
+def evaluate(
+    heldout: Iterable[EvalFrame], methods: Mapping[str, Method], *, subject: str = SUBJECT
+) -> EvalResult:
+    """Run every method on every held-out frame and score it against the real intensity.
+
+    Args:
+        heldout: real frames not used for training or fitting, sharing one intensity
+            encoding; every frame needs at least one point and a unique name.
+        methods: name -> method; each returns (N,) finite values in the frame's encoding.
+        subject: the method the summary compares with all others.
+
+    Returns:
+        EvalResult.
+
+    Raises:
+        InputDataError: no frames or methods, empty or duplicate frames, mixed encodings,
+            or a method output of the wrong shape or with NaN/inf.
+    """
+    frames = list(heldout)
+    if not frames or not methods:
+        raise InputDataError(
+            f"evaluate: got {len(frames)} held-out frames and {len(methods)} methods; both "
+            "are needed (fit_baselines gives the baselines)."
+        )
+    _check_heldout(frames)
+    vocabulary: dict[str, int] = {}
+    contexts, per_frame, predictions = [], {}, {}
+    for frame in frames:
+        ctx = _context(frame, vocabulary)
+        preds = {name: _checked(name, method(frame), frame) for name, method in methods.items()}
+        contexts.append(ctx)
+        predictions[frame.name] = preds
+        names = tuple(vocabulary)
+        per_frame[frame.name] = {m: _metrics(ctx, p, names) for m, p in preds.items()}
+    pooled_ctx = _Points(
+        real=np.concatenate([c.real for c in contexts]),
+        full_scale=contexts[0].full_scale,
+        cls=np.concatenate([c.cls for c in contexts]),
+        cell=np.concatenate([c.cell for c in contexts]),
+        retro=_pooled_retro(contexts),
+    )
+    names = tuple(vocabulary)
+    pooled = {
+        m: _metrics(pooled_ctx, np.concatenate([predictions[f.name][m] for f in frames]), names)
+        for m in methods
+    }
+    return EvalResult(
+        methods=tuple(methods),
+        frame_names=tuple(f.name for f in frames),
+        per_frame=per_frame,
+        pooled=pooled,
+        summary=summarise(pooled, subject),
+        predictions=predictions,
+        real={f.name: f.intensity for f in frames},
+        classes={f.name: c.cls.astype(np.int32) for f, c in zip(frames, contexts, strict=True)},
+        class_names=names,
+        encoding=frames[0].profile.name,
+    )
+
+
+def _check_heldout(frames: list[EvalFrame]) -> None:
+    seen: set[str] = set()
+    for frame in frames:
+        if frame.name in seen:
+            raise InputDataError(f"evaluate: two held-out frames are named '{frame.name}'.")
+        seen.add(frame.name)
+        if frame.n_points == 0:
+            raise InputDataError(
+                f"evaluate: held-out frame '{frame.name}' has no points; leave it out."
+            )
+    encodings = {f.profile.intensity for f in frames}
+    if len(encodings) > 1:
+        raise InputDataError(
+            f"evaluate: held-out frames use {len(encodings)} intensity encodings (profiles "
+            f"{sorted({f.profile.name for f in frames})}); pooled metrics need one. Evaluate "
+            "one target domain at a time."
+        )
+
+
+def _checked(name: str, values: Any, frame: EvalFrame) -> FloatArray:
+    arr = np.asarray(values, dtype=np.float32)
+    if arr.shape != (frame.n_points,):
+        raise InputDataError(
+            f"method '{name}' returned shape {arr.shape} for frame '{frame.name}'; a method "
+            f"must return one intensity per point, ({frame.n_points},)."
+        )
+    bad = int(np.count_nonzero(~np.isfinite(arr)))
+    if bad:
+        raise InputDataError(
+            f"method '{name}' returned {bad} NaN or infinite values for frame '{frame.name}'."
+        )
+    return arr
+
+
+def _context(frame: EvalFrame, vocabulary: dict[str, int]) -> _Points:
+    fi = physics_image(frame)
+    n = frame.n_points
+    retro: npt.NDArray[np.bool_] | None = None
+    if frame.labels is None or frame.label_set is None:
+        cls = np.full(n, vocabulary.setdefault(ALL_CLASS, len(vocabulary)), dtype=np.int64)
+    else:
+        ids = class_ids(frame.labels, frame.label_set)
+        known = class_materials(frame.label_set)
+        uniq, inverse = np.unique(ids, return_inverse=True)
+        codes = np.array(
+            [
+                vocabulary.setdefault(
+                    known[int(c)][0] if int(c) in known else f"{frame.label_set} {int(c)}",
+                    len(vocabulary),
+                )
+                for c in uniq
+            ],
+            dtype=np.int64,
+        )
+        cls = codes[inverse.reshape(-1)]
+        retro_ids = retro_classes(frame.label_set)
+        retro = np.isin(ids, list(retro_ids)) if retro_ids else None
+    range_bin = np.searchsorted(np.asarray(RANGE_EDGES_M[1:-1]), fi.range_m, side="right")
+    cos_bin = np.searchsorted(np.asarray(COS_EDGES[1:-1]), fi.cos_incidence, side="right")
+    n_range, n_cos = len(RANGE_EDGES_M) - 1, len(COS_EDGES) - 1
+    cell = (cls * n_range + range_bin) * n_cos + cos_bin
+    return _Points(
+        real=frame.intensity.astype(np.float64),
+        full_scale=frame.profile.intensity.reflectivity_full_scale,
+        cls=cls,
+        cell=cell.astype(np.int64),
+        retro=retro,
+    )
+
+
+def _pooled_retro(contexts: list[_Points]) -> npt.NDArray[np.bool_] | None:
+    if all(c.retro is None for c in contexts):
+        return None
+    return np.concatenate(
+        [np.zeros(len(c.real), bool) if c.retro is None else c.retro for c in contexts]
+    )
+
+
+def _metrics(
+    ctx: _Points, prediction: npt.ArrayLike, class_names: tuple[str, ...]
+) -> dict[str, Any]:
+    """METRIC_KEYS of one prediction against the real intensity of the same points."""
+    pred = np.asarray(prediction, dtype=np.float64)
+    pred_refl = pred / ctx.full_scale
+    real_refl = ctx.real_refl
+    ratios = _class_ratios(ctx, pred, class_names)
+    finite = [v for v in ratios.values() if math.isfinite(v) and v > 0]
+    cell_w1, cell_ks, cells, coverage = _cell_distances(ctx.cell, pred_refl, real_refl)
+    retro_pred = _contrast(pred, ctx.retro)
+    retro_real = _contrast(ctx.real, ctx.retro)
+    return {
+        "points": len(pred),
+        "mae_encoded": float(np.mean(np.abs(pred - ctx.real))),
+        "mae_reflectivity": float(np.mean(np.abs(pred_refl - real_refl))),
+        "pearson_r": _correlation(stats.pearsonr, pred, ctx.real),
+        "spearman_rho": _correlation(stats.spearmanr, pred, ctx.real),
+        "class_ratio": ratios,
+        "class_ratio_count": len(ratios),
+        "class_ratio_mean_abs_log": (
+            float(np.mean(np.abs(np.log(finite)))) if finite else math.nan
+        ),
+        "cell_w1_reflectivity": cell_w1,
+        "cell_ks": cell_ks,
+        "cells": cells,
+        "cell_coverage": coverage,
+        "global_w1_reflectivity": float(stats.wasserstein_distance(pred_refl, real_refl)),
+        "global_ks": float(stats.ks_2samp(pred_refl, real_refl, method="asymp").statistic),
+        "retro_contrast_pred": retro_pred,
+        "retro_contrast_real": retro_real,
+        "retro_contrast_ratio": _ratio(retro_pred, retro_real),
+    }
+
+
+def _correlation(fn: Callable[..., Any], a: npt.NDArray[Any], b: npt.NDArray[Any]) -> float:
+    # A constant input has no correlation; scipy would warn and return NaN.
+    if len(a) < 2 or np.ptp(a) == 0 or np.ptp(b) == 0:
+        return math.nan
+    return float(fn(a, b).statistic)
+
+
+def _class_ratios(
+    ctx: _Points, pred: npt.NDArray[np.float64], class_names: tuple[str, ...]
+) -> dict[str, float]:
+    size = len(class_names)
+    counts = np.bincount(ctx.cls, minlength=size)
+    pred_sum = np.bincount(ctx.cls, weights=pred, minlength=size)
+    real_sum = np.bincount(ctx.cls, weights=ctx.real, minlength=size)
+    return {
+        class_names[c]: _ratio(float(pred_sum[c]), float(real_sum[c]))
+        for c in np.flatnonzero(counts >= MIN_RATIO_POINTS)
+    }
+
+
+def _cell_distances(
+    cell: npt.NDArray[np.int64],
+    pred: npt.NDArray[np.float64],
+    real: npt.NDArray[np.float64],
+) -> tuple[float, float, int, float]:
+    order = np.argsort(cell, kind="stable")
+    _, starts, counts = np.unique(cell[order], return_index=True, return_counts=True)
+    w1_sum = ks_sum = 0.0
+    used = covered = 0
+    for start, count in zip(starts, counts, strict=True):
+        if count < MIN_CELL_POINTS:
+            continue
+        members = order[start : start + count]
+        w1_sum += count * stats.wasserstein_distance(pred[members], real[members])
+        ks_sum += count * stats.ks_2samp(pred[members], real[members], method="asymp").statistic
+        used += 1
+        covered += int(count)
+    if not covered:
+        return math.nan, math.nan, 0, 0.0
+    return w1_sum / covered, ks_sum / covered, used, covered / len(cell)
+
+
+def _contrast(values: npt.NDArray[np.float64], retro: npt.NDArray[np.bool_] | None) -> float:
+    if retro is None:
+        return math.nan
+    n_retro = int(np.count_nonzero(retro))
+    if n_retro < MIN_RETRO_POINTS or n_retro == len(values):
+        return math.nan
+    return _ratio(float(values[retro].mean()), float(values[~retro].mean()))
+
+
+def _ratio(a: float, b: float) -> float:
+    if not (math.isfinite(a) and math.isfinite(b)) or b == 0:
+        return math.nan
+    return a / b
+
+
+# How each headline metric is judged: lower is better, higher is better, or closest to 1.
+DIRECTIONS: dict[str, str] = {
+    "mae_encoded": "min",
+    "mae_reflectivity": "min",
+    "pearson_r": "max",
+    "spearman_rho": "max",
+    "class_ratio_mean_abs_log": "min",
+    "cell_w1_reflectivity": "min",
+    "cell_ks": "min",
+    "global_w1_reflectivity": "min",
+    "global_ks": "min",
+    "retro_contrast_ratio": "one",
+}
+
+
+def _score(metric: str, value: Any) -> float:
+    """A number where smaller is better, NaN when the value is missing."""
+    if value is None or not math.isfinite(value):
+        return math.nan
+    direction = DIRECTIONS[metric]
+    if direction == "max":
+        return -value
+    if direction == "one":
+        return abs(math.log(value)) if value > 0 else math.inf
+    return float(value)
+
+
+def best_methods(table: Mapping[str, Mapping[str, Any]], metric: str) -> list[str]:
+    """Methods with the best value of `metric` (ties all listed; none if all missing)."""
+    scores = {m: _score(metric, row.get(metric)) for m, row in table.items()}
+    finite = [s for s in scores.values() if not math.isnan(s)]
+    if not finite:
+        return []
+    top = min(finite)
+    # Equal up to float rounding is a tie, not a win.
+    return [m for m, s in scores.items() if not math.isnan(s) and s <= top + 1e-12 * abs(top)]
+
+
+def summarise(pooled: Mapping[str, Mapping[str, Any]], subject: str = SUBJECT) -> dict[str, Any]:
+    """Which other methods `subject` beats on the pooled SUMMARY_METRICS (missing = no)."""
+    best = {metric: best_methods(pooled, metric) for metric in DIRECTIONS}
+    if subject not in pooled:
+        return {"subject": None, "metrics": list(SUMMARY_METRICS), "beats": {}, "best": best}
+    beats = {
+        metric: {
+            other: bool(_score(metric, pooled[subject][metric]) < _score(metric, row[metric]))
+            for other, row in pooled.items()
+            if other != subject
+        }
+        for metric in SUMMARY_METRICS
+    }
+    return {"subject": subject, "metrics": list(SUMMARY_METRICS), "beats": beats, "best": best}
+
+
+def jsonable(value: Any) -> Any:
+    """Plain JSON types: floats rounded to 6 significant digits, NaN/inf -> None, numpy
+    scalars and arrays unwrapped, tuples as lists, paths and other objects as str."""
+    if isinstance(value, dict):
+        return {str(k): jsonable(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [jsonable(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return jsonable(value.tolist())
+    if isinstance(value, bool | np.bool_):
+        return bool(value)
+    if isinstance(value, int | np.integer):
+        return int(value)
+    if isinstance(value, float | np.floating):
+        x = float(value)
+        return float(f"{x:.{SIGNIFICANT_DIGITS}g}") if math.isfinite(x) else None
+    if value is None or isinstance(value, str):
+        return value
+    return str(value)
+
+
+# Report columns: metric key, header.
+REPORT_COLUMNS: tuple[tuple[str, str], ...] = (
+    ("mae_encoded", "MAE (encoded)"),
+    ("mae_reflectivity", "MAE (refl.)"),
+    ("pearson_r", "Pearson r"),
+    ("spearman_rho", "Spearman ρ"),
+    ("class_ratio_mean_abs_log", "class mean |ln ratio|"),
+    ("cell_w1_reflectivity", "cell W1 (refl.)"),
+    ("cell_ks", "cell KS"),
+    ("global_w1_reflectivity", "global W1 (refl.)"),
+    ("global_ks", "global KS"),
+    ("retro_contrast_ratio", "retro contrast pred/real"),
+)
+PLAIN_NAMES = {"mae_reflectivity": "MAE", "cell_w1_reflectivity": "cell W1"}
+
+
+def write_report(
+    result: EvalResult, out_dir: Path, *, title: str, context: Mapping[str, Any]
+) -> list[Path]:
+    """Write `eval.json` (everything) and `eval.md` (tables and verdicts) into out_dir.
+
+    Args:
+        result: from `evaluate`.
+        out_dir: created if missing; files are written atomically.
+        title: report heading.
+        context: what was evaluated (model, data, split, seed...); values JSON-able or str.
+
+    Returns:
+        [path of eval.json, path of eval.md].
+    """
+    out_dir = Path(out_dir)
+    payload = {"title": title, "context": jsonable(dict(context)), **result.to_json()}
+    json_path, md_path = out_dir / "eval.json", out_dir / "eval.md"
+    text = json.dumps(payload, indent=2, allow_nan=False) + "\n"
+    atomic_write(json_path, text.encode("utf-8"))
+    atomic_write(md_path, markdown_report(result, title=title, context=context).encode("utf-8"))
+    return [json_path, md_path]
+
+
+def markdown_report(result: EvalResult, *, title: str, context: Mapping[str, Any]) -> str:
+    """The Markdown text of `write_report`."""
+    lines = [f"# {title}", ""]
+    lines += [f"- {key}: {jsonable(value)}" for key, value in context.items()]
+    lines += [
+        f"- held-out frames: {len(result.frame_names)}, points: "
+        f"{next(iter(result.pooled.values()))['points']:,}, encoding: {result.encoding}",
+        "",
+        "## Pooled over all held-out frames",
+        "",
+        "Best value per column in bold. Reflectivity = encoded intensity / full scale; "
+        f"cell = class x range bin x incidence bin with >= {MIN_CELL_POINTS} points; "
+        "retro contrast pred/real: 1 is ideal.",
+        "",
+    ]
+    lines += _table(result.pooled)
+    lines += ["", *verdicts(result.summary, result.pooled), ""]
+    lines += ["## Per frame: MAE (refl.) / cell W1 (refl.)", ""]
+    lines.append("| frame | " + " | ".join(result.methods) + " |")
+    lines.append("|---|" + "---|" * len(result.methods))
+    for frame in result.frame_names:
+        row = result.per_frame[frame]
+        cells = [
+            f"{_fmt(row[m]['mae_reflectivity'])} / {_fmt(row[m]['cell_w1_reflectivity'])}"
+            for m in result.methods
+        ]
+        lines.append(f"| {frame} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def _table(pooled: Mapping[str, Mapping[str, Any]]) -> list[str]:
+    best = {key: set(best_methods(pooled, key)) for key, _ in REPORT_COLUMNS}
+    lines = ["| method | " + " | ".join(h for _, h in REPORT_COLUMNS) + " |"]
+    lines.append("|---|" + "---:|" * len(REPORT_COLUMNS))
+    for method, row in pooled.items():
+        cells = []
+        for key, _ in REPORT_COLUMNS:
+            text = _fmt(row[key])
+            cells.append(f"**{text}**" if method in best[key] else text)
+        lines.append(f"| {method} | " + " | ".join(cells) + " |")
+    return lines
+
+
+def verdicts(summary: Mapping[str, Any], pooled: Mapping[str, Mapping[str, Any]]) -> list[str]:
+    """Plain-language lines "generator beats X on MAE (a vs b)" from a summary."""
+    subject = summary.get("subject")
+    if subject is None:
+        return [f"No method named '{SUBJECT}': nothing to compare against the baselines."]
+    lines = []
+    for metric, against in summary["beats"].items():
+        name = PLAIN_NAMES.get(metric, metric)
+        mine = pooled[subject][metric]
+        for other, won in against.items():
+            verb = "beats" if won else "does not beat"
+            lines.append(
+                f"- {subject} {verb} {other} on {name} "
+                f"({_fmt(mine)} vs {_fmt(pooled[other][metric])})"
+            )
+    return lines
+
+
+def _fmt(value: Any) -> str:
+    if value is None or (isinstance(value, float) and not math.isfinite(value)):
+        return "–"
+    return f"{value:.4g}"

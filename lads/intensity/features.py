@@ -1,0 +1,228 @@
+"""Range-image inputs of the intensity models, built from one frame's points.
+
+Pure numpy, no I/O. A frame is organised in its *own* sensor geometry (rows = laser channel,
+columns = azimuth; `lads.physics.projection`), never in another sensor's grid (physics.md
+§10.7 item 3). Every pixel owned by a point carries the physics modalities of that point:
+
+    ln_range       ln(R / 1 m)
+    cos_incidence  cos(theta) in [0, 1]
+    reflectance    material reflectance at 905 nm from the labels (0.20 "unknown" without)
+    ln_physics     ln(I_P + PHYSICS_FLOOR), I_P = rho cos(theta) / R^n exp(-2 alpha R)
+    elevation      the row's laser elevation in degrees / 30 (per-laser gain is a sensor
+                   effect; degrees rather than row numbers keep it meaningful across sensors)
+    particle       1 for weather particle returns, else 0
+    mask           1 where a point owns the pixel
+    ln_geometry    ln(cos(theta) / R^n exp(-2 alpha R) + GEOMETRY_FLOOR): I_P per unit
+                   reflectance, so I_P can be rebuilt for a predicted reflectance (cycle)
+    rain/snow/fog  one-hot weather style, broadcast (weather models only)
+
+Empty pixels hold 0 in every channel. I_P is computed from materials, incidence and range,
+never from a measured intensity (physics.md §10.7 item 5). The measured intensity of a frame
+(when it has one) becomes the target image, as reflectivity (encoded / full scale).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from lads.errors import ConfigError, InvalidPointsError
+from lads.physics.materials import LABEL_SETS, reflectance_for_labels
+from lads.physics.modalities import _incidence, physics_intensity
+from lads.physics.projection import RangeImage, channels_of, checked_xyz, organise
+from lads.physics.result import Outcome
+from lads.sensors.profile import SensorProfile
+
+FEATURE_VERSION = "1"
+STYLES: tuple[str, ...] = ("rain", "snow", "fog")
+BASE_CHANNELS: tuple[str, ...] = (
+    "ln_range", "cos_incidence", "reflectance", "ln_physics", "elevation", "particle", "mask",
+    "ln_geometry",
+)  # fmt: skip
+# Channels z-scored with statistics from the training cache; the rest are already O(1).
+NORMALISED_CHANNELS: tuple[str, ...] = ("ln_range", "cos_incidence", "reflectance", "ln_physics")
+UNKNOWN_REFLECTANCE = 0.20  # physics.md §10.2 "unknown (default)"
+PHYSICS_FLOOR = 1e-6  # keeps ln(I_P) finite for cos(theta) = 0 or rho = 0
+GEOMETRY_FLOOR = 1e-6
+DEFAULT_DEPTH_JUMP = 0.1
+ELEVATION_SCALE_DEG = 30.0
+
+FloatArray = npt.NDArray[np.float32]
+
+
+def channel_names(styles: bool) -> tuple[str, ...]:
+    """Input channel names of a sensor model (styles=False) or a weather model (True)."""
+    return BASE_CHANNELS + (STYLES if styles else ())
+
+
+def label_set_for(dataset: str) -> str | None:
+    """The material label set of a reader's labels, None for unlabelled datasets."""
+    return dataset if dataset in LABEL_SETS else None
+
+
+@dataclass(frozen=True, slots=True)
+class FrameImage:
+    """One frame as model input, plus what is needed to give every point its value.
+
+    Attributes:
+        inputs: (C, H, W) float32 raw channels named by `channels` (not yet normalised).
+        channels: channel names of `inputs`.
+        target: (H, W) float32 measured reflectivity of the pixel owner (encoded intensity /
+            full scale), 0 where empty; None when the frame has no measured intensity.
+        labelled: reflectance came from labels (False: every point has UNKNOWN_REFLECTANCE).
+        image: the projection (owner index per pixel, row and column of every point).
+        physics: (N,) float32 I_P of every point, in m^-n.
+        reflectance: (N,) float32 material reflectance of every point.
+        cos_incidence: (N,) float32 cosine of every point.
+        range_m: (N,) float32 range of every point.
+    """
+
+    inputs: FloatArray
+    channels: tuple[str, ...]
+    target: FloatArray | None
+    labelled: bool
+    image: RangeImage
+    physics: FloatArray
+    reflectance: FloatArray
+    cos_incidence: FloatArray
+    range_m: FloatArray
+
+    @property
+    def mask(self) -> npt.NDArray[np.bool_]:
+        """(H, W) bool, True where a point owns the pixel."""
+        return self.image.index >= 0
+
+
+def frame_image(
+    xyz: npt.ArrayLike,
+    profile: SensorProfile,
+    *,
+    labels: npt.ArrayLike | None = None,
+    label_set: str | None = None,
+    ring: npt.ArrayLike | None = None,
+    intensity: npt.ArrayLike | None = None,
+    outcome: npt.ArrayLike | None = None,
+    particle: npt.ArrayLike | None = None,
+    style: str | None = None,
+    styles: bool = False,
+    range_exponent: float = 1.0,
+    extinction_per_m: float = 0.0,
+    width: int | None = None,
+) -> FrameImage:
+    """Organise one frame and compute its model inputs.
+
+    Args:
+        xyz: (N, 3) coordinates in m, sensor frame; no point at zero range.
+        profile: the frame's own sensor profile (rows, elevations, intensity encoding).
+        labels: (N,) class labels of `label_set`, or None (then reflectance is unknown).
+        label_set: material label set of the labels (`lads.physics.materials.LABEL_SETS`).
+        ring: optional (N,) ring column, 0 = lowest beam; default nearest elevation.
+        intensity: optional (N,) measured intensity in the profile's encoding -> `target`.
+        outcome: optional (N,) `Outcome` codes; PARTICLE marks particle returns.
+        particle: optional (N,) bool particle flags (e.g. WADS label 110); OR-ed with outcome.
+        style: weather style of the frame (one of STYLES) or None for clear weather.
+        styles: add the one-hot style channels (weather models).
+        range_exponent: n of I_P (paper: 1).
+        extinction_per_m: alpha of I_P in 1/m (0 in clear weather).
+        width: azimuth bins; default the profile's range_image_width.
+
+    Returns:
+        FrameImage.
+
+    Raises:
+        InvalidPointsError: bad xyz, ring, labels, intensity or flags.
+        ConfigError: unknown style or label set, a style without style channels, bad width.
+    """
+    xyz64, r = checked_xyz(xyz)
+    n = len(xyz64)
+    if style is not None and style not in STYLES:
+        raise ConfigError(f"weather style {style!r}: expected one of {', '.join(STYLES)}.")
+    if style is not None and not styles:
+        raise ConfigError(f"weather style {style!r} given to a model without style channels.")
+    w = profile.range_image_width if width is None else int(width)
+    if w < 8 or w % 4:
+        raise ConfigError(f"range-image width {w}: expected a multiple of 4, at least 8.")
+    chan = channels_of(xyz64, profile, ring)
+    image = organise(xyz64, r, chan, profile.channels, w)
+    cos = _incidence(xyz64, r, image, DEFAULT_DEPTH_JUMP).cos
+
+    labelled = labels is not None
+    if labelled:
+        if label_set is None:
+            raise ConfigError("labels given without a label_set; pass the dataset's label set.")
+        label_arr = np.asarray(labels)
+        if label_arr.shape != (n,):
+            raise InvalidPointsError(f"labels: shape {label_arr.shape}, expected ({n},).")
+        rho = reflectance_for_labels(label_arr, label_set)
+    else:
+        rho = np.full(n, UNKNOWN_REFLECTANCE, dtype=np.float32)
+    phys = physics_intensity(
+        rho, cos, r, range_exponent=range_exponent, extinction_per_m=extinction_per_m
+    )
+    is_particle = _particle_flags(n, outcome, particle)
+
+    names = channel_names(styles)
+    height = profile.channels
+    owners = image.index.reshape(-1)
+    occupied = owners >= 0
+    src = owners[occupied]
+    planes = np.zeros((len(names), height * w), dtype=np.float32)
+    per_point = {
+        "ln_range": np.log(r),
+        "cos_incidence": cos,
+        "reflectance": rho,
+        "ln_physics": np.log(phys.astype(np.float64) + PHYSICS_FLOOR),
+        "particle": is_particle.astype(np.float32),
+        "ln_geometry": np.log(
+            physics_intensity(
+                np.ones(n), cos, r, range_exponent=range_exponent,
+                extinction_per_m=extinction_per_m,
+            ).astype(np.float64) + GEOMETRY_FLOOR
+        ),  # fmt: skip
+    }
+    for name, values in per_point.items():
+        planes[names.index(name), occupied] = values[src]
+    row_of_pixel = np.repeat(np.arange(height), w)
+    elevation = np.asarray(profile.elevation_deg, dtype=np.float64)[height - 1 - row_of_pixel]
+    planes[names.index("elevation"), occupied] = elevation[occupied] / ELEVATION_SCALE_DEG
+    planes[names.index("mask"), occupied] = 1.0
+    if style is not None:
+        planes[names.index(style), occupied] = 1.0
+
+    target = None
+    if intensity is not None:
+        values = np.asarray(intensity, dtype=np.float32)
+        if values.shape != (n,):
+            raise InvalidPointsError(f"intensity: shape {values.shape}, expected ({n},).")
+        profile.intensity.validate(values, "intensity")
+        refl = profile.intensity.to_reflectivity(values).astype(np.float32)
+        flat = np.zeros(height * w, dtype=np.float32)
+        flat[occupied] = refl[src]
+        target = flat.reshape(height, w)
+    return FrameImage(
+        inputs=planes.reshape(len(names), height, w),
+        channels=names,
+        target=target,
+        labelled=labelled,
+        image=image,
+        physics=phys,
+        reflectance=rho.astype(np.float32),
+        cos_incidence=cos.astype(np.float32),
+        range_m=r.astype(np.float32),
+    )
+
+
+def _particle_flags(
+    n: int, outcome: npt.ArrayLike | None, particle: npt.ArrayLike | None
+) -> npt.NDArray[np.bool_]:
+    flags = np.zeros(n, dtype=bool)
+    for name, arr in (("outcome", outcome), ("particle", particle)):
+        if arr is None:
+            continue
+        values = np.asarray(arr)
+        if values.shape != (n,):
+            raise InvalidPointsError(f"{name}: shape {values.shape}, expected ({n},).")
+        flags |= values == Outcome.PARTICLE if name == "outcome" else values.astype(bool)
+    return flags

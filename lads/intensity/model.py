@@ -1,0 +1,164 @@
+"""The networks of the intensity transfer: generators and patch discriminators (PyTorch).
+
+PICGAN's layout (physics.md §10.5) scaled for CPU inference, with the authors' flaws fixed:
+
+- Inputs are the *raw* range-image channels of `lads.intensity.features`; each network
+  z-scores them with statistics held as buffers, so they travel inside every checkpoint and
+  cannot go stale (physics.md §10.7 item 6).
+- The intensity head is linear in z-space of ln(reflectivity + floor) and has no tanh: after
+  decoding it reaches every value the target encoding can hold, retro-reflectors included
+  (item 1). A linear path from the inputs to the head carries the physics (ln I_P, per-row
+  gain); the convolutional path adds what physics leaves out.
+- Azimuth wraps around (circular padding along W); elevation does not (zero padding).
+- No normalisation layers: empty pixels would leak into InstanceNorm statistics.
+
+A generator's cost is dominated by its full-resolution layers; with base width 16 a
+64 x 2048 frame takes well under 100 ms on one CPU core (benchmarks/intensity_speed.py).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+LEAK = 0.2
+
+
+class WrapConv(nn.Module):
+    """Conv2d with circular padding along azimuth (W) and zeros along elevation (H)."""
+
+    def __init__(self, c_in: int, c_out: int, k: int, stride: int = 1) -> None:
+        super().__init__()
+        self.pad = (k - 1) // 2
+        self.pad_w_extra = (k - 1) - 2 * self.pad  # even kernels pad one more on the right
+        self.conv = nn.Conv2d(c_in, c_out, k, stride=stride)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        p, e = self.pad, self.pad_w_extra
+        x = F.pad(x, (p, p + e, 0, 0), mode="circular")
+        x = F.pad(x, (0, 0, p, p + e))
+        return self.conv(x)
+
+
+class _Residual(nn.Module):
+    def __init__(self, c: int) -> None:
+        super().__init__()
+        self.a = WrapConv(c, c, 3)
+        self.b = WrapConv(c, c, 3)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return x + self.b(F.leaky_relu(self.a(x), LEAK))
+
+
+class Normaliser(nn.Module):
+    """z-scores selected raw channels with stored statistics (buffers, saved with weights)."""
+
+    def __init__(self, channels: Sequence[str], normalised: Sequence[str]) -> None:
+        super().__init__()
+        self.channels = tuple(channels)
+        self.register_buffer("mean", torch.zeros(len(self.channels)))
+        self.register_buffer("std", torch.ones(len(self.channels)))
+        flags = [name in normalised for name in self.channels]
+        self.register_buffer("active", torch.tensor(flags, dtype=torch.bool))
+
+    def set_stats(self, mean: dict[str, float], std: dict[str, float]) -> None:
+        for i, name in enumerate(self.channels):
+            if bool(self.active[i]):
+                self.mean[i] = float(mean[name])
+                self.std[i] = max(float(std[name]), 1e-6)
+
+    def forward(self, raw: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+        """raw (B, C, H, W) -> z-scored where active, kept 0 on empty pixels."""
+        mean = torch.where(self.active, self.mean, torch.zeros_like(self.mean))
+        std = torch.where(self.active, self.std, torch.ones_like(self.std))
+        z = (raw - mean.view(1, -1, 1, 1)) / std.view(1, -1, 1, 1)
+        return z * mask
+
+
+class Generator(nn.Module):
+    """Small U-Net on a range image: C raw channels in, one map out (B, 1, H, W).
+
+    H and W must be divisible by 4. `base` sets the width (base, 2 base, 4 base channels at
+    full, 1/2 and 1/4 resolution).
+    """
+
+    def __init__(
+        self,
+        channels: Sequence[str],
+        normalised: Sequence[str],
+        *,
+        base: int = 16,
+        blocks: int = 3,
+    ) -> None:
+        super().__init__()
+        self.channels = tuple(channels)
+        self.norm = Normaliser(self.channels, normalised)
+        c = len(self.channels)
+        self.e0 = WrapConv(c, base, 3)
+        self.e1 = WrapConv(base, 2 * base, 3, stride=2)
+        self.e2 = WrapConv(2 * base, 4 * base, 3, stride=2)
+        self.mid = nn.Sequential(*[_Residual(4 * base) for _ in range(blocks)])
+        self.u1 = WrapConv(4 * base + 2 * base, 2 * base, 3)
+        self.u0 = WrapConv(2 * base + base, base, 3)
+        self.head = nn.Conv2d(base, 1, 1)
+        self.linear = nn.Conv2d(c, 1, 1)  # physics path: a linear model of the inputs
+        nn.init.zeros_(self.head.weight)
+        nn.init.zeros_(self.head.bias)
+
+    def forward(self, raw: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+        """raw (B, C, H, W) float32, mask (B, 1, H, W) float32 -> (B, 1, H, W)."""
+        x = self.norm(raw, mask)
+        a0 = F.leaky_relu(self.e0(x), LEAK)
+        a1 = F.leaky_relu(self.e1(a0), LEAK)
+        a2 = self.mid(F.leaky_relu(self.e2(a1), LEAK))
+        b1 = F.interpolate(a2, scale_factor=2.0, mode="nearest")
+        b1 = F.leaky_relu(self.u1(torch.cat([b1, a1], 1)), LEAK)
+        b0 = F.interpolate(b1, scale_factor=2.0, mode="nearest")
+        b0 = F.leaky_relu(self.u0(torch.cat([b0, a0], 1)), LEAK)
+        return self.head(b0) + self.linear(x)
+
+
+class Discriminator(nn.Module):
+    """PatchGAN critic (LSGAN, raw scores): C raw channels -> (B, 1, H/4, W/4) patch map.
+
+    Conditioned on geometry: its inputs are the physics channels plus the intensity (or
+    reflectance) being judged, so it rejects an intensity that is implausible *for that
+    range, incidence and material*, not only an implausible histogram.
+    """
+
+    def __init__(self, channels: Sequence[str], normalised: Sequence[str], base: int = 16):
+        super().__init__()
+        self.channels = tuple(channels)
+        self.norm = Normaliser(self.channels, normalised)
+        c = len(self.channels)
+        self.layers = nn.ModuleList(
+            [
+                WrapConv(c, base, 4, stride=2),
+                WrapConv(base, 2 * base, 4, stride=2),
+                WrapConv(2 * base, 4 * base, 3),
+            ]
+        )
+        self.out = WrapConv(4 * base, 1, 3)
+
+    def forward(self, raw: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+        x = self.norm(raw, mask)
+        for layer in self.layers:
+            x = F.leaky_relu(layer(x), LEAK)
+        return self.out(x)
+
+    @staticmethod
+    def patch_mask(mask: torch.Tensor) -> torch.Tensor:
+        """(B, 1, H, W) occupancy -> (B, 1, H/4, W/4) weights: patches at least 1/4 occupied.
+
+        Every adversarial loss is averaged over these only, so empty sky and the occupancy
+        pattern of a sensor cannot be what the critic learns (physics.md §10.7 item 2).
+        """
+        frac = F.avg_pool2d(mask, 4)
+        return (frac >= 0.25).float()
+
+
+def count_parameters(module: nn.Module) -> int:
+    return sum(p.numel() for p in module.parameters())

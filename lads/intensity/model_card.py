@@ -1,0 +1,130 @@
+"""Model cards for the shipped intensity weights: `python -m lads.intensity.model_card CONFIG`.
+
+Evaluates the config's weights on its held-out frames (`lads eval-intensity`), then writes
+`<weights>.md` beside the weight file: what it was trained on and under which terms, the
+command, seed, steps, sha256 and the held-out metrics against every baseline.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+from lads.files import atomic_write
+from lads.intensity.checkpoint import file_sha256, load_model
+from lads.intensity.train_config import REPO_ROOT, TrainConfig, load_train_config
+
+TERMS = {
+    "semantickitti": "KITTI (CC BY-NC-SA 3.0) and SemanticKITTI labels (CC BY-NC-SA 4.0): "
+    "non-commercial",
+    "nuscenes-scans": "nuScenes (CC BY-NC-SA 4.0 and the nuScenes Terms of Use): non-commercial",
+    "nuscenes": "nuScenes (CC BY-NC-SA 4.0 and the nuScenes Terms of Use): non-commercial",
+    "wads": "WADS (Winter Adverse Driving dataSet), research use: non-commercial",
+    "radiate": "RADIATE (CC BY-NC-SA 4.0): non-commercial",
+    "synth": "made by `lads synth` in this repository (no third-party terms)",
+}
+NO_RAIN = (
+    "No real rain recording is available here, so there is no rain style: the rain variant "
+    "keeps the physics intensity until a user trains this config with their own rain data."
+)
+
+
+def _domain_line(role: str, spec: Any) -> str:
+    where = spec.root or f"{spec.frames} frames, seed {spec.seed}, sensor {spec.sensor}"
+    extra = f"; physics weather first: {spec.weather}" if spec.weather else ""
+    held = f"; held out: {', '.join(spec.holdout)}" if spec.holdout else "; nothing held out"
+    return f"- {role}: `{spec.dataset}` ({where}){extra}{held}. Terms: {TERMS.get(spec.dataset)}."
+
+
+def _metrics_table(results: dict[str, Any]) -> list[str]:
+    lines = []
+    for key, res in results.items():
+        pooled = res.get("pooled", {})
+        lines += [f"### {key} (held out: {', '.join(res['context']['heldout'])})", "",
+                  "| method | MAE (encoded) | MAE (reflectivity) | Pearson r | Spearman | "
+                  "cell W1 (refl.) | cell KS | retro contrast pred / real |",
+                  "|---|---|---|---|---|---|---|---|"]  # fmt: skip
+        for method, m in pooled.items():
+            lines.append(
+                f"| {method} | {_f(m.get('mae_encoded'))} | {_f(m.get('mae_reflectivity'))} | "
+                f"{_f(m.get('pearson_r'))} | {_f(m.get('spearman_rho'))} | "
+                f"{_f(m.get('cell_w1_reflectivity'))} | {_f(m.get('cell_ks'))} | "
+                f"{_f(m.get('retro_contrast_pred'))} / {_f(m.get('retro_contrast_real'))} |"
+            )
+        beats = res.get("summary", {}).get("beats", {})
+        if beats:
+            lines.append("")
+            for metric, table in beats.items():
+                won = [b for b, ok in table.items() if ok]
+                lost = [b for b, ok in table.items() if not ok]
+                lines.append(f"- {metric}: the generator beats {', '.join(won) or 'none'}; "
+                             f"does not beat {', '.join(lost) or 'none'}.")  # fmt: skip
+        lines.append("")
+    return lines
+
+
+def _f(value: Any) -> str:
+    return "n/a" if value is None else f"{value:.4g}"
+
+
+def render_card(cfg: TrainConfig, weights: Path, results: dict[str, Any]) -> str:
+    model = load_model(weights)
+    training = model.meta.training
+    config_rel = Path("pipelines/train") / f"{cfg.name}.yaml"
+    lines = [
+        f"# Intensity model `{cfg.name}`", "",
+        cfg.description, "",
+        f"- file: `{weights.name}`, {weights.stat().st_size / 1e6:.2f} MB, "
+        f"sha256 `{file_sha256(weights)}`",
+        f"- kind: {cfg.kind}; targets: {', '.join(sorted(model.meta.targets))}; "
+        f"generator parameters: {sum(p.numel() for p in model.generator.parameters())}",
+        f"- made by: `make train` (`lads train {config_rel}`), seed {cfg.seed}, "
+        f"{training.get('steps')} steps, batch {cfg.batch}, crop {cfg.crop_width} px, lr {cfg.lr}",
+        f"- range exponent n = {cfg.range_exponent}; data hash {training.get('data_hash')}",
+        "", "## Training data", "",
+    ]  # fmt: skip
+    for pair in cfg.pairs:
+        lines.append(f"**{pair.key}**")
+        lines.append(_domain_line("source", pair.source))
+        lines.append(_domain_line("target", pair.target))
+        lines.append("")
+    lines += [
+        "The weights derive from non-commercial data where a target above is non-commercial: "
+        "use them under the same terms.", "",
+    ]  # fmt: skip
+    if cfg.kind == "weather":
+        lines += [NO_RAIN, ""]
+    lines += ["## Held-out metrics", "",
+              "Paired: the held-out real frame's geometry and labels are the input; the "
+              "prediction is compared with the real intensity of the same points. Cell "
+              "metrics: Wasserstein-1 and KS per class x range bin x incidence bin, weighted "
+              "by count. Produced by `lads eval-intensity` at the time of training.", ""]  # fmt: skip
+    if results:
+        lines += _metrics_table(results)
+    else:
+        lines += ["No target frame was held out, so there are no held-out metrics.", ""]
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    from lads.intensity.commands import evaluate_pair
+
+    args = sys.argv[1:] if argv is None else argv
+    for name in args:
+        cfg = load_train_config(name)
+        weights = cfg.output_path()
+        out_dir = REPO_ROOT / "docs" / "intensity" / cfg.name
+        results = {}
+        for pair in cfg.pairs:
+            if pair.target.holdout:
+                results[pair.key] = evaluate_pair(cfg, pair, str(weights), out_dir)
+        atomic_write(out_dir / "eval.json", json.dumps(results, indent=2, sort_keys=True).encode())
+        atomic_write(weights.with_suffix(".md"), render_card(cfg, weights, results).encode())
+        sys.stdout.write(f"{cfg.name}: card {weights.with_suffix('.md')}, figures {out_dir}\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,162 @@
+"""Run an intensity generator on one frame and give *every* point an intensity.
+
+The generator predicts one value per range-image pixel, for the point that owns it (the
+nearest). Points that share a pixel with a nearer owner (41-80 % of a 64-beam scan,
+depending on the width) get the owner's prediction scaled by their own physics ratio:
+
+    ln(I_p + f) = ln(I_pixel + f) + clip(ln(I_P[p] + e) - ln(I_P[owner] + e), -L, L)
+
+with f the target's reflectivity floor, e = PHYSICS_FLOOR and L = ln(MAX_SHARED_RATIO).
+So a point on the same surface as its owner inherits the learned sensor response, and a
+point on another material, angle or range differs from it as the physics says. The clip
+keeps a grazing or zero-reflectance neighbour from pulling a value to 0 or infinity. No
+point keeps its input value: the output is assembled from scratch for all N points.
+
+The result is in the output sensor's encoding (KITTI remission at 0.01 steps, nuScenes
+integers 0-255), rounded and clipped by `IntensityEncoding.from_reflectivity`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+import torch
+
+from lads.errors import InvalidPointsError, ModelError
+from lads.intensity.checkpoint import IntensityModel
+from lads.intensity.features import PHYSICS_FLOOR, FrameImage, frame_image
+from lads.sensors.profile import SensorProfile
+
+MAX_SHARED_RATIO = 10.0
+# A frame "fits" a sensor profile when almost all its points lie within the profile's
+# vertical field of view (with this margin); otherwise its rows are another sensor's.
+FOV_MARGIN_DEG = 2.0
+MAX_OUTSIDE_FOV = 0.05
+
+
+@dataclass(frozen=True, slots=True)
+class Prediction:
+    """Per-point output of `predict_points`.
+
+    Attributes:
+        reflectivity: (N,) float32 predicted reflectivity in the output sensor's units
+            (encoded intensity / full scale), before quantisation.
+        encoded: (N,) float32 in the output sensor's intensity encoding.
+        owner: (N,) bool, True for points that own their pixel.
+    """
+
+    reflectivity: npt.NDArray[np.float32]
+    encoded: npt.NDArray[np.float32]
+    owner: npt.NDArray[np.bool_]
+
+
+def check_geometry(xyz: npt.NDArray[np.floating], profile: SensorProfile, where: str) -> None:
+    """Raise InvalidPointsError if the points do not look like a scan of `profile`."""
+    if len(xyz) == 0:
+        return
+    xyz64 = np.asarray(xyz, dtype=np.float64)
+    elevation = np.degrees(np.arctan2(xyz64[:, 2], np.hypot(xyz64[:, 0], xyz64[:, 1])))
+    low, high = profile.vertical_fov_deg
+    outside = (elevation < low - FOV_MARGIN_DEG) | (elevation > high + FOV_MARGIN_DEG)
+    share = float(outside.mean())
+    if share > MAX_OUTSIDE_FOV:
+        raise InvalidPointsError(
+            f"{where}: {share:.0%} of the points lie outside the vertical field of view "
+            f"{low:g}..{high:g} deg of sensor profile '{profile.name}'; the frame is not a scan "
+            "of that sensor. Pass the frame's own profile (lads profiles)."
+        )
+
+
+def predict_image(
+    model: IntensityModel, fi: FrameImage, *, device: str = "cpu"
+) -> npt.NDArray[np.float32]:
+    """(H, W) float32 raw generator output (z-space) for one FrameImage."""
+    if fi.channels != model.meta.channels:
+        raise ModelError(
+            f"{model.path}: expects channels {list(model.meta.channels)}, the frame has "
+            f"{list(fi.channels)}."
+        )
+    raw = torch.from_numpy(np.ascontiguousarray(fi.inputs))[None].to(device)
+    mask = raw[:, fi.channels.index("mask") : fi.channels.index("mask") + 1]
+    with torch.inference_mode():
+        z = model.generator(raw, mask)
+    return z[0, 0].float().cpu().numpy()
+
+
+def predict_points(
+    model: IntensityModel,
+    xyz: npt.ArrayLike,
+    profile: SensorProfile,
+    *,
+    output_profile: SensorProfile | None = None,
+    target: str | None = None,
+    labels: npt.ArrayLike | None = None,
+    label_set: str | None = None,
+    ring: npt.ArrayLike | None = None,
+    outcome: npt.ArrayLike | None = None,
+    particle: npt.ArrayLike | None = None,
+    extinction_per_m: float = 0.0,
+    device: str = "cpu",
+    where: str = "frame",
+) -> Prediction:
+    """Generated intensity for every point of one frame.
+
+    Args:
+        model: a loaded generator.
+        xyz: (N, 3) coordinates in m of the frame, in `profile`'s geometry.
+        profile: the frame's own sensor profile (projection rows and elevations).
+        output_profile: whose encoding and units the output is in; default the target
+            sensor of `target`. For weather models it may differ from the target sensor:
+            the value is then moved to its units with the calibration constants.
+        target: output domain of the model (None: its only one; weather: the style).
+        labels, label_set: per-point classes for the material reflectance (None: unknown).
+        ring: optional (N,) ring column.
+        outcome, particle: optional per-point particle flags (see `frame_image`).
+        extinction_per_m: alpha of the weather the frame is in, 1/m.
+        device: torch device.
+        where: name of the frame for error messages.
+
+    Returns:
+        Prediction for all N points.
+
+    Raises:
+        ModelError: the model lacks the target, or a calibration for the output sensor.
+        InvalidPointsError: bad points, or a frame that is not a scan of `profile`.
+    """
+    from lads.sensors.profile import load_profile
+
+    xyz_arr = np.asarray(xyz)
+    check_geometry(xyz_arr, profile, where)
+    key, spec = model.target(target)
+    weather = model.meta.kind == "weather"
+    out_profile = output_profile or load_profile(spec.sensor)
+    shift = 0.0
+    if out_profile.name != spec.sensor:
+        cal = model.meta.calibration
+        if out_profile.name not in cal or spec.sensor not in cal:
+            raise ModelError(
+                f"{model.path}: no calibration for sensor '{out_profile.name}' (it knows "
+                f"{sorted(cal)}); it cannot express its '{key}' output in that sensor's units. "
+                "Train with that sensor's data or use --intensity physics."
+            )
+        shift = cal[out_profile.name] - cal[spec.sensor]
+    fi = frame_image(
+        xyz_arr, profile, labels=labels, label_set=label_set, ring=ring, outcome=outcome,
+        particle=particle, style=key if weather else None, styles=weather,
+        range_exponent=model.meta.range_exponent, extinction_per_m=extinction_per_m,
+    )  # fmt: skip
+    z = predict_image(model, fi, device=device)
+    image = fi.image
+    n = len(xyz_arr)
+    ln_pixel = z[image.row, image.col].astype(np.float64) * spec.log_std + spec.log_mean
+    owner_idx = image.index[image.row, image.col]
+    owner = owner_idx == np.arange(n)
+    ln_phys = np.log(fi.physics.astype(np.float64) + PHYSICS_FLOOR)
+    limit = np.log(MAX_SHARED_RATIO)
+    ratio = np.clip(ln_phys - ln_phys[owner_idx], -limit, limit) if n else ln_phys
+    ln_value = np.where(owner, ln_pixel, ln_pixel + ratio)
+    refl = np.maximum(np.exp(ln_value) - spec.floor, 0.0) * np.exp(shift)
+    refl32 = refl.astype(np.float32)
+    return Prediction(refl32, out_profile.intensity.from_reflectivity(refl32), owner)

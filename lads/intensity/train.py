@@ -1,0 +1,443 @@
+"""`lads train CONFIG`: unpaired, physics-informed training of an intensity generator.
+
+Per pair (source simulation -> target recordings) and step:
+
+    fake     = G_S2T(source physics inputs)                      target intensity, z-space
+    L_adv    = LSGAN(D_T[pair] on (geometry, fake)) + LSGAN(D_S on (geometry, G_T2S(real)))
+    L_cycle  = |G_T2S(fake) - rho_source| + |G_S2T(rebuilt with G_T2S(real)) - real|
+    L_phy    = |fake - z(k I_P)|, I_P = rho cos / R^n exp(-2 alpha R) from materials, k the
+               target's calibration (so the reference is in the target's units)
+    L_id     = |G_S2T(target's own physics inputs) - real|        (labelled targets only)
+    L_style  = |(ln q_w - ln q_w') + 2 (alpha_w - alpha_w') R|     (weather, >= 2 styles)
+
+with q = refl / k the calibrated intensity. The critics see geometry with the intensity, so
+they judge intensity *given* range, incidence and material. G_T2S maps (geometry, target
+intensity) to material reflectance, which makes the real-domain cycle well posed.
+
+The run folder (`runs/<name>/` by default) holds the cache, `checkpoints/latest.pt`
+(networks, optimisers, random states, loss history; written atomically every
+`checkpoint_every` steps, so a killed run resumes where it stopped), `loss.png` and
+`history.json`. The final generator goes to the config's `output`.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from tqdm.auto import tqdm
+
+from lads.errors import TrainingError
+from lads.files import atomic_write
+from lads.intensity.cache import CacheJob, CachedFrame, build_cache, compute_statistics, read_frame
+from lads.intensity.checkpoint import ModelMeta, TargetSpec, save_model
+from lads.intensity.features import (
+    FEATURE_VERSION,
+    NORMALISED_CHANNELS,
+    PHYSICS_FLOOR,
+    STYLES,
+    channel_names,
+)
+from lads.intensity.losses import masked_l1, masked_mse_to
+from lads.intensity.model import Discriminator, Generator
+from lads.intensity.train_config import TrainConfig
+
+GEOMETRY = ("ln_range", "cos_incidence", "elevation", "mask")
+MAX_REFLECTANCE = 1.2
+CHECKPOINT = "checkpoints/latest.pt"
+FRAME_CACHE = 64  # frames kept in memory; the rest are read from zarr when sampled
+
+
+@dataclass
+class Batch:
+    raw: torch.Tensor  # (B, C, H, W) raw channels
+    mask: torch.Tensor  # (B, 1, H, W)
+    z: torch.Tensor | None  # (B, 1, H, W) target intensity in the pair's z-space
+    labelled: bool
+    extinction: torch.Tensor  # (B,) 1/m
+
+
+class Sampler:
+    """Random circular azimuth crops of cached frames, seeded; frames read lazily."""
+
+    def __init__(self, run_dir: Path, jobs: list[CacheJob], rng: np.random.Generator) -> None:
+        self.run_dir = run_dir
+        self.rng = rng
+        self.by_domain: dict[tuple[str, str], list[CacheJob]] = {}
+        for job in jobs:
+            self.by_domain.setdefault((job.pair, job.role), []).append(job)
+        self._frames: dict[str, CachedFrame] = {}
+
+    def frame(self, job: CacheJob) -> CachedFrame:
+        cached = self._frames.get(job.node)
+        if cached is None:
+            if len(self._frames) >= FRAME_CACHE:
+                self._frames.pop(next(iter(self._frames)))
+            cached = self._frames[job.node] = read_frame(self.run_dir, job)
+        return cached
+
+    def batch(
+        self, pair: str, role: str, size: int, width: int, z_stats: tuple[float, float, float]
+    ) -> Batch:
+        jobs = self.by_domain[(pair, role)]
+        raws, masks, zs, ext = [], [], [], []
+        labelled = True
+        mean, std, floor = z_stats
+        for _ in range(size):
+            f = self.frame(jobs[int(self.rng.integers(len(jobs)))])
+            w_full = f.inputs.shape[-1]
+            cols = (int(self.rng.integers(w_full)) + np.arange(width)) % w_full
+            raw = f.inputs[:, :, cols]
+            raws.append(raw)
+            masks.append(raw[GEN_MASK_INDEX[raw.shape[0]]][None])
+            if f.target is not None and role == "target":
+                zs.append(((np.log(f.target[:, cols] + floor) - mean) / std)[None])
+            labelled &= f.labelled
+            ext.append(f.extinction_per_m)
+        mask = torch.from_numpy(np.stack(masks))
+        z = torch.from_numpy(np.stack(zs)).float() * mask if zs else None
+        return Batch(
+            torch.from_numpy(np.stack(raws)), mask, z, labelled,
+            torch.tensor(ext, dtype=torch.float32),
+        )  # fmt: skip
+
+
+GEN_MASK_INDEX = {len(channel_names(s)): channel_names(s).index("mask") for s in (False, True)}
+
+
+class Nets(torch.nn.Module):
+    """G_S2T, G_T2S and the critics of one run."""
+
+    def __init__(self, cfg: TrainConfig, labelled_targets: dict[str, bool]) -> None:
+        super().__init__()
+        weather = cfg.kind == "weather"
+        self.channels = channel_names(weather)
+        styles = STYLES if weather else ()
+        self.g = Generator(self.channels, NORMALISED_CHANNELS, base=cfg.base, blocks=cfg.blocks)
+        self.inv_channels = GEOMETRY + ("particle",) + styles + ("z_intensity",)
+        self.inv = Generator(self.inv_channels, ("ln_range", "cos_incidence"),
+                             base=cfg.base, blocks=cfg.blocks)  # fmt: skip
+        self.ds_channels = GEOMETRY + styles + ("reflectance",)
+        self.d_s = Discriminator(self.ds_channels, ("ln_range", "cos_incidence", "reflectance"),
+                                 cfg.disc_base)  # fmt: skip
+        self.dt_channels: dict[str, tuple[str, ...]] = {}
+        self.d_t = torch.nn.ModuleDict()
+        for pair in cfg.pairs:
+            extra = ("reflectance",) if labelled_targets[pair.key] else ()
+            names = GEOMETRY + ("particle",) + extra + ("z_intensity",)
+            self.dt_channels[pair.key] = names
+            self.d_t[pair.key] = Discriminator(
+                names, ("ln_range", "cos_incidence", "reflectance"), cfg.disc_base
+            )
+
+    def pick(self, raw: torch.Tensor, names: tuple[str, ...], **extra: torch.Tensor) -> torch.Tensor:
+        """Stack the named channels: from `raw` by name, or given as (B, 1, H, W) tensors."""
+        planes = [extra[n] if n in extra else raw[:, self.channels.index(n)][:, None]
+                  for n in names]  # fmt: skip
+        return torch.cat(planes, 1)
+
+
+def set_statistics(nets: Nets, stats: Any) -> None:
+    nets.g.norm.set_stats(stats.mean, stats.std)
+    nets.inv.norm.set_stats(stats.mean, stats.std)
+    nets.d_s.norm.set_stats(stats.mean, stats.std)
+    for d in nets.d_t.values():
+        d.norm.set_stats(stats.mean, stats.std)
+
+
+def train(
+    cfg: TrainConfig,
+    *,
+    run_dir: Path | None = None,
+    device: str = "cpu",
+    progress: bool = True,
+    max_steps: int | None = None,
+) -> dict[str, Any]:
+    """Prepare the cache, train (resuming a checkpoint), write the weights; returns a summary.
+
+    `max_steps` stops early (for tests and interrupted runs) without writing the weights.
+
+    Raises:
+        TrainingError: unusable data, a checkpoint of another config, or a diverged run.
+    """
+    run = run_dir or (Path("runs") / cfg.name)
+    run.mkdir(parents=True, exist_ok=True)
+    jobs = build_cache(run, cfg, progress=progress)
+    frames_for_stats = [read_frame(run, j) for j in jobs]
+    channels = channel_names(cfg.kind == "weather")
+    stats = compute_statistics(frames_for_stats, channels, cfg.pairs)
+    labelled = {
+        p.key: all(f.labelled for f in frames_for_stats if f.pair == p.key and f.role == "target")
+        for p in cfg.pairs
+    }
+    mean_alpha = {
+        p.key: float(np.mean([f.extinction_per_m for f in frames_for_stats
+                              if f.pair == p.key and f.role == "source"]))
+        for p in cfg.pairs
+    }  # fmt: skip
+    del frames_for_stats
+
+    torch.manual_seed(cfg.seed)
+    rng = np.random.default_rng(cfg.seed)
+    nets = Nets(cfg, labelled)
+    set_statistics(nets, stats)
+    nets.to(device)
+    gen_params = list(nets.g.parameters()) + list(nets.inv.parameters())
+    disc_params = list(nets.d_s.parameters()) + list(nets.d_t.parameters())
+    opt_g = torch.optim.Adam(gen_params, lr=cfg.lr, betas=cfg.betas)
+    opt_d = torch.optim.Adam(disc_params, lr=cfg.lr, betas=cfg.betas)
+    sampler = Sampler(run, jobs, rng)
+    history: list[dict[str, float]] = []
+    start = 0
+    ckpt_path = run / CHECKPOINT
+    # Length and checkpoint spacing may change between runs: a run can be extended.
+    resumable = {k: v for k, v in cfg.to_dict().items() if k not in ("steps", "checkpoint_every")}
+    config_id = json.dumps(resumable, sort_keys=True, default=str)
+    if ckpt_path.is_file():
+        start, history = _resume(ckpt_path, config_id, nets, opt_g, opt_d, rng)
+
+    targets = {k: (v["log_mean"], v["log_std"], v["floor"]) for k, v in stats.targets.items()}
+    log_k = {k: v["log_k"] for k, v in stats.targets.items()}
+    end = cfg.steps if max_steps is None else min(cfg.steps, max_steps)
+    bar = tqdm(range(start, end), initial=start, total=cfg.steps, desc=f"train {cfg.name}",
+               unit="step", disable=not progress)  # fmt: skip
+    for step in bar:
+        losses = _step(nets, cfg, sampler, targets, log_k, mean_alpha, opt_g, opt_d, device)
+        if not all(math.isfinite(v) for v in losses.values()):
+            raise TrainingError(
+                f"{cfg.name}: loss became NaN/inf at step {step} ({losses}); lower lr in the "
+                f"config and restart (delete {ckpt_path} to start over)."
+            )
+        history.append(losses)
+        bar.set_postfix(g=f"{losses['generator']:.3f}", d=f"{losses['critic']:.3f}")
+        done = step + 1
+        if done % cfg.checkpoint_every == 0 or done == end:
+            _checkpoint(ckpt_path, config_id, done, nets, opt_g, opt_d, rng, history)
+            write_loss_figure(history, run / "loss.png", cfg.name)
+    atomic_write(run / "history.json", json.dumps(history).encode())
+    summary: dict[str, Any] = {"run_dir": str(run), "steps_done": len(history)}
+    if len(history) < cfg.steps:
+        return summary
+    meta = ModelMeta(
+        name=cfg.name, kind=cfg.kind, channels=channels, feature_version=FEATURE_VERSION,
+        range_exponent=cfg.range_exponent, base=cfg.base, blocks=cfg.blocks,
+        targets={k: TargetSpec(**v) for k, v in stats.targets.items()},
+        calibration=stats.calibration,
+        training={"config": cfg.to_dict(), "data_hash": cfg.data_hash(), "steps": cfg.steps,
+                  "seed": cfg.seed, "final_losses": history[-1],
+                  "cache_frames": len(jobs)},
+    )  # fmt: skip
+    nets.g.cpu()
+    save_model(cfg.output_path(), meta, nets.g)
+    summary["weights"] = str(cfg.output_path())
+    return summary
+
+
+def _step(
+    nets: Nets,
+    cfg: TrainConfig,
+    sampler: Sampler,
+    targets: dict[str, tuple[float, float, float]],
+    log_k: dict[str, float],
+    mean_alpha: dict[str, float],
+    opt_g: torch.optim.Optimizer,
+    opt_d: torch.optim.Optimizer,
+    device: str,
+) -> dict[str, float]:
+    w = cfg.losses
+    ch = nets.channels
+    parts = {k: 0.0 for k in ("adversarial", "cycle", "physics", "identity", "style")}
+    g_total = torch.zeros((), device=device)
+    d_terms = []
+    for pair in cfg.pairs:
+        key = pair.key
+        mean, std, floor = targets[key]
+        s = _to(sampler.batch(key, "source", cfg.batch, cfg.crop_width, targets[key]), device)
+        t = _to(sampler.batch(key, "target", cfg.batch, cfg.crop_width, targets[key]), device)
+        if t.z is None:
+            raise TrainingError(f"pair {key}: target frames carry no intensity.")
+        fake = nets.g(s.raw, s.mask) * s.mask
+        # Physics reference in the target's units and z-space.
+        phys = (torch.exp(s.raw[:, ch.index("ln_physics")][:, None]) - PHYSICS_FLOOR).clamp_min(0)
+        ref = (torch.log(phys * math.exp(log_k[key]) + floor) - mean) / std
+        l_phy = masked_l1(fake, ref, s.mask)
+
+        d_t = nets.d_t[key]
+        dt_names = nets.dt_channels[key]
+        fake_in = nets.pick(s.raw, dt_names, z_intensity=fake)
+        l_adv = masked_mse_to(d_t(fake_in, s.mask), 1.0, Discriminator.patch_mask(s.mask))
+        inv_t = nets.pick(t.raw, nets.inv_channels, z_intensity=t.z)
+        rho_t = MAX_REFLECTANCE * torch.sigmoid(nets.inv(inv_t, t.mask)) * t.mask
+        ds_fake = nets.pick(t.raw, nets.ds_channels, reflectance=rho_t)
+        l_adv = l_adv + masked_mse_to(nets.d_s(ds_fake, t.mask), 1.0,
+                                      Discriminator.patch_mask(t.mask))  # fmt: skip
+
+        inv_s = nets.pick(s.raw, nets.inv_channels, z_intensity=fake)
+        rho_s = MAX_REFLECTANCE * torch.sigmoid(nets.inv(inv_s, s.mask))
+        l_cyc = masked_l1(rho_s, s.raw[:, ch.index("reflectance")][:, None], s.mask)
+        geometry = torch.exp(t.raw[:, ch.index("ln_geometry")][:, None])
+        rebuilt = t.raw.clone()
+        rebuilt[:, ch.index("reflectance")] = rho_t[:, 0]
+        rebuilt[:, ch.index("ln_physics")] = torch.log(rho_t * geometry + PHYSICS_FLOOR)[:, 0]
+        rebuilt = rebuilt * t.mask
+        l_cyc = l_cyc + masked_l1(nets.g(rebuilt, t.mask), t.z, t.mask)
+
+        l_id = torch.zeros((), device=device)
+        if t.labelled:
+            l_id = masked_l1(nets.g(t.raw, t.mask), t.z, t.mask)
+
+        l_style = torch.zeros((), device=device)
+        if cfg.kind == "weather" and len(cfg.pairs) > 1:
+            other = next(p.key for p in cfg.pairs if p.key != key)
+            l_style = _style_term(nets, s, fake, key, other, targets, log_k, mean_alpha)
+
+        g_total = g_total + (w.adversarial * l_adv + w.cycle * l_cyc + w.physics * l_phy
+                             + w.identity * l_id + w.style * l_style)  # fmt: skip
+        for name, value in (("adversarial", l_adv), ("cycle", l_cyc), ("physics", l_phy),
+                            ("identity", l_id), ("style", l_style)):  # fmt: skip
+            parts[name] += float(value.detach())
+        d_terms.append((key, s, t, fake.detach(), rho_t.detach()))
+
+    opt_g.zero_grad(set_to_none=True)
+    g_total.backward()
+    opt_g.step()
+
+    d_total = torch.zeros((), device=device)
+    for key, s, t, fake, rho_t in d_terms:
+        d_t, names = nets.d_t[key], nets.dt_channels[key]
+        pm_s, pm_t = Discriminator.patch_mask(s.mask), Discriminator.patch_mask(t.mask)
+        real_in = nets.pick(t.raw, names, z_intensity=t.z)
+        fake_in = nets.pick(s.raw, names, z_intensity=fake)
+        d_total = d_total + 0.5 * (masked_mse_to(d_t(real_in, t.mask), 1.0, pm_t)
+                                   + masked_mse_to(d_t(fake_in, s.mask), 0.0, pm_s))
+        real_s = nets.pick(s.raw, nets.ds_channels)
+        fake_s = nets.pick(t.raw, nets.ds_channels, reflectance=rho_t)
+        d_total = d_total + 0.5 * (masked_mse_to(nets.d_s(real_s, s.mask), 1.0, pm_s)
+                                   + masked_mse_to(nets.d_s(fake_s, t.mask), 0.0, pm_t))
+    opt_d.zero_grad(set_to_none=True)
+    d_total.backward()
+    opt_d.step()
+    n = len(cfg.pairs)
+    out = {k: v / n for k, v in parts.items()}
+    out["generator"] = float(g_total.detach()) / n
+    out["critic"] = float(d_total.detach()) / n
+    return out
+
+
+def _style_term(
+    nets: Nets,
+    s: Batch,
+    fake: torch.Tensor,
+    key: str,
+    other: str,
+    targets: dict[str, tuple[float, float, float]],
+    log_k: dict[str, float],
+    mean_alpha: dict[str, float],
+) -> torch.Tensor:
+    """Multi-style consistency: the same geometry under another style must differ, in
+    calibrated log intensity, by that style's two-way extinction and nothing else."""
+    ch = nets.channels
+    range_m = torch.exp(s.raw[:, ch.index("ln_range")][:, None])
+    alpha_a = s.extinction.view(-1, 1, 1, 1)
+    alpha_b = torch.full_like(alpha_a, mean_alpha[other])
+    shift = -2.0 * (alpha_b - alpha_a) * range_m
+    swapped = s.raw.clone()
+    swapped[:, ch.index(key)] = 0.0
+    swapped[:, ch.index(other)] = s.mask[:, 0]
+    for name in ("ln_physics", "ln_geometry"):
+        swapped[:, ch.index(name)] = s.raw[:, ch.index(name)] + shift[:, 0]
+    swapped = swapped * s.mask
+    fake_b = nets.g(swapped, s.mask)
+    (ma, sa, _), (mb, sb, _) = targets[key], targets[other]
+    lnq_a = fake * sa + ma - log_k[key]
+    lnq_b = fake_b * sb + mb - log_k[other]
+    return masked_l1(lnq_b - lnq_a, shift, s.mask)
+
+
+def _to(batch: Batch, device: str) -> Batch:
+    if device == "cpu":
+        return batch
+    return Batch(batch.raw.to(device), batch.mask.to(device),
+                 None if batch.z is None else batch.z.to(device), batch.labelled,
+                 batch.extinction.to(device))  # fmt: skip
+
+
+def _checkpoint(path: Path, config_id: str, step: int, nets: Nets, opt_g: Any, opt_d: Any,
+                rng: np.random.Generator, history: list[dict[str, float]]) -> None:  # fmt: skip
+    blob = {
+        "config": config_id,
+        "step": step,
+        "nets": nets.state_dict(),
+        "opt_g": opt_g.state_dict(),
+        "opt_d": opt_d.state_dict(),
+        "numpy_rng": json.dumps(rng.bit_generator.state),
+        "torch_rng": torch.get_rng_state(),
+        "history": json.dumps(history),
+    }
+    buffer = io.BytesIO()
+    torch.save(blob, buffer)
+    atomic_write(path, buffer.getvalue())
+
+
+def _resume(path: Path, config_id: str, nets: Nets, opt_g: Any, opt_d: Any,
+            rng: np.random.Generator) -> tuple[int, list[dict[str, float]]]:  # fmt: skip
+    try:
+        blob = torch.load(path, map_location="cpu", weights_only=True)
+        if blob["config"] != config_id:
+            raise TrainingError(
+                f"{path}: checkpoint of another config; delete it (or the run folder) to "
+                "start over, or restore the config it was made with."
+            )
+        nets.load_state_dict(blob["nets"])
+        opt_g.load_state_dict(blob["opt_g"])
+        opt_d.load_state_dict(blob["opt_d"])
+        rng.bit_generator.state = json.loads(blob["numpy_rng"])
+        torch.set_rng_state(blob["torch_rng"])
+        return int(blob["step"]), list(json.loads(blob["history"]))
+    except TrainingError:
+        raise
+    except Exception as exc:
+        raise TrainingError(
+            f"{path}: cannot resume from this checkpoint ({type(exc).__name__}: {exc}); delete "
+            "it to start over."
+        ) from None
+
+
+def write_loss_figure(history: list[dict[str, float]], path: Path, title: str) -> None:
+    """Loss curves (moving average over 25 steps) as a PNG."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    if not history:
+        return
+    fig, axes = plt.subplots(1, 2, figsize=(11, 3.6))
+    steps = np.arange(1, len(history) + 1)
+    for ax, names in ((axes[0], ("generator", "critic")),
+                      (axes[1], ("adversarial", "cycle", "physics", "identity", "style"))):  # fmt: skip
+        for name in names:
+            values = np.array([h[name] for h in history])
+            if not np.any(values):
+                continue
+            k = min(25, len(values))
+            smooth = np.convolve(values, np.ones(k) / k, mode="valid")
+            ax.plot(steps[k - 1 :], smooth, label=name)
+        ax.set_xlabel("step")
+        ax.set_ylabel("loss (25-step mean)")
+        ax.set_yscale("log")
+        ax.legend(fontsize=8)
+        ax.grid(alpha=0.3)
+    axes[0].set_title(f"{title}: objectives")
+    axes[1].set_title("generator terms (unweighted)")
+    fig.tight_layout()
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png", dpi=110)
+    plt.close(fig)
+    atomic_write(path, buffer.getvalue())

@@ -1,0 +1,108 @@
+"""The intensity stage: a learned generator replaces every point's intensity.
+
+It runs after the weather stage (when there is one) and changes nothing but the intensity
+column: geometry, point order, labels and provenance pass through. The prediction uses the
+physics modalities only (range, incidence, material from the labels, the weather's
+extinction), never the input intensity, so it works the same on simulated and real frames.
+
+Sensor models write the target sensor's encoding (KITTI remission at 0.01 steps, nuScenes
+integers 0-255) whatever the source format; weather models write the frame's own sensor
+encoding, moved there from the weather recording's units by the model's calibration.
+Points at zero range (no direction, e.g. nuScenes ego returns at 1e-5 m) get intensity 0.
+
+Deterministic on CPU (no randomness is drawn; the rng argument is unused). On a GPU,
+cuDNN convolutions may differ in the last bits, which can flip a quantisation step.
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from lads.config import StageConfig
+from lads.errors import ConfigError, LadsError, StageError
+from lads.frame import Frame
+from lads.intensity.checkpoint import IntensityModel, resolve_model
+from lads.intensity.features import label_set_for
+from lads.intensity.predict import predict_points
+from lads.physics.projection import MIN_RANGE_M
+from lads.sensors.profile import load_profile
+
+# Bump when the stage's output bytes change for the same input and weights.
+INTENSITY_STAGE_VERSION = "1"
+
+
+@functools.lru_cache(maxsize=8)
+def _model(name_or_path: str, device: str) -> IntensityModel:
+    return resolve_model(name_or_path, device=device)
+
+
+@dataclass(frozen=True, slots=True)
+class IntensityStage:
+    """Replace intensities with a generator's prediction.
+
+    Attributes:
+        model: a shipped model name (`lads.intensity.checkpoint.SHIPPED`) or a .pt path.
+        target: the model's output domain; None = its only one, or for weather models the
+            style recorded by the preceding weather stage.
+        device: "cpu" or "cuda".
+    """
+
+    model: str
+    target: str | None = None
+    device: str = "cpu"
+    name: str = "intensity"
+    version: str = INTENSITY_STAGE_VERSION
+
+    @classmethod
+    def from_config(cls, config: StageConfig) -> IntensityStage:
+        params = dict(config.params)
+        unknown = sorted(set(params) - {"model", "target", "device"})
+        if unknown or "model" not in params:
+            raise ConfigError(
+                f"intensity stage: parameters {sorted(params)}; expected 'model' and optionally "
+                "'target' and 'device'."
+            )
+        stage = cls(**params)
+        _model(stage.model, stage.device)  # missing or bad weights fail before any frame
+        return stage
+
+    def __call__(self, frame: Frame, rng: np.random.Generator) -> Frame:
+        where = frame.item.item_id
+        try:
+            model = _model(self.model, self.device)
+            weather = model.meta.kind == "weather"
+            target = self.target
+            if weather and target is None:
+                style = frame.condition("style")
+                if style is None:
+                    raise StageError(
+                        f"{where}: the weather intensity model '{self.model}' needs the weather "
+                        "stage before it (none recorded a style); fix the pipeline."
+                    )
+                target = str(style)
+            profile = load_profile(frame.sensor)
+            xyz = frame.xyz
+            valid = np.linalg.norm(xyz.astype(np.float64), axis=1) > MIN_RANGE_M
+            labels = None if frame.labels is None else frame.labels[valid]
+            label_set = label_set_for(frame.item.dataset) if labels is not None else None
+            ring = None
+            if "ring" in frame.columns:
+                ring = frame.points[valid, frame.columns.index("ring")]
+            output = profile if weather else None
+            prediction = predict_points(
+                model, xyz[valid], profile, output_profile=output, target=target,
+                labels=labels, label_set=label_set, ring=ring, outcome=frame.outcome[valid],
+                extinction_per_m=float(frame.condition("extinction_per_m", 0.0) or 0.0),  # type: ignore[arg-type]
+                device=self.device, where=where,
+            )  # fmt: skip
+        except StageError:
+            raise
+        except LadsError as exc:
+            raise StageError(f"{where}: intensity stage ({self.model}): {exc}") from None
+        points = frame.points.copy()
+        points[:, 3] = 0.0
+        points[valid, 3] = prediction.encoded
+        return replace(frame, points=points)

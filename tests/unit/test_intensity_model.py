@@ -1,0 +1,201 @@
+"""The learned intensity: features, weight files, every point's value, encodings, errors."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from lads.errors import ConfigError, InvalidPointsError, LadsError, ModelError
+from lads.intensity.checkpoint import ModelMeta, TargetSpec, build_generator, load_model, save_model
+from lads.intensity.features import FEATURE_VERSION, channel_names, frame_image
+from lads.intensity.predict import MAX_SHARED_RATIO, predict_points
+from lads.physics.projection import project
+from lads.sensors.profile import load_profile
+from lads.synth import synth_frame
+
+HDL64 = load_profile("hdl64e")
+HDL32 = load_profile("hdl32e")
+
+
+def _meta(kind: str = "sensor", sensor: str = "hdl64e", **changes) -> ModelMeta:
+    styles = kind == "weather"
+    targets = (
+        {s: TargetSpec("wads64", -2.0, 1.0, 0.002, 0.5) for s in ("snow", "fog")}
+        if styles
+        else {"kitti": TargetSpec(sensor, -1.5, 0.8, 0.005, 1.2)}
+    )
+    values = dict(
+        name="tiny", kind=kind, channels=channel_names(styles), feature_version=FEATURE_VERSION,
+        range_exponent=1.0, base=4, blocks=1, targets=targets,
+        calibration={"hdl64e": 1.2, "wads64": 0.5},
+    )  # fmt: skip
+    values.update(changes)
+    return ModelMeta(**values)
+
+
+def tiny_model(tmp_path, kind: str = "sensor", seed: int = 0, **changes):
+    """A small random generator saved as a real weight file, and its path."""
+    torch.manual_seed(seed)
+    meta = _meta(kind, **changes)
+    gen = build_generator(meta)
+    with torch.no_grad():
+        for p in gen.parameters():
+            p.normal_(0, 0.1)
+    gen.norm.set_stats(
+        {"ln_range": 2.5, "cos_incidence": 0.4, "reflectance": 0.35, "ln_physics": -4.0},
+        {"ln_range": 0.8, "cos_incidence": 0.25, "reflectance": 0.2, "ln_physics": 1.0},
+    )
+    path = tmp_path / f"tiny-{kind}.pt"
+    save_model(path, meta, gen)
+    return path
+
+
+@pytest.fixture(scope="module")
+def street():
+    f = synth_frame("hdl64e", frames=1, seed=3, index=0, azimuth_bins=512)
+    return f
+
+
+def test_features_have_one_channel_per_name_and_zero_on_empty_pixels(street):
+    fi = frame_image(street.xyz, HDL64, labels=street.labels, label_set="semantickitti",
+                     ring=street.ring, intensity=street.intensity)  # fmt: skip
+    assert fi.inputs.shape == (len(channel_names(False)), 64, HDL64.range_image_width)
+    empty = ~fi.mask
+    assert np.all(fi.inputs[:, empty] == 0)
+    assert fi.target is not None and np.all(fi.target[empty] == 0)
+    assert fi.physics.shape == (len(street.xyz),)
+
+
+def test_physics_reference_comes_from_materials_not_the_measured_intensity(street):
+    a = frame_image(street.xyz, HDL64, labels=street.labels, label_set="semantickitti",
+                    intensity=street.intensity)  # fmt: skip
+    b = frame_image(street.xyz, HDL64, labels=street.labels, label_set="semantickitti",
+                    intensity=np.zeros_like(street.intensity))  # fmt: skip
+    assert np.array_equal(a.inputs, b.inputs)
+
+
+def test_every_point_gets_a_value_and_sharers_follow_their_own_physics(tmp_path, street):
+    model = load_model(tiny_model(tmp_path))
+    pred = predict_points(model, street.xyz, HDL64, labels=street.labels,
+                          label_set="semantickitti", ring=street.ring)  # fmt: skip
+    n = len(street.xyz)
+    assert pred.reflectivity.shape == pred.encoded.shape == (n,)
+    assert np.isfinite(pred.reflectivity).all()
+    # 512 beams per ring in 2048 columns never share; a 256-column image would. Rebuild the
+    # owner relation to check the rule on the sharers the model saw.
+    image = project(street.xyz, HDL64, channel=street.ring)
+    owner = image.index[image.row, image.col]
+    sharers = np.flatnonzero(owner != np.arange(n))
+    assert np.array_equal(pred.owner, owner == np.arange(n))
+    if sharers.size:
+        fi = frame_image(street.xyz, HDL64, labels=street.labels, label_set="semantickitti",
+                         ring=street.ring)  # fmt: skip
+        spec = model.meta.targets["kitti"]
+        f = spec.floor
+        ln_ratio = np.log(fi.physics[sharers] + 1e-6) - np.log(fi.physics[owner[sharers]] + 1e-6)
+        expected = np.log(pred.reflectivity[owner[sharers]] + f) + np.clip(
+            ln_ratio, -np.log(MAX_SHARED_RATIO), np.log(MAX_SHARED_RATIO)
+        )
+        got = np.log(np.maximum(pred.reflectivity[sharers], 0) + f)
+        ok = pred.reflectivity[sharers] > 0
+        assert np.allclose(got[ok], expected[ok], atol=1e-4)
+
+
+def test_points_sharing_a_pixel_get_distinct_physics_scaled_values(tmp_path):
+    # Two points on one ray direction-bin: the nearer owns the pixel, the farther (same
+    # material, twice the range) must get about half the owner's value with n = 1.
+    model = load_model(tiny_model(tmp_path))
+    base = synth_frame("hdl64e", frames=1, seed=3, index=0, azimuth_bins=512)
+    xyz = np.concatenate([base.xyz, base.xyz[:1] * 2.0]).astype(np.float32)
+    labels = np.concatenate([base.labels, base.labels[:1]])
+    ring = np.concatenate([base.ring, base.ring[:1]])
+    pred = predict_points(model, xyz, HDL64, labels=labels, label_set="semantickitti", ring=ring)
+    near, far = pred.reflectivity[0], pred.reflectivity[-1]
+    assert pred.owner[0] and not pred.owner[-1]
+    f = model.meta.targets["kitti"].floor
+    assert np.log(far + f) == pytest.approx(np.log(near + f) + np.log(0.5), abs=0.05)
+
+
+def test_output_is_in_the_target_encoding(tmp_path, street):
+    kitti = load_model(tiny_model(tmp_path))
+    pred = predict_points(kitti, street.xyz, HDL64, labels=street.labels,
+                          label_set="semantickitti", ring=street.ring)  # fmt: skip
+    steps = pred.encoded / 0.01
+    assert np.allclose(steps, np.rint(steps), atol=1e-4) and pred.encoded.max() <= 0.99
+    nusc_path = tiny_model(tmp_path / "n", sensor="hdl32e")
+    nusc = load_model(nusc_path)
+    pred32 = predict_points(nusc, street.xyz, HDL64, labels=street.labels,
+                            label_set="semantickitti", ring=street.ring)  # fmt: skip
+    assert np.array_equal(pred32.encoded, np.rint(pred32.encoded))
+    assert pred32.encoded.max() <= 255
+
+
+def test_the_output_head_reaches_the_top_of_the_encoding(tmp_path, street):
+    # No tanh cap: a large output must decode to the brightest code (retro-reflectors).
+    path = tiny_model(tmp_path)
+    model = load_model(path)
+    with torch.no_grad():
+        model.generator.linear.bias.fill_(50.0)
+    pred = predict_points(model, street.xyz, HDL64, labels=street.labels,
+                          label_set="semantickitti", ring=street.ring)  # fmt: skip
+    assert pred.encoded.max() == pytest.approx(0.99)
+
+
+def test_missing_weights_name_the_file(tmp_path):
+    with pytest.raises(ModelError, match="not found"):
+        load_model(tmp_path / "nope.pt")
+
+
+def test_corrupt_weights_are_refused(tmp_path):
+    path = tiny_model(tmp_path)
+    data = bytearray(path.read_bytes())
+    path.write_bytes(bytes(data[: len(data) // 2]))
+    with pytest.raises(ModelError, match=str(path.name)):
+        load_model(path)
+
+
+def test_altered_normalisation_statistics_are_refused(tmp_path):
+    path = tiny_model(tmp_path)
+    blob = torch.load(path, weights_only=True)
+    blob["state_dict"]["norm.mean"][0] += 1.0
+    torch.save(blob, path)
+    with pytest.raises(ModelError, match="normalisation statistics"):
+        load_model(path)
+
+
+def test_weights_of_another_feature_version_are_refused(tmp_path):
+    path = tiny_model(tmp_path, feature_version="0")
+    with pytest.raises(ModelError, match="features v0"):
+        load_model(path)
+
+
+def test_weather_model_refuses_a_style_it_was_not_trained_for(tmp_path, street):
+    model = load_model(tiny_model(tmp_path, kind="weather"))
+    with pytest.raises(ModelError, match="rain"):
+        predict_points(model, street.xyz, HDL64, target="rain")
+
+
+def test_weather_output_needs_a_calibration_for_the_output_sensor(tmp_path, street):
+    model = load_model(tiny_model(tmp_path, kind="weather"))
+    ok = predict_points(model, street.xyz, HDL64, target="snow", output_profile=HDL64)
+    assert ok.encoded.shape == (len(street.xyz),)
+    with pytest.raises(ModelError, match="no calibration for sensor 'hdl32e'"):
+        predict_points(model, street.xyz, HDL64, target="snow", output_profile=HDL32)
+
+
+def test_a_frame_that_is_not_a_scan_of_the_profile_is_refused(tmp_path, street):
+    model = load_model(tiny_model(tmp_path))
+    tilted = street.xyz.copy()
+    tilted[:, 2] += 40.0  # everything far above the HDL-64E's field of view
+    with pytest.raises(InvalidPointsError, match="field of view"):
+        predict_points(model, tilted, HDL64)
+
+
+def test_style_without_style_channels_is_a_config_error(street):
+    with pytest.raises(ConfigError):
+        frame_image(street.xyz, HDL64, style="snow")
+
+
+def test_every_error_is_a_lads_error():
+    assert issubclass(ModelError, LadsError)
