@@ -32,7 +32,7 @@ from lads.finalise import (
     identity,
 )
 from lads.frame import Item
-from lads.worker import STATE_DIR, BuildPlan, process_item, reader_for, state_path
+from lads.worker import STATE_DIR, BuildPlan, process_item, reader_for, stages_for, state_path
 
 __all__ = [
     "MANIFEST", "NOT_SUMMED", "PIPELINE_YAML", "RUN_JSON", "RUN_REPORT", "SHA256SUMS",
@@ -243,6 +243,7 @@ def run_build(
     _check_paths(source_root, out_root)
     options = freeze_options(reader_options or {})
     plan = BuildPlan(source, str(source_root), str(out_root), options, pipeline, seed)
+    stages_for(pipeline)  # a bad stage (e.g. missing weights) stops here, before any output
     reader = reader_for(plan)
     items = reader.items()[:limit] if limit else reader.items()
     out_root.mkdir(parents=True, exist_ok=True)

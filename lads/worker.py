@@ -56,7 +56,7 @@ def _reader(source: str, root: str, options: tuple[tuple[str, Any], ...]) -> Rea
 _STAGE_CACHE: dict[str, tuple[Stage, ...]] = {}
 
 
-def _stages(pipeline: PipelineConfig) -> tuple[Stage, ...]:
+def stages_for(pipeline: PipelineConfig) -> tuple[Stage, ...]:
     key = pipeline.config_hash()
     if key not in _STAGE_CACHE:
         _STAGE_CACHE[key] = tuple(build_stage(s) for s in pipeline.stages)
@@ -78,7 +78,7 @@ def transform(item: Item, plan: BuildPlan) -> tuple[Frame, list[EncodedFile], di
     source = reader.read(item)
     frame = source
     stage_rows = []
-    for spec, stage in zip(plan.pipeline.stages, _stages(plan.pipeline), strict=True):
+    for spec, stage in zip(plan.pipeline.stages, stages_for(plan.pipeline), strict=True):
         entropy = seed_entropy(plan.seed, item.item_id, plan.pipeline.variant, stage.name)
         frame = stage(frame, rng_for(plan.seed, item.item_id, plan.pipeline.variant, stage.name))
         stage_rows.append(

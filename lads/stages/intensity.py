@@ -18,13 +18,14 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass, replace
+from pathlib import Path
 
 import numpy as np
 
 from lads.config import StageConfig
 from lads.errors import ConfigError, LadsError, StageError
 from lads.frame import Frame
-from lads.intensity.checkpoint import IntensityModel, resolve_model
+from lads.intensity.checkpoint import IntensityModel, file_sha256, resolve_model
 from lads.intensity.features import label_set_for
 from lads.intensity.predict import predict_points
 from lads.physics.projection import MIN_RANGE_M
@@ -32,6 +33,11 @@ from lads.sensors.profile import load_profile
 
 # Bump when the stage's output bytes change for the same input and weights.
 INTENSITY_STAGE_VERSION = "1"
+
+
+@functools.lru_cache(maxsize=8)
+def _weights_hash(path: str) -> str:
+    return file_sha256(Path(path))[:16]
 
 
 @functools.lru_cache(maxsize=8)
@@ -66,8 +72,9 @@ class IntensityStage:
                 "'target' and 'device'."
             )
         stage = cls(**params)
-        _model(stage.model, stage.device)  # missing or bad weights fail before any frame
-        return stage
+        model = _model(stage.model, stage.device)  # missing or bad weights fail here, early
+        # The weights are part of the stage's identity: the manifest records their hash.
+        return replace(stage, version=f"{INTENSITY_STAGE_VERSION}+{_weights_hash(model.path)}")
 
     def __call__(self, frame: Frame, rng: np.random.Generator) -> Frame:
         where = frame.item.item_id

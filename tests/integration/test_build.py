@@ -41,6 +41,9 @@ def source(tmp_path_factory) -> Path:
 
 
 def snow(**overrides):
+    # The builder's machinery on small random trees: physics intensity (the learned stage
+    # has its own tests in test_build_intensity.py).
+    overrides.setdefault("intensity", "physics")
     return load_pipeline(find_pipeline("semantickitti", "snow")).with_overrides(**overrides)
 
 

@@ -20,6 +20,7 @@ from lads.verify import verify_tree
 
 
 def pipeline(source: str, variant: str, **overrides):
+    overrides.setdefault("intensity", "physics")  # learned stage: test_build_intensity.py
     return load_pipeline(find_pipeline(source, variant)).with_overrides(**overrides)
 
 
