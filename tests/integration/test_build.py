@@ -217,8 +217,8 @@ def test_killed_build_resumes_to_identical_bytes(source, built, tmp_path):
     """SIGKILL a CLI build mid-way, run it again: the tree equals the uninterrupted one."""
     out = tmp_path / "killed"
     cmd = [sys.executable, "-m", "lads.cli", "build", "--source", "semantickitti",
-           "--variant", "snow", "--rate-mm-h", "10", "--in", str(source), "--out", str(out),
-           "--no-figures"]  # fmt: skip
+           "--variant", "snow", "--intensity", "physics", "--rate-mm-h", "10",
+           "--in", str(source), "--out", str(out), "--no-figures"]  # fmt: skip
     proc = subprocess.Popen(
         cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True
     )
