@@ -57,12 +57,14 @@ def main() -> dict[str, Any]:
                 "image": list(fi.inputs.shape[1:]),
                 "network_ms": _median_ms(lambda fi=fi: predict_image(model, fi)),
                 "features_ms": _median_ms(
-                    lambda f=frame: frame_image(f.xyz, profile, labels=f.labels,
-                                                label_set="semantickitti")  # fmt: skip
+                    lambda f=frame: frame_image(
+                        f.xyz, profile, labels=f.labels, label_set="semantickitti"
+                    )  # fmt: skip
                 ),
                 "frame_ms": _median_ms(
-                    lambda f=frame: predict_points(model, f.xyz, profile, labels=f.labels,
-                                                   label_set="semantickitti")  # fmt: skip
+                    lambda f=frame: predict_points(
+                        model, f.xyz, profile, labels=f.labels, label_set="semantickitti"
+                    )  # fmt: skip
                 ),
             }
         )

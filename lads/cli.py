@@ -207,7 +207,8 @@ def weather(
 )
 @click.option("--particle-label", type=int, help="Label of particle returns in physical mode.")
 @click.option(
-    "--intensity", "intensity_model",
+    "--intensity",
+    "intensity_model",
     help="'physics' keeps the physics intensity (drops the learned intensity stage); a shipped "
     "model name or .pt path replaces the pipeline's model.",
 )
@@ -234,8 +235,9 @@ def build(
     source: str, variant: str | None, pipeline_file: Path | None, source_root: Path, out_root: Path,
     seed: int, rate_mm_h: float | None, visibility_m: float | None, mode: str | None,
     points: str | None, particle_label: int | None, intensity_model: str | None,
-    device: str | None, sequences: str | None, nuscenes_version: str | None, include_sweeps: bool, jobs: int, backend: str,
-    scheduler: str | None, fail_fast: bool, limit: int | None, figures: bool,
+    device: str | None, sequences: str | None, nuscenes_version: str | None,
+    include_sweeps: bool, jobs: int, backend: str, scheduler: str | None, fail_fast: bool,
+    limit: int | None, figures: bool,
 ) -> None:  # fmt: skip
     """Build a variant tree: one output item per source item, same format and layout."""
     from lads.config import find_pipeline, load_pipeline

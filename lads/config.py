@@ -102,8 +102,8 @@ class PipelineConfig:
 
         Stage parameters (rate_mm_h, visibility_m, mode, device) go to every stage that
         accepts them; `intensity="physics"` drops the learned intensity stage and any other
-        value names its model; `points` and `particle_label` go to the writer. A stage parameter no stage
-        accepts is an error, so `--visibility-m` on a snow pipeline is refused.
+        value names its model; `points` and `particle_label` go to the writer. A stage
+        parameter no stage accepts is an error, so `--visibility-m` on a snow pipeline is refused.
         """
         given = {k: v for k, v in overrides.items() if v is not None}
         top = {k: given.pop(k) for k in ("points", "particle_label") if k in given}

@@ -28,6 +28,7 @@ from joblib import Parallel, delayed
 from tqdm.auto import tqdm
 
 from lads.errors import LadsError, TrainingError
+from lads.frame import Frame, Item
 from lads.intensity.features import (
     FEATURE_VERSION,
     NORMALISED_CHANNELS,
@@ -36,7 +37,6 @@ from lads.intensity.features import (
     frame_image,
     label_set_for,
 )
-from lads.frame import Frame, Item
 from lads.intensity.train_config import DomainSpec, PairSpec, TrainConfig
 from lads.sensors.profile import load_profile
 

@@ -37,10 +37,15 @@ def _frames_of(domain: DomainSpec, relpaths: list[str], kind: str) -> list[Any]:
         ring = frame.points[keep, frame.columns.index("ring")] if "ring" in frame.columns else None
         out.append(
             EvalFrame(
-                name=rel, xyz=frame.xyz[keep], intensity=frame.intensity[keep],
-                profile=load_profile(domain.sensor or frame.sensor), labels=labels,
+                name=rel,
+                xyz=frame.xyz[keep],
+                intensity=frame.intensity[keep],
+                profile=load_profile(domain.sensor or frame.sensor),
+                labels=labels,
                 label_set=label_set_for(domain.dataset) if labels is not None else None,
-                ring=ring, particle=particle, extinction_per_m=domain.extinction_per_m,
+                ring=ring,
+                particle=particle,
+                extinction_per_m=domain.extinction_per_m,
             )  # fmt: skip
         )
     return out

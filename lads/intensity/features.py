@@ -177,9 +177,13 @@ def frame_image(
         "particle": is_particle.astype(np.float32),
         "ln_geometry": np.log(
             physics_intensity(
-                np.ones(n), cos, r, range_exponent=range_exponent,
+                np.ones(n),
+                cos,
+                r,
+                range_exponent=range_exponent,
                 extinction_per_m=extinction_per_m,
-            ).astype(np.float64) + GEOMETRY_FLOOR
+            ).astype(np.float64)
+            + GEOMETRY_FLOOR
         ),  # fmt: skip
     }
     for name, values in per_point.items():

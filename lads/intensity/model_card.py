@@ -100,7 +100,8 @@ def render_card(cfg: TrainConfig, weights: Path, results: dict[str, Any]) -> str
               "Paired: the held-out real frame's geometry and labels are the input; the "
               "prediction is compared with the real intensity of the same points. Cell "
               "metrics: Wasserstein-1 and KS per class x range bin x incidence bin, weighted "
-              "by count. Produced by `lads eval-intensity` at the time of training.", ""]  # fmt: skip
+              "by count. Produced by `lads eval-intensity` at the time of training.",
+              ""]  # fmt: skip
     if results:
         lines += _metrics_table(results)
     else:

@@ -35,7 +35,7 @@ from tqdm.auto import tqdm
 
 from lads.errors import TrainingError
 from lads.files import atomic_write
-from lads.intensity.cache import CacheJob, CachedFrame, build_cache, compute_statistics, read_frame
+from lads.intensity.cache import CachedFrame, CacheJob, build_cache, compute_statistics, read_frame
 from lads.intensity.checkpoint import ModelMeta, TargetSpec, save_model
 from lads.intensity.features import (
     FEATURE_VERSION,
@@ -136,7 +136,9 @@ class Nets(torch.nn.Module):
                 names, ("ln_range", "cos_incidence", "reflectance"), cfg.disc_base
             )
 
-    def pick(self, raw: torch.Tensor, names: tuple[str, ...], **extra: torch.Tensor) -> torch.Tensor:
+    def pick(
+        self, raw: torch.Tensor, names: tuple[str, ...], **extra: torch.Tensor
+    ) -> torch.Tensor:
         """Stack the named channels: from `raw` by name, or given as (B, 1, H, W) tensors."""
         planes = [extra[n] if n in extra else raw[:, self.channels.index(n)][:, None]
                   for n in names]  # fmt: skip
@@ -314,12 +316,16 @@ def _step(
         pm_s, pm_t = Discriminator.patch_mask(s.mask), Discriminator.patch_mask(t.mask)
         real_in = nets.pick(t.raw, names, z_intensity=t.z)
         fake_in = nets.pick(s.raw, names, z_intensity=fake)
-        d_total = d_total + 0.5 * (masked_mse_to(d_t(real_in, t.mask), 1.0, pm_t)
-                                   + masked_mse_to(d_t(fake_in, s.mask), 0.0, pm_s))
+        d_total = d_total + 0.5 * (
+            masked_mse_to(d_t(real_in, t.mask), 1.0, pm_t)
+            + masked_mse_to(d_t(fake_in, s.mask), 0.0, pm_s)
+        )
         real_s = nets.pick(s.raw, nets.ds_channels)
         fake_s = nets.pick(t.raw, nets.ds_channels, reflectance=rho_t)
-        d_total = d_total + 0.5 * (masked_mse_to(nets.d_s(real_s, s.mask), 1.0, pm_s)
-                                   + masked_mse_to(nets.d_s(fake_s, t.mask), 0.0, pm_t))
+        d_total = d_total + 0.5 * (
+            masked_mse_to(nets.d_s(real_s, s.mask), 1.0, pm_s)
+            + masked_mse_to(nets.d_s(fake_s, t.mask), 0.0, pm_t)
+        )
     opt_d.zero_grad(set_to_none=True)
     d_total.backward()
     opt_d.step()
@@ -420,8 +426,11 @@ def write_loss_figure(history: list[dict[str, float]], path: Path, title: str) -
         return
     fig, axes = plt.subplots(1, 2, figsize=(11, 3.6))
     steps = np.arange(1, len(history) + 1)
-    for ax, names in ((axes[0], ("generator", "critic")),
-                      (axes[1], ("adversarial", "cycle", "physics", "identity", "style"))):  # fmt: skip
+    panels = (
+        (axes[0], ("generator", "critic")),
+        (axes[1], ("adversarial", "cycle", "physics", "identity", "style")),
+    )
+    for ax, names in panels:
         for name in names:
             values = np.array([h[name] for h in history])
             if not np.any(values):

@@ -8,4 +8,11 @@ SemanticKITTI, nuScenes-lidarseg or Voxelscape tree. The CLI command is
 from lads.synth.frames import SynthFrame, synth_frame, synth_frames
 from lads.synth.writer import LAYOUTS, SynthSummary, write_synthetic_dataset
 
-__all__ = ["LAYOUTS", "SynthFrame", "SynthSummary", "synth_frame", "synth_frames", "write_synthetic_dataset"]
+__all__ = [
+    "LAYOUTS",
+    "SynthFrame",
+    "SynthSummary",
+    "synth_frame",
+    "synth_frames",
+    "write_synthetic_dataset",
+]
