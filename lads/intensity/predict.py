@@ -80,8 +80,16 @@ def predict_image(
         )
     raw = torch.from_numpy(np.ascontiguousarray(fi.inputs))[None].to(device)
     mask = raw[:, fi.channels.index("mask") : fi.channels.index("mask") + 1]
-    with torch.inference_mode():
-        z = model.generator(raw, mask)
+    # One thread: CPU convolutions split work by thread count, which changes float sums in
+    # the last bits and can flip a quantisation step; a build worker and `lads verify
+    # --regenerate` in the main process must produce the same bytes.
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        with torch.inference_mode():
+            z = model.generator(raw, mask)
+    finally:
+        torch.set_num_threads(threads)
     return z[0, 0].float().cpu().numpy()
 
 
