@@ -13,6 +13,7 @@ import numpy as np
 import numpy.typing as npt
 
 from lads import provenance
+from lads.files import atomic_write_figure
 from lads.physics.projection import project
 from lads.physics.result import Outcome
 from lads.sensors.profile import load_profile
@@ -35,11 +36,8 @@ def _plt() -> Any:
 
 
 def _save(fig: Any, path: Path) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.stem + ".tmp.png")
-    fig.savefig(tmp, dpi=100)
+    atomic_write_figure(fig, path, dpi=100)
     _plt().close(fig)
-    tmp.replace(path)
 
 
 def _scan(path: Path, columns: int) -> npt.NDArray[np.float32]:

@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import hashlib
+import io
 import os
 import shutil
 from pathlib import Path
+from typing import Any
 
 TMP_SUFFIX = ".lads-tmp"
 
@@ -33,6 +35,13 @@ def atomic_copy(source: Path, target: Path) -> None:
 
 def sha256_bytes(payload: bytes) -> str:
     return hashlib.sha256(payload).hexdigest()
+
+
+def atomic_write_figure(fig: Any, path: Path, *, dpi: int) -> None:
+    """Render a matplotlib figure to PNG and write it with `atomic_write`."""
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png", dpi=dpi)
+    atomic_write(Path(path), buffer.getvalue())
 
 
 def sha256_file(path: Path) -> str:

@@ -13,6 +13,7 @@ pixels only* and keyed to the run's data hash (physics.md §10.4, §10.7 item 6)
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import urllib.parse
@@ -38,7 +39,8 @@ from lads.intensity.features import (
     label_set_for,
 )
 from lads.intensity.train_config import DomainSpec, PairSpec, TrainConfig
-from lads.sensors.profile import load_profile
+from lads.physics.projection import MIN_RANGE_M
+from lads.sensors.profile import SensorProfile, load_profile
 
 CACHE_NAME = "cache.zarr"
 # Bare nuScenes LIDAR_TOP .pcd.bin files under a root (no devkit tables, no labels).
@@ -140,18 +142,75 @@ def _raw_nuscenes_frame(domain: DomainSpec, relpath: str) -> Frame:
     return Frame.from_source(item, "hdl32e", ("x", "y", "z", "intensity", "ring"), points, None)
 
 
-def _reader(domain: DomainSpec) -> Any:
+@functools.lru_cache(maxsize=4)
+def _reader_items(dataset: str, root: str) -> tuple[Any, dict[str, Item]]:
+    """A reader and its items by relpath, made once per process (walking a full nuScenes
+    database takes a minute; it must not happen per frame)."""
     from lads.readers import get_reader
 
-    return get_reader(domain.dataset, str(domain.root_path()))
+    reader = get_reader(dataset, root)
+    return reader, {item.relpath: item for item in reader.items()}
+
+
+def _reader(domain: DomainSpec) -> Any:
+    return _reader_items(domain.dataset, str(domain.root_path()))[0]
+
+
+@dataclass(frozen=True, slots=True)
+class DomainFrame:
+    """One real frame of a domain, ready for `frame_image`.
+
+    Attributes:
+        frame: the frame after the domain's physics weather (if any), zero-range points
+            (lost beams, nuScenes ego returns) removed.
+        profile: its sensor profile.
+        label_set: material label set of its labels, None when unlabelled.
+        ring: (N,) ring column or None.
+        particle: (N,) bool labelled weather particles (weather models, real recordings).
+        extinction_per_m: alpha of the frame's weather, 1/m.
+    """
+
+    frame: Frame
+    profile: SensorProfile
+    label_set: str | None
+    ring: npt.NDArray[np.float32] | None
+    particle: npt.NDArray[np.bool_] | None
+    extinction_per_m: float
+
+
+def read_domain_frame(domain: DomainSpec, relpath: str, *, weather_model: bool) -> DomainFrame:
+    """Read one frame of a real domain (reader or bare nuScenes scans) and prepare it."""
+    from lads.seeding import rng_for
+    from lads.stages.weather import WeatherStage
+
+    if domain.dataset == RAW_NUSCENES:
+        reader = None
+        frame = _raw_nuscenes_frame(domain, relpath)
+    else:
+        reader, items = _reader_items(domain.dataset, str(domain.root_path()))
+        frame = reader.read(items[relpath])
+    extinction = domain.extinction_per_m
+    if domain.weather:
+        params = {k: v for k, v in domain.weather.items() if k != "stage"}
+        stage = WeatherStage(name=domain.weather["stage"], **params)
+        frame = stage(frame, rng_for(domain.seed, frame.item.item_id, "train", stage.name))
+        extinction = float(frame.condition("extinction_per_m", 0.0))  # type: ignore[arg-type]
+    keep = np.flatnonzero(np.linalg.norm(frame.xyz.astype(np.float64), axis=1) > MIN_RANGE_M)
+    frame = frame.select(keep, outcome=frame.outcome[keep], lost_rows=np.zeros(0, np.int64),
+                         points=frame.points[keep])  # fmt: skip
+    particle = None
+    if weather_model and reader is not None and frame.labels is not None and not domain.weather:
+        # Real weather recordings label their particles (WADS 110 = falling snow).
+        particle = (frame.labels.astype(np.int64) & 0xFFFF) == reader.particle_label
+    ring = frame.points[:, frame.columns.index("ring")] if "ring" in frame.columns else None
+    label_set = label_set_for(domain.dataset) if frame.labels is not None else None
+    profile = load_profile(domain.sensor or frame.sensor)
+    return DomainFrame(frame, profile, label_set, ring, particle, extinction)
 
 
 def job_image(job: CacheJob) -> tuple[FrameImage, float, str]:
     """The FrameImage of one job, the extinction (1/m) it was made with and its sensor
     profile name (pure computation apart from reading the source frame)."""
-    from lads.seeding import rng_for
-    from lads.stages.weather import WeatherStage
-
     domain = job.domain
     styles = job.kind == "weather"
     style = job.pair if styles else None
@@ -171,39 +230,14 @@ def job_image(job: CacheJob) -> tuple[FrameImage, float, str]:
             range_exponent=job.range_exponent,
         )  # fmt: skip
         return fi, 0.0, profile.name
-    if domain.dataset == RAW_NUSCENES:
-        reader = None
-        frame = _raw_nuscenes_frame(domain, job.frame)
-    else:
-        reader = _reader(domain)
-        frame = reader.read(next(i for i in reader.items() if i.relpath == job.frame))
-    item = frame.item
-    extinction = domain.extinction_per_m
-    if domain.weather:
-        params = {k: v for k, v in domain.weather.items() if k != "stage"}
-        stage = WeatherStage(name=domain.weather["stage"], **params)
-        frame = stage(frame, rng_for(domain.seed, item.item_id, "train", stage.name))
-        extinction = float(frame.condition("extinction_per_m", 0.0))  # type: ignore[arg-type]
-    profile = load_profile(domain.sensor or frame.sensor)
-    label_set = label_set_for(domain.dataset) if frame.labels is not None else None
-    particle = None
-    if styles and reader is not None and frame.labels is not None and not domain.weather:
-        # Real weather recordings label their particles (WADS 110 = falling snow).
-        particle = (frame.labels.astype(np.int64) & 0xFFFF) == reader.particle_label
-    ring = frame.points[:, frame.columns.index("ring")] if "ring" in frame.columns else None
-    nonzero = np.linalg.norm(frame.xyz, axis=1) > 1e-6  # lost or ego points at the origin
+    d = read_domain_frame(domain, job.frame, weather_model=styles)
     fi = frame_image(
-        frame.xyz[nonzero], profile,
-        labels=None if frame.labels is None else frame.labels[nonzero],
-        label_set=label_set,
-        ring=None if ring is None else ring[nonzero],
-        intensity=frame.intensity[nonzero],
-        outcome=frame.outcome[nonzero],
-        particle=None if particle is None else particle[nonzero],
+        d.frame.xyz, d.profile, labels=d.frame.labels, label_set=d.label_set, ring=d.ring,
+        intensity=d.frame.intensity, outcome=d.frame.outcome, particle=d.particle,
         style=style, styles=styles, range_exponent=job.range_exponent,
-        extinction_per_m=extinction,
+        extinction_per_m=d.extinction_per_m,
     )  # fmt: skip
-    return fi, extinction, profile.name
+    return fi, d.extinction_per_m, d.profile.name
 
 
 def _build_one(root: str, job: CacheJob) -> str:

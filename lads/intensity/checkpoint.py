@@ -257,7 +257,3 @@ def resolve_model(name_or_path: str, *, device: str = "cpu") -> IntensityModel:
     if name_or_path in SHIPPED:
         return load_model(shipped_path(name_or_path), device=device)
     return load_model(name_or_path, device=device)
-
-
-def file_sha256(path: Path) -> str:
-    return hashlib.sha256(Path(path).read_bytes()).hexdigest()

@@ -16,36 +16,23 @@ from lads.intensity.train_config import DomainSpec, PairSpec, TrainConfig, load_
 
 def _frames_of(domain: DomainSpec, relpaths: list[str], kind: str) -> list[Any]:
     """EvalFrames of some items of a (real) domain."""
-    from lads.intensity.cache import RAW_NUSCENES, _raw_nuscenes_frame, _reader
+    from lads.intensity.cache import read_domain_frame
     from lads.intensity.evaluate import EvalFrame
-    from lads.intensity.features import label_set_for
-    from lads.sensors.profile import load_profile
 
     out = []
-    reader = None if domain.dataset == RAW_NUSCENES else _reader(domain)
-    items = {} if reader is None else {i.relpath: i for i in reader.items()}
     for rel in relpaths:
-        if reader is None:
-            frame = _raw_nuscenes_frame(domain, rel)
-        else:
-            frame = reader.read(items[rel])
-        keep = np.linalg.norm(frame.xyz.astype(np.float64), axis=1) > 1e-6
-        labels = None if frame.labels is None else frame.labels[keep]
-        particle = None
-        if kind == "weather" and labels is not None and reader is not None:
-            particle = (labels.astype(np.int64) & 0xFFFF) == reader.particle_label
-        ring = frame.points[keep, frame.columns.index("ring")] if "ring" in frame.columns else None
+        d = read_domain_frame(domain, rel, weather_model=kind == "weather")
         out.append(
             EvalFrame(
                 name=rel,
-                xyz=frame.xyz[keep],
-                intensity=frame.intensity[keep],
-                profile=load_profile(domain.sensor or frame.sensor),
-                labels=labels,
-                label_set=label_set_for(domain.dataset) if labels is not None else None,
-                ring=ring,
-                particle=particle,
-                extinction_per_m=domain.extinction_per_m,
+                xyz=d.frame.xyz,
+                intensity=d.frame.intensity,
+                profile=d.profile,
+                labels=d.frame.labels,
+                label_set=d.label_set,
+                ring=d.ring,
+                particle=d.particle,
+                extinction_per_m=d.extinction_per_m,
             )  # fmt: skip
         )
     return out

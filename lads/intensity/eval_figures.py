@@ -7,7 +7,6 @@ encoding, the units a user of the dataset sees.
 
 from __future__ import annotations
 
-import io
 import math
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -17,7 +16,7 @@ import numpy as np
 import numpy.typing as npt
 
 from lads.errors import InputDataError
-from lads.files import atomic_write
+from lads.files import atomic_write_figure
 from lads.intensity.evaluate import EvalFrame, class_ids, unchanged_intensity
 from lads.physics.materials import class_materials
 from lads.physics.projection import project
@@ -263,6 +262,4 @@ def _agg(fig: Any) -> None:
 
 
 def _save(fig: Any, out: Path) -> None:
-    buffer = io.BytesIO()
-    fig.savefig(buffer, format="png", dpi=DPI)
-    atomic_write(Path(out), buffer.getvalue())
+    atomic_write_figure(fig, Path(out), dpi=DPI)

@@ -12,8 +12,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from lads.files import atomic_write
-from lads.intensity.checkpoint import file_sha256, load_model
+from lads.files import atomic_write, sha256_file
+from lads.intensity.checkpoint import load_model
 from lads.intensity.train_config import REPO_ROOT, TrainConfig, load_train_config
 
 TERMS = {
@@ -77,7 +77,7 @@ def render_card(cfg: TrainConfig, weights: Path, results: dict[str, Any]) -> str
         f"# Intensity model `{cfg.name}`", "",
         cfg.description, "",
         f"- file: `{weights.name}`, {weights.stat().st_size / 1e6:.2f} MB, "
-        f"sha256 `{file_sha256(weights)}`",
+        f"sha256 `{sha256_file(weights)}`",
         f"- kind: {cfg.kind}; targets: {', '.join(sorted(model.meta.targets))}; "
         f"generator parameters: {sum(p.numel() for p in model.generator.parameters())}",
         f"- made by: `make train` (`lads train {config_rel}`), seed {cfg.seed}, "

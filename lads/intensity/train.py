@@ -34,7 +34,7 @@ import torch
 from tqdm.auto import tqdm
 
 from lads.errors import TrainingError
-from lads.files import atomic_write
+from lads.files import atomic_write, atomic_write_figure
 from lads.intensity.cache import CachedFrame, CacheJob, build_cache, compute_statistics, read_frame
 from lads.intensity.checkpoint import ModelMeta, TargetSpec, save_model
 from lads.intensity.features import (
@@ -446,7 +446,5 @@ def write_loss_figure(history: list[dict[str, float]], path: Path, title: str) -
     axes[0].set_title(f"{title}: objectives")
     axes[1].set_title("generator terms (unweighted)")
     fig.tight_layout()
-    buffer = io.BytesIO()
-    fig.savefig(buffer, format="png", dpi=110)
+    atomic_write_figure(fig, path, dpi=110)
     plt.close(fig)
-    atomic_write(path, buffer.getvalue())

@@ -24,8 +24,9 @@ import numpy as np
 
 from lads.config import StageConfig
 from lads.errors import ConfigError, LadsError, StageError
+from lads.files import sha256_file
 from lads.frame import Frame
-from lads.intensity.checkpoint import IntensityModel, file_sha256, resolve_model
+from lads.intensity.checkpoint import IntensityModel, resolve_model
 from lads.intensity.features import label_set_for
 from lads.intensity.predict import predict_points
 from lads.physics.projection import MIN_RANGE_M
@@ -37,7 +38,7 @@ INTENSITY_STAGE_VERSION = "1"
 
 @functools.lru_cache(maxsize=8)
 def _weights_hash(path: str) -> str:
-    return file_sha256(Path(path))[:16]
+    return sha256_file(Path(path))[:16]
 
 
 @functools.lru_cache(maxsize=8)
