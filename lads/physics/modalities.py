@@ -43,6 +43,7 @@ import numpy.typing as npt
 from scipy.spatial import cKDTree
 
 from lads.errors import ConfigError, InvalidPointsError
+from lads.physics.image_kernels import image_normals
 from lads.physics.materials import reflectance_for_labels
 from lads.physics.projection import (
     MIN_RANGE_M,
@@ -261,64 +262,6 @@ def compute_modalities(
     return Modalities(range32, chan, inc.cos, inc.source, rho, phys)
 
 
-def _image_normals(
-    image: RangeImage, max_depth_jump: float
-) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.bool_]]:
-    """(H, W, 3) unnormalised normals and (H, W) validity, see the module docstring."""
-    pts = image.xyz.astype(np.float64)
-    rng = image.range_m.astype(np.float64)
-    occ = image.index >= 0
-    ok = occ.copy()
-    diffs = []
-    for axis, max_gap in ((1, MAX_COLUMN_GAP), (0, 1)):
-        sides = [_neighbour(pts, rng, occ, sign, axis, max_gap) for sign in (1, -1)]
-        (p_next, r_next, o_next, gap_next), (p_prev, r_prev, o_prev, gap_prev) = sides
-        # Range linearly interpolated to the centre; twice the deviation is the second
-        # difference |r[+1] - 2 r[0] + r[-1]| when both gaps are 1.
-        interp = (gap_next * r_prev + gap_prev * r_next) / (gap_next + gap_prev)
-        central = o_next & o_prev & (2.0 * np.abs(interp - rng) <= max_depth_jump * rng)
-        # Otherwise a one-sided difference to the neighbour on the same surface (edge pixels,
-        # the top and bottom rows).
-        jump_next = np.where(o_next, np.abs(r_next - rng), np.inf)
-        jump_prev = np.where(o_prev, np.abs(r_prev - rng), np.inf)
-        use_next = jump_next <= jump_prev
-        one_sided = np.minimum(jump_next, jump_prev) <= max_depth_jump * rng
-        side = np.where(use_next[..., None], p_next, p_prev)
-        diffs.append(np.where(central[..., None], p_next - p_prev, side - pts))
-        ok &= central | one_sided
-    normal = np.cross(diffs[0], diffs[1])
-    scale = np.linalg.norm(diffs[0], axis=-1) * np.linalg.norm(diffs[1], axis=-1)
-    ok &= np.linalg.norm(normal, axis=-1) > 1e-6 * scale  # parallel differences: no plane
-    return normal, ok
-
-
-def _neighbour(
-    pts: npt.NDArray[np.float64],
-    rng: npt.NDArray[np.float64],
-    occ: npt.NDArray[np.bool_],
-    sign: int,
-    axis: int,
-    max_gap: int,
-) -> tuple[Any, Any, Any, Any]:
-    """Nearest occupied pixel within max_gap steps of each pixel in one direction.
-
-    Returns its xyz (H, W, 3), range (H, W), found flag (H, W) and distance in pixels.
-    Azimuth (axis 1) wraps; elevation (axis 0) does not.
-    """
-    p_out, r_out = np.zeros_like(pts), np.zeros_like(rng)
-    found, gap = np.zeros_like(occ), np.ones_like(rng)
-    for step in range(max_gap, 0, -1):  # nearer steps overwrite farther ones
-        shift = sign * step
-        o = np.roll(occ, -shift, axis=axis)  # o[v, u] = occ[v, u + shift] (or v + shift)
-        if axis == 0:  # rows rolled in from the other edge are not neighbours
-            o[slice(-shift, None) if shift > 0 else slice(None, -shift)] = False
-        p_out[o] = np.roll(pts, -shift, axis=axis)[o]
-        r_out[o] = np.roll(rng, -shift, axis=axis)[o]
-        gap[o] = step
-        found |= o
-    return p_out, r_out, found, gap
-
-
 def _incidence(
     xyz64: npt.NDArray[np.float64],
     r: npt.NDArray[np.float64],
@@ -330,7 +273,13 @@ def _incidence(
     source = np.full(n_points, IncidenceSource.MEDIAN, dtype=np.int8)
     if n_points == 0:
         return Incidence(cos.astype(np.float32), source)
-    normal, ok = _image_normals(image, max_depth_jump)
+    normal, ok = image_normals(
+        image.xyz.astype(np.float64),
+        image.range_m.astype(np.float64),
+        image.index >= 0,
+        MAX_COLUMN_GAP,
+        float(max_depth_jump),
+    )
     owner_range = image.range_m.astype(np.float64)[image.row, image.col]
     use = ok[image.row, image.col] & (np.abs(r - owner_range) <= max_depth_jump * owner_range)
     cos[use] = _abs_cos(normal[image.row[use], image.col[use]], xyz64[use])
@@ -356,9 +305,10 @@ def _neighbour_cos(
 ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.bool_]]:
     """PCA-normal cosine for the `query` points; (M,) cos and (M,) found flags."""
     k = min(KNN_NEIGHBOURS, len(xyz64))
-    dist, idx = cKDTree(xyz64).query(
-        xyz64[query], k=k, distance_upper_bound=KNN_RADIUS_M, workers=-1
-    )
+    # An unbalanced, uncompacted tree builds ~2x faster and answers the same exact queries;
+    # only the few points without an image normal are queried.
+    tree = cKDTree(xyz64, balanced_tree=False, compact_nodes=False)
+    dist, idx = tree.query(xyz64[query], k=k, distance_upper_bound=KNN_RADIUS_M)
     valid = np.isfinite(dist.reshape(len(query), k))
     count = valid.sum(axis=1)
     # Missing neighbours become the query point itself: offset 0 adds nothing to the sums.

@@ -14,6 +14,7 @@ import numpy as np
 import numpy.typing as npt
 
 from lads.errors import ConfigError, InvalidPointsError
+from lads.physics.image_kernels import pixel_owners
 from lads.sensors.profile import SensorProfile
 
 MIN_RANGE_M = 1e-6  # physics.md §10.3: a point is valid if its range exceeds this
@@ -102,9 +103,8 @@ def project(
 
     Returns:
         RangeImage. Among points sharing a pixel the nearest owns it, ties going to the
-        lower input index: points are ordered by range with a stable sort (nearest first)
-        and the first of each pixel is kept, which equals writing farthest first without
-        relying on the unspecified order of repeated fancy-index assignment.
+        lower input index (one compiled pass, `image_kernels.pixel_owners`; no reliance on
+        the unspecified order of repeated fancy-index assignment).
 
     Raises:
         InvalidPointsError: bad xyz or channel. ConfigError: width < 3.
@@ -186,11 +186,8 @@ def organise(
     u = 0.5 * (-np.arctan2(xyz64[:, 1], xyz64[:, 0]) / np.pi + 1.0) * width
     col = np.floor(u).astype(np.int64) % width  # u == W is azimuth -pi, i.e. column 0
     pixel = row * width + col
-    order = np.argsort(r, kind="stable")
-    _, first = np.unique(pixel[order], return_index=True)
-    owners = order[first]
-    index = np.full(height * width, -1, dtype=np.int64)
-    index[pixel[owners]] = owners
+    index = pixel_owners(pixel, np.ascontiguousarray(r, dtype=np.float64), height * width)
+    owners = index[index >= 0]
     range_img = np.zeros(height * width, dtype=np.float32)
     range_img[pixel[owners]] = r[owners]
     xyz_img = np.zeros((height * width, 3), dtype=np.float32)

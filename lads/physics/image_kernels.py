@@ -1,0 +1,120 @@
+"""Compiled range-image loops (numba, cached on disk): pixel ownership and image normals.
+
+The numpy forms of these loops sort every point and roll (H, W, 3) arrays a dozen times per
+frame; they were most of the intensity stage's time. The loops below do the same arithmetic
+in float64 in the same order, one pass each, so they return the values the numpy forms did.
+The rules themselves are documented in `lads.physics.modalities` and `projection.organise`.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+import numpy.typing as npt
+
+
+@numba.njit(cache=True, nogil=True)
+def pixel_owners(
+    pixel: npt.NDArray[np.int64], range_m: npt.NDArray[np.float64], n_pixels: int
+) -> npt.NDArray[np.int64]:
+    """(n_pixels,) index of the nearest point per pixel (-1 if none), ties to the lower index.
+
+    Args:
+        pixel: (N,) flat pixel of every point, in [0, n_pixels).
+        range_m: (N,) range of every point in m.
+        n_pixels: H * W.
+    """
+    owner = np.full(n_pixels, -1, dtype=np.int64)
+    for i in range(pixel.shape[0]):
+        p = pixel[i]
+        j = owner[p]
+        # Strictly nearer only: scanning in index order leaves ties with the lower index.
+        if j < 0 or range_m[i] < range_m[j]:
+            owner[p] = i
+    return owner
+
+
+@numba.njit(cache=True, nogil=True)
+def image_normals(
+    pts: npt.NDArray[np.float64],
+    rng: npt.NDArray[np.float64],
+    occ: npt.NDArray[np.bool_],
+    max_column_gap: int,
+    max_depth_jump: float,
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.bool_]]:
+    """(H, W, 3) unnormalised normals and (H, W) validity of an organised image.
+
+    Args:
+        pts: (H, W, 3) xyz of the pixel owners in m (0 where empty).
+        rng: (H, W) their ranges in m.
+        occ: (H, W) True where a point owns the pixel.
+        max_column_gap: azimuth neighbours may sit up to this many columns away (wraps).
+        max_depth_jump: relative range tolerance of a smooth surface.
+
+    Elevation neighbours are the adjacent rows only and do not wrap.
+    """
+    height, width = occ.shape
+    normal = np.zeros((height, width, 3))
+    ok = np.zeros((height, width), dtype=np.bool_)
+    diff = np.zeros((2, 3))
+    for v in range(height):
+        for u in range(width):
+            if not occ[v, u]:
+                continue
+            r0 = rng[v, u]
+            good = True
+            for axis in range(2):
+                max_gap = max_column_gap if axis == 0 else 1
+                # Nearest occupied pixel on each side: (row, column, gap), -1 if none.
+                nv = -1
+                nu = -1
+                n_gap = 1.0
+                pv = -1
+                pu = -1
+                p_gap = 1.0
+                for sign in (1, -1):
+                    for step in range(1, max_gap + 1):
+                        if axis == 0:
+                            cv, cu = v, (u + sign * step) % width
+                        else:
+                            cv, cu = v + sign * step, u
+                            if cv < 0 or cv >= height:
+                                break
+                        if occ[cv, cu]:
+                            if sign == 1:
+                                nv, nu, n_gap = cv, cu, float(step)
+                            else:
+                                pv, pu, p_gap = cv, cu, float(step)
+                            break
+                has_next = nv >= 0
+                has_prev = pv >= 0
+                r_next = rng[nv, nu] if has_next else 0.0
+                r_prev = rng[pv, pu] if has_prev else 0.0
+                interp = (n_gap * r_prev + p_gap * r_next) / (n_gap + p_gap)
+                central = has_next and has_prev and 2.0 * abs(interp - r0) <= max_depth_jump * r0
+                jump_next = abs(r_next - r0) if has_next else math.inf
+                jump_prev = abs(r_prev - r0) if has_prev else math.inf
+                one_sided = min(jump_next, jump_prev) <= max_depth_jump * r0
+                for k in range(3):
+                    p_next = pts[nv, nu, k] if has_next else 0.0
+                    p_prev = pts[pv, pu, k] if has_prev else 0.0
+                    if central:
+                        diff[axis, k] = p_next - p_prev
+                    elif jump_next <= jump_prev:
+                        diff[axis, k] = p_next - pts[v, u, k]
+                    else:
+                        diff[axis, k] = p_prev - pts[v, u, k]
+                good = good and (central or one_sided)
+            a0, a1, a2 = diff[0, 0], diff[0, 1], diff[0, 2]
+            b0, b1, b2 = diff[1, 0], diff[1, 1], diff[1, 2]
+            n0 = a1 * b2 - a2 * b1
+            n1 = a2 * b0 - a0 * b2
+            n2 = a0 * b1 - a1 * b0
+            normal[v, u, 0] = n0
+            normal[v, u, 1] = n1
+            normal[v, u, 2] = n2
+            scale = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2) * math.sqrt(b0 * b0 + b1 * b1 + b2 * b2)
+            ok[v, u] = good and math.sqrt(n0 * n0 + n1 * n1 + n2 * n2) > 1e-6 * scale
+    return normal, ok
