@@ -3,7 +3,7 @@
 PY := .venv/bin/python
 STAMP := .venv/.installed
 
-.PHONY: install demo test bench lint release train clean
+.PHONY: install demo test bench bench-diagnose bench-diagnose-ci lint release train clean
 
 install: $(STAMP)
 
@@ -23,6 +23,14 @@ test: install
 
 bench: install
 	$(PY) -m benchmarks.run_all
+
+# The concealed-effect benchmark of `lads diagnose` (discovery.md §6): every case x 20 seeds x
+# both bases (offline, hours), and a CI-sized subset (~5 min).
+bench-diagnose: install
+	$(PY) -m benchmarks.diagnose_bench --full
+
+bench-diagnose-ci: install
+	$(PY) -m benchmarks.diagnose_bench --subset ci
 
 lint: install
 	$(PY) -m ruff check lads tests benchmarks

@@ -7,6 +7,7 @@ message on stderr.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import sys
 from collections.abc import Callable
@@ -334,6 +335,81 @@ def _register_intensity() -> None:
 
 
 _register_intensity()
+
+
+@main.command()
+@click.option(
+    "--sim",
+    "sim_root",
+    required=True,
+    type=click.Path(path_type=Path),
+    help="Simulated tree (the dataset's own layout).",
+)
+@click.option(
+    "--real",
+    "real_root",
+    required=True,
+    type=click.Path(path_type=Path),
+    help="Real tree of the same sensor.",
+)
+@click.option("--source", required=True, type=click.Choice(["semantickitti", "nuscenes", "wads"]))
+@click.option(
+    "--paired/--unpaired",
+    default=True,
+    show_default=True,
+    help="Paired: the same scans (same relative paths). Unpaired: other scenes of "
+    "the same sensor, compared by feature-conditional distributions only.",
+)
+@click.option("--out", required=True, type=click.Path(path_type=Path), help="Report folder.")
+@click.option("--seed", default=0, show_default=True, type=int)
+@click.option(
+    "--write-corrected",
+    "corrected",
+    type=click.Path(path_type=Path),
+    default=None,
+    help="Also write the simulated tree with the fitted effects applied here.",
+)
+@click.option(
+    "--resamples",
+    default=None,
+    type=int,
+    help="Selection reruns on group-bootstrap resamples (stability).",
+)
+@click.option("--bootstrap", default=None, type=int, help="Bootstrap refits for the CIs.")
+@_lads_errors
+def diagnose(
+    sim_root: Path,
+    real_root: Path,
+    source: str,
+    paired: bool,
+    out: Path,
+    seed: int,
+    corrected: Path | None,
+    resamples: int | None,
+    bootstrap: int | None,
+) -> None:
+    """Locate where simulation and reality differ, name and fit the missing physics."""
+    from lads.diagnose.analysis import Settings
+    from lads.diagnose.run import diagnose as run_diagnose
+
+    settings = Settings()
+    if resamples is not None:
+        settings = dataclasses.replace(settings, resamples=resamples)
+    if bootstrap is not None:
+        settings = dataclasses.replace(settings, bootstrap=bootstrap)
+    doc = run_diagnose(
+        sim_root,
+        real_root,
+        source,
+        out,
+        paired=paired,
+        seed=seed,
+        write_corrected_to=corrected,
+        settings=settings,
+        progress=True,
+    )
+    names = ", ".join(f"{e['id']} {e['key']}" for e in doc["effects"]) or "none"
+    click.echo(f"verdict: {doc['verdict']}; effects: {names}; report: {out / 'report.md'}")
 
 
 if __name__ == "__main__":

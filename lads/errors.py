@@ -69,3 +69,7 @@ class ModelError(LadsError):
 
 class TrainingError(LadsError):
     """An intensity training run cannot start or continue (config, cache or checkpoint)."""
+
+
+class DiagnoseError(LadsError):
+    """Two trees cannot be compared by `lads diagnose` (missing, mismatched or other sensor)."""

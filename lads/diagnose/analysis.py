@@ -1,0 +1,352 @@
+"""One diagnosis of a design: selection, stability, ambiguity, uncertainty and held-out
+metrics (discovery.md §5.4-5.7). Pure computation on a `Design`; no files.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+import torch
+from scipy.stats import wasserstein_distance
+
+from lads.diagnose.catalogue import CATALOGUE
+from lads.diagnose.design import Design
+from lads.diagnose.effects import Effect
+from lads.diagnose.model import BASE_NAMES, Fit, fit_best, initial_base
+from lads.diagnose.select import (
+    CLAIM_FREQUENCY,
+    POSSIBLE_FREQUENCY,
+    Selection,
+    Split,
+    bootstrap_params,
+    compare,
+    design_effect_scale,
+    fit_weights,
+    forward_backward,
+    group_multiplicity,
+    pool_for,
+    split_groups,
+)
+
+LONG_RANGE_BAND_M = (30.0, 120.0)
+LONG_RANGE_MIN_SHARE = 0.05  # C5 is named over C1 only with >= 5 % of rows at 30-120 m
+NOISE_SLOPE_Z = 3.0
+
+
+@dataclass(frozen=True)
+class Settings:
+    """Effort knobs of a diagnosis.
+
+    Attributes:
+        fit_rows: training rows per fit (a uniform subsample; groups all stay represented).
+        resamples: group-bootstrap reruns of the selection (stability, §5.5 step 7).
+        bootstrap: group-bootstrap refits of the final model (95 % percentile CIs).
+        k_max: most effects selected.
+    """
+
+    fit_rows: int = 6000
+    resamples: int = 10
+    bootstrap: int = 40
+    k_max: int = 4
+
+
+@dataclass
+class EffectReport:
+    """A selected effect with its parameters, CIs and selection frequency."""
+
+    effect: Effect
+    params: dict[str, Any]
+    ci95: dict[str, Any]
+    selection_frequency: float
+    status: str  # "claimed" | "possible"
+    samples: dict[str, npt.NDArray[np.float64]] = field(default_factory=dict)
+
+
+@dataclass
+class Diagnosis:
+    """Everything the report needs."""
+
+    split: Split
+    selection: Selection
+    final: Fit
+    effects: list[EffectReport]
+    possible: list[dict[str, Any]]
+    alternatives: list[dict[str, Any]]
+    ambiguity_sets: list[dict[str, Any]]
+    noise_model: dict[str, Any]
+    heldout: dict[str, Any]
+    verdict: str
+    reasons: list[str]
+    frequencies: dict[str, float]
+
+
+def diagnose_design(d: Design, rng: np.random.Generator, settings: Settings) -> Diagnosis:
+    """Select, stabilise, quantify and evaluate the effects that explain `d`."""
+    split = split_groups(d, rng)
+    weights = fit_weights(len(d), split.train, settings.fit_rows, rng)
+    pool = pool_for(d, split.train)
+    selection = forward_backward(d, pool, weights, split.validation, k_max=settings.k_max)
+
+    # Stability: rerun the selection on group-bootstrap resamples of the training groups,
+    # over the candidates that helped at all in the first step (the rest never enter).
+    contenders = [e for e in pool
+                  if selection.first_step[e.label].delta > 2.0 * selection.first_step[e.label].se
+                  or e.label in selection.labels]  # fmt: skip
+    counts = dict.fromkeys((e.label for e in pool), 0)
+    for _ in range(settings.resamples):
+        mult = group_multiplicity(d, split.train, rng)
+        w = fit_weights(len(d), split.train, settings.fit_rows, rng, mult)
+        chosen = forward_backward(d, contenders, w, split.validation, k_max=settings.k_max)
+        for label in chosen.labels:
+            counts[label] += 1
+    n_res = max(settings.resamples, 1)
+    freq = {k: v / n_res for k, v in counts.items()}
+    if settings.resamples == 0:
+        freq = {k: 1.0 if k in selection.labels else 0.0 for k in counts}
+
+    # Final model on train + validation, bootstrap CIs on the same rows.
+    fit_all = np.concatenate([split.train, split.validation])
+    w_all = fit_weights(len(d), fit_all, settings.fit_rows * 2, rng)
+    base = initial_base(d, fit_all)
+    final = fit_best(selection.fit.model, d, w_all, base, selection.fit)
+    boot = bootstrap_params(final, d, fit_all, settings.fit_rows, settings.bootstrap, rng)
+
+    effects, possible = [], []
+    for e, sl in zip(final.model.effects, final.model.slices(), strict=True):
+        theta = final.theta[sl]
+        params = e.export(theta)
+        samples = np.array([e.export(b[sl]) for b in boot], dtype=object)
+        ci = _ci(params, list(samples))
+        f = freq.get(e.label, 0.0)
+        status = "claimed" if f >= CLAIM_FREQUENCY else "possible"
+        effects.append(EffectReport(e, params, ci, f, status, _sample_arrays(params, samples)))
+    for e in pool:
+        f = freq.get(e.label, 0.0)
+        if e.label not in selection.labels and f >= POSSIBLE_FREQUENCY:
+            possible.append({"id": e.info.id, "key": e.info.key, "label": e.label,
+                             "selection_frequency": f})  # fmt: skip
+
+    alternatives, sets = _ambiguity(d, selection, pool, weights, split)
+    reasons: list[str] = []
+    sets += _range_band_rule(d, selection, reasons)
+    noise = _noise_model(final, d, boot)
+    heldout = heldout_metrics(d, split.test, selection.baseline, final)
+    claimed = [r for r in effects if r.status == "claimed"]
+    ambiguous_ids = {i for s in sets for i in s["ids"]}
+    if not claimed:
+        verdict = "no_missing_physics"
+        if possible:
+            reasons.append("effects were selected in fewer than 70 % of the resamples")
+    elif all(r.effect.info.id in ambiguous_ids for r in claimed):
+        verdict = "ambiguous"
+    else:
+        verdict = "effects_found"
+    return Diagnosis(split, selection, final, effects, possible, alternatives, sets, noise,
+                     heldout, verdict, reasons, freq)  # fmt: skip
+
+
+def _ci(params: dict[str, Any], samples: list[dict[str, Any]]) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for name, value in params.items():
+        vals = [s[name] for s in samples if name in s]
+        if not vals:
+            out[name] = None
+            continue
+        if isinstance(value, list):
+            arr = np.array([v for v in vals if len(v) == len(value)], dtype=np.float64)
+            if arr.size == 0:
+                out[name] = None
+                continue
+            lo, hi = np.percentile(arr, [2.5, 97.5], axis=0)
+            out[name] = [[float(a), float(b)] for a, b in zip(lo, hi, strict=True)]
+        else:
+            lo, hi = np.percentile(np.asarray(vals, dtype=np.float64), [2.5, 97.5])
+            out[name] = [float(lo), float(hi)]
+    return out
+
+
+def _sample_arrays(params: dict[str, Any], samples: Any) -> dict[str, npt.NDArray[np.float64]]:
+    out = {}
+    for name, value in params.items():
+        if not isinstance(value, list):
+            out[name] = np.array([s[name] for s in samples], dtype=np.float64)
+    return out
+
+
+def _ambiguity(
+    d: Design,
+    sel: Selection,
+    pool: list[Effect],
+    weights: npt.NDArray[np.float64],
+    split: Split,
+) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
+    """Unselected candidates that, swapped in for a selected effect, fit within 1 SE."""
+    alternatives, sets = [], []
+    chosen = sel.fit
+    if not chosen.model.effects:
+        return alternatives, sets
+    scale = design_effect_scale(d, np.flatnonzero(weights > 0))
+    base = initial_base(d, np.flatnonzero(weights > 0))
+    selected = set(sel.labels)
+    ranked = sorted(sel.first_step.items(), key=lambda kv: -kv[1].delta)
+    top = {label for label, _ in ranked[:4]}
+    for e in chosen.model.effects:
+        members = [e.info.id]
+        for cand in pool:
+            if cand.label in selected:
+                continue
+            if cand.info.id not in e.info.confounds and cand.label not in top:
+                continue
+            swapped = fit_best(chosen.model.without(e.label).with_effect(cand), d, weights,
+                               base, chosen)  # fmt: skip
+            c = compare(chosen, swapped, d, split.validation, scale, float(weights.sum()))
+            if c.delta <= c.se:
+                members.append(cand.info.id)
+                alternatives.append({
+                    "id": cand.info.id, "key": cand.info.key, "label": cand.label,
+                    "ids": [cand.info.id], "keys": [cand.info.key],
+                    "instead_of": [e.info.id], "delta_loss": -c.delta, "se": c.se,
+                    "separating_data": separating_data(e.info.id, cand.info.id),
+                })  # fmt: skip
+        if len(members) > 1:
+            sets.append({
+                "ids": members, "keys": [CATALOGUE[i].key for i in members],
+                "reason": f"swapping {e.label} for any other member changes the held-out loss "
+                          "by less than one standard error",
+            })  # fmt: skip
+    return alternatives, sets
+
+
+def separating_data(a: str, b: str) -> str:
+    """The data that would tell two confounded effects apart (discovery.md §2, §5.4)."""
+    pair = {a, b}
+    if pair == {"C1", "C5"}:
+        return ("returns beyond 60 m: attenuation curves ln I by -2 alpha R, the exponent by "
+                "-delta_n / R (d ln I / dR = -delta_n / R - 2 alpha)")  # fmt: skip
+    if pair == {"C1", "C3"}:
+        return ("non-ground surfaces (walls, vehicles, poles) where incidence and range vary "
+                "independently; on flat ground cos(theta) = h / R")  # fmt: skip
+    if pair & {"C4", "D3"} and pair & {"C1", "C2"}:
+        return ("non-ground returns on every ring: on the ground each ring meets one range, "
+                "R_k = h / sin|elevation_k|")  # fmt: skip
+    if pair == {"C1", "C2"}:
+        return "many returns below 10 m and an exponent fitted beyond 15 m"
+    if "C6" in pair:
+        return "the same class seen over a wide span of incidence angles and ranges"
+    if pair == {"D1", "D2"}:
+        return "dropped beams at normal incidence but long range, or grazing but near"
+    return "more scans, spread over range, incidence, ring and class"
+
+
+def _range_band_rule(d: Design, sel: Selection, reasons: list[str]) -> list[dict[str, Any]]:
+    """§5.4: name C5 over C1 only when >= 5 % of rows lie at 30-120 m."""
+    if "C5" not in sel.labels:
+        return []
+    r = d.range_m.numpy()
+    share = float(np.mean((r >= LONG_RANGE_BAND_M[0]) & (r <= LONG_RANGE_BAND_M[1])))
+    if share >= LONG_RANGE_MIN_SHARE:
+        return []
+    reasons.append(f"only {share:.1%} of returns lie at 30-120 m: attenuation and a range "
+                   "exponent cannot be told apart")  # fmt: skip
+    return [{"ids": ["C5", "C1"], "keys": ["atmospheric_attenuation", "range_exponent"],
+             "reason": "too few returns at 30-120 m (add returns beyond 60 m)"}]  # fmt: skip
+
+
+def _noise_model(final: Fit, d: Design, boot: npt.NDArray[np.float64]) -> dict[str, Any]:
+    """The fitted noise of ln I: sigma and its slopes in ln R and ln I_sim, with CIs."""
+    th = final.theta
+    out: dict[str, Any] = {
+        "form": "ln sigma = ln_sigma + range_slope (ln R - m_R) + level_slope (ln I_sim - m_I)",
+        "sigma_ln_i": float(math.exp(th[1])),
+        "range_slope": float(th[2]),
+        "level_slope": float(th[3]),
+        "return_probability": float(1.0 / (1.0 + math.exp(-th[4]))),
+    }
+    kind = "homoscedastic"
+    if boot.shape[0] >= 5:
+        for i, name in ((2, "range_slope"), (3, "level_slope")):
+            lo, hi = np.percentile(boot[:, i], [2.5, 97.5])
+            out[f"{name}_ci95"] = [float(lo), float(hi)]
+            sd = float(np.std(boot[:, i]))
+            if name == "range_slope" and sd > 0 and abs(th[i]) > NOISE_SLOPE_Z * sd \
+                    and abs(th[i]) > 0.1:  # fmt: skip
+                kind = "heteroscedastic"
+    out["kind"] = kind
+    return out
+
+
+def heldout_metrics(
+    d: Design, rows: npt.NDArray[np.int64], baseline: Fit, final: Fit
+) -> dict[str, Any]:
+    """Metrics on the test groups: the simulation as is, the baseline fit and the final fit."""
+    sub = d.subset(rows)
+    # Intensity errors on returns stored clear of the quantisation floor and the clip: below
+    # it the stored value is an interval, and an error in ln I would measure the rounding.
+    ret = sub.returned.numpy() & (sub.censor.numpy() == 0)
+    y = sub.y.numpy()
+    out: dict[str, Any] = {
+        "rows": int(len(sub)),
+        "groups": int(len(np.unique(sub.group))),
+        "intensity_rows": int(ret.sum()),
+    }
+    out["simulation"] = _intensity_metrics(y[ret], sub.ln_sim.numpy()[ret], None, sub, ret)
+    for name, f in (("before", baseline), ("after", final)):
+        with torch.no_grad():
+            mu, sigma, log_surv, thr = f.model.predict(torch.as_tensor(f.theta), sub)
+            p = torch.exp(log_surv)
+            if thr is not None:
+                p = p * torch.special.ndtr((mu - thr[0]) / torch.sqrt(sigma**2 + thr[1] ** 2))
+        mu_np, p_np = mu.numpy(), p.numpy()
+        m = _intensity_metrics(y[ret], mu_np[ret], sigma.numpy()[ret], sub, ret)
+        if sub.paired:
+            obs = sub.returned.numpy().astype(np.float64)
+            pc = np.clip(p_np, 1e-9, 1 - 1e-9)
+            m["dropout_brier"] = float(np.mean((pc - obs) ** 2))
+            m["dropout_log_loss"] = float(-np.mean(obs * np.log(pc) + (1 - obs) * np.log(1 - pc)))
+        m["nll"] = float(np.mean(f.row_nll(sub)))
+        out[name] = m
+    b, a = out["before"], out["after"]
+    if b["rmse_ln_i"] and a["rmse_ln_i"] is not None:
+        # Share of the baseline's mean squared ln I error that the effects remove.
+        out["explained_share"] = float(1.0 - (a["rmse_ln_i"] / b["rmse_ln_i"]) ** 2)
+    return out
+
+
+def _intensity_metrics(
+    y: npt.NDArray[np.float64],
+    mu: npt.NDArray[np.float64],
+    sigma: npt.NDArray[np.float64] | None,
+    sub: Design,
+    ret: npt.NDArray[np.bool_],
+) -> dict[str, Any]:
+    err = y - mu
+    if y.size == 0:
+        return {"rmse_ln_i": None, "mae_ln_i": None, "r2_ln_i": None}
+    ss_tot = float(((y - y.mean()) ** 2).sum())
+    out: dict[str, Any] = {
+        "rmse_ln_i": float(np.sqrt(np.mean(err**2))),
+        "mae_ln_i": float(np.mean(np.abs(err))),
+        "median_abs_ln_i": float(np.median(np.abs(err))),
+        "r2_ln_i": float(1.0 - (err**2).sum() / ss_tot) if ss_tot > 0 else None,
+    }
+    # Per-class W1 between real ln I and the model's predictive draws (mu + sigma z).
+    cls = sub.class_index.numpy()[ret]
+    rng = np.random.default_rng(0)
+    draws = mu + (sigma if sigma is not None else 0.0) * rng.standard_normal(mu.size)
+    w1: dict[str, float] = {}
+    for ci, name in enumerate(sub.class_names):
+        sel = cls == ci
+        if sel.sum() >= 30:
+            w1[name] = float(wasserstein_distance(y[sel], draws[sel]))
+    if not w1 and y.size >= 30:
+        w1["all"] = float(wasserstein_distance(y, draws))
+    out["w1_ln_i_by_class"] = w1
+    return out
+
+
+__all__ = ["BASE_NAMES", "Diagnosis", "EffectReport", "Settings", "diagnose_design",
+           "heldout_metrics", "separating_data"]  # fmt: skip

@@ -1,0 +1,111 @@
+"""`--write-corrected`: the simulation tree with the fitted effects applied, same format.
+
+Every file of the simulated tree is copied; each scan's points get the fitted prediction of
+the real intensity (exp(mu) - h, rounded to the encoding's step and clipped), and beams the
+fitted dropout says are lost are removed together with their label rows, so the corrected
+tree can be compared with the real one by any tool. Dropout draws come from a generator
+seeded by (seed, relpath), so the output does not depend on scan order. Points the analysis
+did not see (zero range) are kept unchanged. A nuScenes tree with devkit tables keeps every
+point (its lidarseg files are addressed by token and count), only intensities change.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import shutil
+from pathlib import Path
+
+import numpy as np
+import numpy.typing as npt
+import torch
+
+from lads.diagnose.design import Design
+from lads.diagnose.model import Fit
+from lads.diagnose.table import BeamTable
+from lads.diagnose.trees import TreePair
+from lads.errors import DiagnoseError
+from lads.files import atomic_write
+
+_COLUMNS = {"semantickitti": 4, "wads": 4, "nuscenes": 5}
+
+
+def write_corrected(
+    pair: TreePair, table: BeamTable, design: Design, fit: Fit, out_root: Path, seed: int
+) -> int:
+    """Write the corrected simulation tree to `out_root`; returns the number of scans written.
+
+    Raises:
+        DiagnoseError: `out_root` is the simulated or real tree itself, or a scan file does
+            not have the source's column count.
+    """
+    out_root = Path(out_root)
+    for root in (pair.sim_root, pair.real_root):
+        if out_root.resolve() == Path(root).resolve():
+            raise DiagnoseError(f"--write-corrected {out_root}: that is an input tree; "
+                                "pick a new folder.")  # fmt: skip
+    if out_root.exists():
+        shutil.rmtree(out_root)
+    shutil.copytree(pair.sim_root, out_root)
+    with torch.no_grad():
+        mu, sigma, log_surv, thr = fit.model.predict(torch.as_tensor(fit.theta), design)
+        p_ret = torch.exp(log_surv)
+        if thr is not None:
+            p_ret = p_ret * torch.special.ndtr((mu - thr[0]) / torch.sqrt(sigma**2 + thr[1] ** 2))
+    intensity = np.exp(mu.numpy()) - design.half_step
+    p = p_ret.numpy()
+    # Without any dropout effect the constant return rate is the sensor's random loss, which
+    # the simulation is not asked to reproduce: only fitted dropout mechanisms remove beams.
+    has_dropout = any(e.log_survival is not None or e.extra.get("threshold")
+                      for e in fit.model.effects)  # fmt: skip
+    base_rate = 1.0 / (1.0 + np.exp(-fit.theta[4]))
+    table_rows = design.rows
+    scan_of_row = table.scan[table_rows]
+    sim_index = table.sim_index[table_rows]
+    written = 0
+    for s, relpath in enumerate(table.scans):
+        sel = scan_of_row == s
+        if not sel.any():
+            continue
+        _rewrite(pair, out_root, relpath, sim_index[sel], intensity[sel],
+                 (p[sel] / base_rate) if has_dropout else None, seed, table.sensor)  # fmt: skip
+        written += 1
+    return written
+
+
+def _rewrite(
+    pair: TreePair,
+    out_root: Path,
+    relpath: str,
+    rows: npt.NDArray[np.int64],
+    intensity: npt.NDArray[np.float64],
+    p_keep: npt.NDArray[np.float64] | None,
+    seed: int,
+    sensor: object,
+) -> None:
+    path = out_root / relpath
+    cols = _COLUMNS[pair.source]
+    raw = np.fromfile(path, dtype="<f4")
+    if raw.size % cols:
+        raise DiagnoseError(f"{path}: {raw.size} float32 values, not a multiple of {cols}.")
+    points = raw.reshape(-1, cols).copy()
+    step = float(sensor.step)  # type: ignore[attr-defined]
+    top = float(sensor.max_value)  # type: ignore[attr-defined]
+    points[rows, 3] = np.clip(np.round(intensity / step) * step, 0.0, top).astype(np.float32)
+    keep = np.ones(len(points), dtype=bool)
+    label_path = _label_path(pair.source, path)
+    devkit_tables = any(Path(pair.sim_root).glob("v1.0-*"))
+    if p_keep is not None and not devkit_tables:
+        digest = hashlib.sha256(f"{seed}/{relpath}/corrected".encode()).digest()
+        rng = np.random.default_rng(int.from_bytes(digest[:8], "little"))
+        keep[rows] = rng.random(len(rows)) < np.clip(p_keep, 0.0, 1.0)
+    atomic_write(path, points[keep].astype("<f4").tobytes())
+    if label_path is not None and label_path.exists() and not keep.all():
+        labels = np.fromfile(label_path, dtype="<u4")
+        if labels.size == len(points):
+            atomic_write(label_path, labels[keep].tobytes())
+
+
+def _label_path(source: str, scan_path: Path) -> Path | None:
+    if source in ("semantickitti", "wads"):
+        return scan_path.parent.parent / "labels" / (scan_path.stem + ".label")
+    return None

@@ -1,0 +1,196 @@
+"""The design: a BeamTable turned into the float64 tensors the likelihood reads.
+
+Only rows the simulation returned enter a paired fit (a beam the simulation did not fire
+cannot be mis-simulated; real-only rows are reported as extra returns). Unpaired tables are
+turned into pseudo-pairs: each real return is compared with the mean ln I of the simulated
+returns in the same feature cell (class x ring x range bin x cos bin), so only
+feature-conditional differences are ever fitted (discovery.md §5.1).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+import torch
+
+from lads.diagnose.table import BeamTable
+
+COS_FLOOR = 0.05  # ln cos(theta) of grazing returns is capped, their normals are unreliable
+EDGE_NEAR_BEAMS = 2.0
+LOW_STEPS = 10  # below this many quantisation steps a stored value is treated as an interval
+
+
+@dataclass(frozen=True)
+class Design:
+    """Per-row tensors (float64 unless stated), all (N,).
+
+    Attributes:
+        y: ln(i_real + h) where returned, else 0.
+        y_lo, y_hi, censor: the quantisation interval of y. Stored values are rounded to the
+            encoding's step, so a value within LOW_STEPS steps of 0 is an interval, not a
+            point: censor 1 = interval [y_lo, y_hi], 2 = stored 0 (below y_hi), 3 = stored
+            maximum (above y_lo, clipped), 0 = a point (y itself).
+        ln_sim: ln(i_sim + h).
+        returned: bool, reality returned the beam.
+        ln_range, range_m, cos, ln_cos (0 where the normal is ill-conditioned), normal_ok.
+        ring, class_index (index into `classes`, -1 unknown), scan: int64.
+        azimuth_deg, edge_beams, is_ground (bool), scan_ln_mean (mean ln_sim of the scan).
+        group: int64 numpy group id per row (for splits and bootstraps).
+        classes: class ids present, `class_index` points into it.
+        class_names: name per entry of `classes`.
+        half_step, full_scale, max_value, step: the encoding in stored units.
+        n_rings, n_scans: sizes of the categorical features.
+        paired: False for unpaired pseudo-pairs (no dropout information).
+    """
+
+    y: torch.Tensor
+    y_lo: torch.Tensor
+    y_hi: torch.Tensor
+    censor: torch.Tensor
+    ln_sim: torch.Tensor
+    returned: torch.Tensor
+    ln_range: torch.Tensor
+    range_m: torch.Tensor
+    cos: torch.Tensor
+    ln_cos: torch.Tensor
+    normal_ok: torch.Tensor
+    ring: torch.Tensor
+    class_index: torch.Tensor
+    scan: torch.Tensor
+    azimuth_deg: torch.Tensor
+    edge_beams: torch.Tensor
+    is_ground: torch.Tensor
+    scan_ln_mean: torch.Tensor
+    group: npt.NDArray[np.int64]
+    rows: npt.NDArray[np.int64]
+    classes: tuple[int, ...]
+    class_names: tuple[str, ...]
+    half_step: float
+    full_scale: float
+    max_value: float
+    step: float
+    n_rings: int
+    n_scans: int
+    paired: bool
+
+    def __len__(self) -> int:
+        return int(self.y.shape[0])
+
+    def subset(self, idx: npt.NDArray[np.int64]) -> Design:
+        """The design restricted to rows `idx` (numpy indices)."""
+        t = torch.as_tensor(idx, dtype=torch.long)
+        kwargs = {}
+        for name in self.__dataclass_fields__:
+            value = getattr(self, name)
+            if isinstance(value, torch.Tensor):
+                kwargs[name] = value[t]
+            elif isinstance(value, np.ndarray):
+                kwargs[name] = value[idx]
+            else:
+                kwargs[name] = value
+        return Design(**kwargs)
+
+
+def paired_design(table: BeamTable) -> Design:
+    """Design of a paired table: the rows with a simulated return."""
+    rows = np.flatnonzero(table.ret_sim & np.isfinite(table.i_sim))
+    t = table.take(rows)
+    h = t.sensor.half_step
+    i_real = np.nan_to_num(t.i_real, nan=0.0).astype(np.float64)
+    return _design(t, rows, i_real, t.ret_real.copy(), np.log(t.i_sim.astype(np.float64) + h), True)
+
+
+def unpaired_design(sim: BeamTable, real: BeamTable, *, min_cell_rows: int = 5) -> Design:
+    """Pseudo-paired design of two unpaired tables of the same sensor.
+
+    Every real return whose feature cell holds at least `min_cell_rows` simulated returns gets
+    ln_sim = the mean ln(i_sim + h) of that cell; the rest are left out.
+    """
+    h = real.sensor.half_step
+    key_sim = _cell_key(sim)
+    key_real = _cell_key(real)
+    ln_sim_rows = np.log(sim.i_sim.astype(np.float64) + h)
+    uniq, inverse = np.unique(key_sim, return_inverse=True)
+    counts = np.bincount(inverse, minlength=len(uniq))
+    means = np.bincount(inverse, weights=ln_sim_rows, minlength=len(uniq)) / np.maximum(counts, 1)
+    pos = np.searchsorted(uniq, key_real)
+    pos = np.clip(pos, 0, len(uniq) - 1)
+    found = (uniq[pos] == key_real) & (counts[pos] >= min_cell_rows)
+    rows = np.flatnonzero(found & real.ret_real)
+    t = real.take(rows)
+    i_real = t.i_real.astype(np.float64)
+    return _design(t, rows, i_real, np.ones(len(rows), dtype=bool), means[pos[rows]], False)
+
+
+def _cell_key(t: BeamTable) -> npt.NDArray[np.int64]:
+    edges = np.array([2.0, 3.5, 5.0, 7.5, 10.0, 15.0, 20.0, 30.0, 40.0, 60.0, 80.0])
+    rbin = np.searchsorted(edges, t.range_m).astype(np.int64)
+    cbin = np.minimum((t.cos_incidence * 10).astype(np.int64), 9)
+    cls = t.class_id.astype(np.int64) + 1
+    return ((cls * 256 + t.ring.astype(np.int64)) * 16 + rbin) * 16 + cbin
+
+
+def _design(
+    t: BeamTable,
+    rows: npt.NDArray[np.int64],
+    i_real: npt.NDArray[np.float64],
+    returned: npt.NDArray[np.bool_],
+    ln_sim: npt.NDArray[np.float64],
+    paired: bool,
+) -> Design:
+    h, step, top = t.sensor.half_step, t.sensor.step, t.sensor.max_value
+    y = np.where(returned, np.log(i_real + h), 0.0)
+    censor = np.zeros(len(i_real), dtype=np.int64)
+    censor[returned & (i_real < LOW_STEPS * step)] = 1
+    censor[returned & (i_real < 0.5 * step)] = 2
+    censor[returned & (i_real > top - 0.5 * step)] = 3
+    y_lo = np.log(np.maximum(i_real - 0.5 * step, 0.0) + h)
+    y_hi = np.log(i_real + 0.5 * step + h)
+    classes = tuple(int(c) for c in np.unique(t.class_id[t.class_id >= 0]))
+    lookup = {c: i for i, c in enumerate(classes)}
+    class_index = np.array([lookup.get(int(c), -1) for c in t.class_id], dtype=np.int64)
+    cos = np.clip(t.cos_incidence.astype(np.float64), 0.0, 1.0)
+    ln_cos = np.where(t.normal_ok, np.log(np.maximum(cos, COS_FLOOR)), 0.0)
+    scans = t.scan.astype(np.int64)
+    n_scans = len(t.scans)
+    sums = np.bincount(scans, weights=ln_sim, minlength=n_scans)
+    counts = np.maximum(np.bincount(scans, minlength=n_scans), 1)
+    scan_mean = sums / counts
+    scan_mean = scan_mean - np.average(scan_mean, weights=counts)
+
+    def f64(a: npt.ArrayLike) -> torch.Tensor:
+        return torch.as_tensor(np.asarray(a, dtype=np.float64))
+
+    return Design(
+        y=f64(y),
+        y_lo=f64(y_lo),
+        y_hi=f64(y_hi),
+        censor=torch.as_tensor(censor),
+        ln_sim=f64(ln_sim),
+        returned=torch.as_tensor(returned, dtype=torch.bool),
+        ln_range=f64(np.log(np.maximum(t.range_m, 1e-3))),
+        range_m=f64(t.range_m),
+        cos=f64(cos),
+        ln_cos=f64(ln_cos),
+        normal_ok=torch.as_tensor(t.normal_ok, dtype=torch.bool),
+        ring=torch.as_tensor(t.ring.astype(np.int64)),
+        class_index=torch.as_tensor(class_index),
+        scan=torch.as_tensor(scans),
+        azimuth_deg=f64(t.azimuth_deg),
+        edge_beams=f64(t.edge_beams),
+        is_ground=torch.as_tensor(t.is_ground, dtype=torch.bool),
+        scan_ln_mean=f64(scan_mean[scans]),
+        group=t.group.astype(np.int64),
+        rows=rows.astype(np.int64),
+        classes=classes,
+        class_names=tuple(t.class_names.get(c, str(c)) for c in classes),
+        half_step=t.sensor.half_step,
+        full_scale=t.sensor.full_scale,
+        max_value=t.sensor.max_value,
+        step=t.sensor.step,
+        n_rings=t.sensor.n_rings,
+        n_scans=n_scans,
+        paired=paired,
+    )

@@ -1,0 +1,333 @@
+"""Candidate effects as terms of the joint intensity-and-return likelihood (catalogue.py).
+
+An effect owns a few parameters (natural units, box bounds) and contributes any of:
+    ln_term(theta, d)    added to the predicted ln I (most physical effects: factors on P)
+    transfer(theta, d, mu)  a map applied to the predicted ln I last (encoding effects)
+    log_survival(theta, d)  added to ln P(return) (dropout mechanisms)
+    penalty(theta)       a small ridge that pins directions the global gain also spans
+Terms are torch float64 so the fitter gets exact gradients; `export` turns the fitted vector
+into report.json parameters named as in the catalogue.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+import torch
+
+from lads.diagnose.catalogue import CATALOGUE, EffectInfo
+from lads.diagnose.design import Design
+
+Tensor = torch.Tensor
+GLOSSY_CLASS_WORDS = ("car", "truck", "bus", "vehicle", "trailer", "motorcycle")
+RETRO_CLASS_WORDS = ("traffic-sign", "traffic_sign", "sign", "pole-sign", "traffic_cone")
+WET_CLASS_WORDS = ("road", "sidewalk", "parking", "lane-marking", "driveable_surface",
+                   "other-ground", "other_flat")  # fmt: skip
+MIN_CLASS_ROWS = 200
+RIDGE = 1e-3
+SECTOR_SOFTNESS_DEG = 0.5
+
+
+@dataclass
+class Effect:
+    """One candidate (a catalogue entry, possibly confined to one class).
+
+    Attributes:
+        info: the catalogue entry.
+        label: unique name, e.g. "C3s[car]".
+        names: parameter names of the fitted vector (per-ring vectors expanded, "x[k]").
+        lower, upper: (P,) box bounds in natural units (-inf/inf for free).
+        starts: initial vectors to try (the best on the training loss is kept).
+        scalar: (P,) bool, parameters whose being at a bound disqualifies the effect.
+        class_index: the class it is confined to, or -1.
+    """
+
+    info: EffectInfo
+    label: str
+    names: tuple[str, ...]
+    lower: npt.NDArray[np.float64]
+    upper: npt.NDArray[np.float64]
+    starts: list[npt.NDArray[np.float64]]
+    scalar: npt.NDArray[np.bool_]
+    class_index: int = -1
+    class_name: str | None = None
+    ln_term: Callable[[Tensor, Design], Tensor] | None = None
+    transfer: Callable[[Tensor, Design, Tensor], Tensor] | None = None
+    log_survival: Callable[[Tensor, Design], Tensor] | None = None
+    penalty: Callable[[Tensor], Tensor] | None = None
+    exporter: Callable[[npt.NDArray[np.float64]], dict[str, Any]] | None = None
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def size(self) -> int:
+        return len(self.names)
+
+    def export(self, theta: npt.NDArray[np.float64]) -> dict[str, Any]:
+        """Report parameters (catalogue names) from the fitted vector."""
+        if self.exporter is not None:
+            return self.exporter(theta)
+        return {n: float(v) for n, v in zip(self.names, theta, strict=True)}
+
+
+def _entry(
+    id_: str,
+    names: tuple[str, ...],
+    bounds: list[tuple[float, float]],
+    starts: list[list[float]],
+    *,
+    label: str | None = None,
+    scalar: list[bool] | None = None,
+    **kwargs: Any,
+) -> Effect:
+    lower = np.array([b[0] for b in bounds], dtype=np.float64)
+    upper = np.array([b[1] for b in bounds], dtype=np.float64)
+    return Effect(
+        info=CATALOGUE[id_],
+        label=label or id_,
+        names=names,
+        lower=lower,
+        upper=upper,
+        starts=[np.asarray(s, dtype=np.float64) for s in starts],
+        scalar=np.array(scalar if scalar is not None else [True] * len(names)),
+        **kwargs,
+    )
+
+
+def _ring_vector(prefix: str, n: int) -> tuple[str, ...]:
+    return tuple(f"{prefix}[{k}]" for k in range(n))
+
+
+def _phi_log(z: Tensor) -> Tensor:
+    """ln Phi(z), stable in both tails."""
+    return torch.special.log_ndtr(z)
+
+
+def _in_sector(az: Tensor, start: Tensor, width: Tensor) -> Tensor:
+    """Smooth indicator of azimuth in [start, start + width) (degrees, wrapping)."""
+    offset = torch.remainder(az - start, 360.0)
+    inside_low = torch.sigmoid(offset / SECTOR_SOFTNESS_DEG)
+    inside_high = torch.sigmoid((width - offset) / SECTOR_SOFTNESS_DEG)
+    return inside_low * inside_high
+
+
+def candidates(d: Design, *, train_rows: npt.NDArray[np.int64] | None = None) -> list[Effect]:
+    """The catalogue effects the design can inform (C0 is part of the baseline).
+
+    Rules (discovery.md §5.3 "Needs"): class-confined effects only for labelled classes with
+    enough rows; C10 only with >= 5 scans; dropout effects only for paired designs.
+    """
+    out: list[Effect] = []
+    n = d.n_rings
+    ln_r_ref = float(d.ln_range.mean())
+    out.append(_entry("C1", ("delta_n",), [(-2.5, 2.0)], [[0.0]],
+                      ln_term=lambda th, dd: -th[0] * (dd.ln_range - ln_r_ref)))  # fmt: skip
+    out.append(
+        _entry(
+            "C2", ("r0_m", "k"), [(0.5, 12.0), (1.0, 8.0)], [[1.5, 3.0], [3.0, 3.0], [6.0, 3.0]],
+            ln_term=lambda th, dd: -torch.log1p((th[0] / dd.range_m.clamp_min(0.1)) ** th[1]),
+        )
+    )  # fmt: skip
+    out.append(_entry("C3", ("p_extra",), [(-1.0, 2.0)], [[0.0]],
+                      ln_term=lambda th, dd: th[0] * dd.ln_cos))  # fmt: skip
+    names = np.array(d.class_names, dtype=object)
+    counts = np.bincount(d.class_index.numpy()[d.class_index.numpy() >= 0], minlength=len(names))
+    for ci, cname in enumerate(d.class_names):
+        if counts[ci] < MIN_CLASS_ROWS:
+            continue
+        lname = cname.lower()
+        if any(w in lname for w in GLOSSY_CLASS_WORDS):
+            out.append(_specular(ci, cname))
+        if any(w in lname for w in RETRO_CLASS_WORDS):
+            out.append(
+                _entry(
+                    "C3r",
+                    ("ln_gain",),
+                    [(0.0, 6.91)],
+                    [[1.0]],
+                    label=f"C3r[{cname}]",
+                    class_index=ci,
+                    class_name=cname,
+                    ln_term=lambda th, dd, ci=ci: torch.where(
+                        dd.class_index == ci, th[0] - dd.ln_cos, torch.zeros_like(dd.ln_cos)
+                    ),
+                )  # fmt: skip
+            )
+    del names
+    if n > 1:
+        out.append(
+            _entry(
+                "C4",
+                _ring_vector("ln_gain_by_ring", n),
+                [(-1.0, 1.0)] * n,
+                [[0.0] * n],
+                scalar=[False] * n,
+                ln_term=lambda th, dd: th[dd.ring],
+                penalty=lambda th: 10.0 * th.sum() ** 2,
+                exporter=lambda th: {"ln_gain_by_ring": [float(v) for v in th - th.mean()]},
+            )
+        )
+        off = 20.0 * d.max_value / 255.0 if d.max_value < 2 else 20.0
+        out.append(
+            _entry(
+                "C4o", _ring_vector("offset_by_ring", n), [(-off, off)] * n, [[0.0] * n],
+                scalar=[False] * n,
+                transfer=lambda th, dd, mu: torch.log(
+                    (torch.exp(mu) - dd.half_step + th[dd.ring]).clamp_min(0.0) + dd.half_step),
+                exporter=lambda th: {"offset_by_ring": [float(v) for v in th]},
+            )
+        )  # fmt: skip
+    out.append(_entry("C5", ("alpha_per_m",), [(0.0, 0.5)], [[0.001]],
+                      ln_term=lambda th, dd: -2.0 * th[0] * dd.range_m))  # fmt: skip
+    frequent = [ci for ci in range(len(d.class_names)) if counts[ci] >= MIN_CLASS_ROWS]
+    if len(frequent) >= 2:
+        out.append(_class_scale(d, frequent))
+    wet = [ci for ci in frequent if any(w == d.class_names[ci].lower() for w in WET_CLASS_WORDS)]
+    if wet:
+        out.append(_wet(d, wet))
+    out.append(
+        _entry(
+            "C8", ("a", "e0_beams"), [(0.0, 0.9), (0.5, 3.0)], [[0.3, 1.0]],
+            ln_term=lambda th, dd: torch.log1p(-th[0] * torch.exp(-dd.edge_beams / th[1])),
+        )
+    )  # fmt: skip
+    out.append(_encoding(d))
+    if d.n_scans >= 5:
+        out.append(_entry("C10", ("beta",), [(0.0, 1.5)], [[0.3]],
+                          ln_term=lambda th, dd: -th[0] * dd.scan_ln_mean))  # fmt: skip
+    out.append(_blockage(d, train_rows))
+    if d.paired:
+        out.extend(_dropout_effects(d, n))
+    return out
+
+
+def _specular(ci: int, cname: str) -> Effect:
+    def term(th: Tensor, dd: Design) -> Tensor:
+        cos = dd.cos.clamp(0.05, 1.0)
+        lobe = torch.log1p(th[0] * cos ** (th[1] - 1.0))
+        return torch.where((dd.class_index == ci) & dd.normal_ok, lobe, torch.zeros_like(cos))
+
+    return _entry("C3s", ("k_s", "m"), [(0.0, 5.0), (5.0, 300.0)], [[1.0, 20.0], [1.0, 80.0]],
+                  label=f"C3s[{cname}]", class_index=ci, class_name=cname,
+                  ln_term=term)  # fmt: skip
+
+
+def _class_scale(d: Design, frequent: list[int]) -> Effect:
+    names = tuple(f"ln_scale_{d.class_names[ci]}" for ci in frequent)
+    lookup = torch.full((len(d.class_names) + 1,), -1, dtype=torch.long)
+    for j, ci in enumerate(frequent):
+        lookup[ci] = j
+
+    def term(th: Tensor, dd: Design) -> Tensor:
+        idx = lookup[dd.class_index.clamp_min(-1)]  # -1 (unknown) reads the last slot: -1
+        padded = torch.cat([th, torch.zeros(1, dtype=th.dtype)])
+        return padded[idx]
+
+    return _entry("C6", names, [(-1.5, 1.5)] * len(names), [[0.0] * len(names)],
+                  scalar=[False] * len(names), ln_term=term,
+                  penalty=lambda th: RIDGE * (th**2).sum())  # fmt: skip
+
+
+def _wet(d: Design, wet: list[int]) -> Effect:
+    wet_index = torch.as_tensor(wet, dtype=torch.long)
+
+    def rows(dd: Design) -> Tensor:
+        return torch.isin(dd.class_index, wet_index)
+
+    def term(th: Tensor, dd: Design) -> Tensor:
+        return torch.where(
+            rows(dd), torch.log1p(-th[0]).expand_as(dd.cos), torch.zeros_like(dd.cos)
+        )
+
+    def survival(th: Tensor, dd: Design) -> Tensor:
+        cos_c = torch.cos(th[1] * math.pi / 180.0)
+        z = (dd.cos - cos_c) / 0.02
+        return torch.where(rows(dd) & dd.normal_ok, _phi_log(z), torch.zeros_like(dd.cos))
+
+    eff = _entry("C7", ("f", "theta_c_deg"), [(0.0, 0.95), (50.0, 89.0)], [[0.3, 75.0]],
+                 ln_term=term, log_survival=survival)  # fmt: skip
+    eff.extra["classes"] = [d.class_names[ci] for ci in wet]
+    return eff
+
+
+def _encoding(d: Design) -> Effect:
+    ln_fs = math.log(d.full_scale)
+    off = 20.0 * d.max_value / 255.0 if d.max_value < 2 else 20.0
+
+    def transfer(th: Tensor, dd: Design, mu: Tensor) -> Tensor:
+        intensity = (torch.exp(mu) - dd.half_step).clamp_min(0.0)
+        # The power law acts on reflectivity (intensity / full scale), so gamma is unitless.
+        powered = torch.exp(th[0] * (torch.log(intensity + 1e-12) - ln_fs) + ln_fs)
+        return torch.log((powered + th[1]).clamp_min(0.0) + dd.half_step)
+
+    return _entry("C9", ("gamma", "offset"), [(0.4, 1.5), (-off, off)], [[1.0, 0.0]],
+                  transfer=transfer)  # fmt: skip
+
+
+def _blockage(d: Design, train_rows: npt.NDArray[np.int64] | None) -> Effect:
+    start, width = _darkest_sector(d, train_rows)
+
+    def term(th: Tensor, dd: Design) -> Tensor:
+        return torch.log1p(-th[2] * _in_sector(dd.azimuth_deg, th[0], th[1]))
+
+    def survival(th: Tensor, dd: Design) -> Tensor:
+        return torch.log1p(-th[3] * _in_sector(dd.azimuth_deg, th[0], th[1]))
+
+    names = ("start_deg", "width_deg", "a", "drop_fraction")
+    bounds = [(-360.0, 720.0), (2.0, 90.0), (0.0, 0.95), (0.0, 0.95)]
+    eff = _entry("C11", names, bounds, [[start, width, 0.3, 0.05]],
+                 scalar=[False, True, True, False], ln_term=term,
+                 log_survival=survival if d.paired else None,
+                 exporter=lambda th: {"start_deg": float(th[0] % 360.0),
+                                      "width_deg": float(th[1]), "a": float(th[2]),
+                                      "drop_fraction": float(th[3])})  # fmt: skip
+    return eff
+
+
+def _darkest_sector(d: Design, train_rows: npt.NDArray[np.int64] | None) -> tuple[float, float]:
+    """Start and width (degrees) of the azimuth window whose mean residual is lowest."""
+    rows = np.arange(len(d)) if train_rows is None else train_rows
+    ret = d.returned.numpy()[rows]
+    r = (d.y.numpy() - d.ln_sim.numpy())[rows][ret]
+    az = d.azimuth_deg.numpy()[rows][ret]
+    if r.size == 0:
+        return 0.0, 20.0
+    bins = (az // 5.0).astype(np.int64) % 72
+    sums = np.bincount(bins, weights=r - np.median(r), minlength=72)
+    counts = np.bincount(bins, minlength=72)
+    best = (0.0, 0.0, 20.0)
+    for width in (2, 4, 6, 8, 12):  # in 5-degree bins: 10-60 degrees
+        s = sum(np.roll(sums, -k) for k in range(width))
+        c = sum(np.roll(counts, -k) for k in range(width))
+        score = s / np.sqrt(np.maximum(c, 1))
+        k = int(np.argmin(score))
+        if score[k] < best[0]:
+            best = (float(score[k]), 5.0 * k, 5.0 * width)
+    return best[1], best[2]
+
+
+def _dropout_effects(d: Design, n: int) -> list[Effect]:
+    ln_tau0 = float(np.quantile(d.ln_sim.numpy(), 0.02)) - 0.5
+    d1 = _entry("D1", ("ln_tau", "s"), [(-30.0, 10.0), (0.05, 3.0)], [[ln_tau0, 0.5]])
+    d1.extra["threshold"] = True
+    d2 = _entry(
+        "D2", ("cos_c", "s_cos"), [(0.0, 0.9), (0.01, 0.5)], [[0.1, 0.05]],
+        log_survival=lambda th, dd: torch.where(
+            dd.normal_ok, _phi_log((dd.cos - th[0]) / th[1]), torch.zeros_like(dd.cos)),
+    )  # fmt: skip
+    d3 = _entry(
+        "D3", _ring_vector("p_drop_by_ring", n), [(0.0, 0.999)] * n, [[0.0] * n],
+        scalar=[False] * n,
+        log_survival=lambda th, dd: torch.log1p(-th[dd.ring]),
+        penalty=lambda th: RIDGE * th.sum(),
+        exporter=lambda th: {
+            "rings": [int(k) for k in np.flatnonzero(th > 0.1)],
+            "p_drop": [float(v) for v in th[th > 0.1]],
+            "p_drop_by_ring": [float(v) for v in th],
+        },
+    )  # fmt: skip
+    return [d1, d2, d3]

@@ -1,0 +1,287 @@
+"""The joint likelihood of real intensities and returns given the simulation, and its fit.
+
+For a beam the simulation returned, with mu = the predicted ln(I_real + h):
+
+    mu      = T(ln(I_sim + h) + ln_gain + sum of effect ln-terms)   T: encoding effects, last
+    sigma   = exp(ln_sigma + sigma_range_slope (ln R - m_R) + sigma_level_slope (ln I_sim - m_I))
+    P(ret)  = sigmoid(return_logit) * prod of effect survival factors
+              * Phi((mu - ln_tau) / sqrt(sigma^2 + s^2))        with D1 (detection threshold)
+
+A returned beam contributes ln N(y; mu, sigma) + ln P(ret | y), a dropped one ln(1 - P(ret)):
+with D1 the returned value itself is censored, P(ret | y) carrying Phi((y - ln_tau) / s), so
+an attenuation is not under-estimated from the survivors alone (discovery.md §2 item 2).
+Unpaired designs have no dropout information and use the Gaussian part only.
+
+Fits use scipy's L-BFGS-B on the box bounds with exact gradients from torch autograd.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+import scipy.optimize
+import torch
+
+from lads.diagnose.design import Design
+from lads.diagnose.effects import Effect
+
+BASE_NAMES: tuple[str, ...] = (
+    "ln_gain", "ln_sigma", "sigma_range_slope", "sigma_level_slope", "return_logit",
+)  # fmt: skip
+_BASE_LOWER = np.array([-np.inf, -6.0, -3.0, -3.0, -12.0])
+_BASE_UPPER = np.array([np.inf, 3.0, 3.0, 3.0, 12.0])
+_HALF_LN_2PI = 0.5 * math.log(2.0 * math.pi)
+MAX_ITER = 150
+BOUND_TOLERANCE = 0.01  # a parameter within 1 % of its range from a bound is "at the bound"
+
+
+@dataclass
+class Model:
+    """Baseline (gain, noise, constant return rate) plus a list of effects."""
+
+    effects: list[Effect]
+    ln_range_ref: float
+    ln_sim_ref: float
+    heteroscedastic: bool = True
+
+    @property
+    def names(self) -> list[str]:
+        out = list(BASE_NAMES)
+        for e in self.effects:
+            out += [f"{e.label}.{n}" for n in e.names]
+        return out
+
+    @property
+    def size(self) -> int:
+        return len(BASE_NAMES) + sum(e.size for e in self.effects)
+
+    def bounds(self) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+        lower = [_BASE_LOWER.copy()]
+        upper = [_BASE_UPPER.copy()]
+        if not self.heteroscedastic:
+            lower[0][2:4] = 0.0
+            upper[0][2:4] = 0.0
+        for e in self.effects:
+            lower.append(e.lower)
+            upper.append(e.upper)
+        return np.concatenate(lower), np.concatenate(upper)
+
+    def slices(self) -> list[slice]:
+        out, start = [], len(BASE_NAMES)
+        for e in self.effects:
+            out.append(slice(start, start + e.size))
+            start += e.size
+        return out
+
+    def with_effect(self, effect: Effect) -> Model:
+        return Model(self.effects + [effect], self.ln_range_ref, self.ln_sim_ref,
+                     self.heteroscedastic)  # fmt: skip
+
+    def without(self, label: str) -> Model:
+        kept = [e for e in self.effects if e.label != label]
+        return Model(kept, self.ln_range_ref, self.ln_sim_ref, self.heteroscedastic)
+
+    def predict(self, theta: torch.Tensor, d: Design) -> tuple[torch.Tensor, ...]:
+        """(mu, sigma, log P(ret) without D1, D1 (ln_tau, s) or None) per row."""
+        mu = d.ln_sim + theta[0]
+        log_surv = torch.nn.functional.logsigmoid(theta[4]).expand_as(mu)
+        transfers, threshold = [], None
+        for e, sl in zip(self.effects, self.slices(), strict=True):
+            th = theta[sl]
+            if e.ln_term is not None:
+                mu = mu + e.ln_term(th, d)
+            if e.transfer is not None:
+                transfers.append((e, th))
+            if e.log_survival is not None:
+                log_surv = log_surv + e.log_survival(th, d)
+            if e.extra.get("threshold"):
+                threshold = th
+        for e, th in transfers:
+            mu = e.transfer(th, d, mu)  # type: ignore[misc]
+        ln_sigma = (theta[1] + theta[2] * (d.ln_range - self.ln_range_ref)
+                    + theta[3] * (d.ln_sim - self.ln_sim_ref))  # fmt: skip
+        return mu, torch.exp(ln_sigma), log_surv, threshold
+
+    def nll_rows(self, theta: torch.Tensor, d: Design) -> torch.Tensor:
+        """(N,) negative log-likelihood of every row."""
+        mu, sigma, log_surv, threshold = self.predict(theta, d)
+        z = (d.y - mu) / sigma
+        gauss = 0.5 * z**2 + torch.log(sigma) + _HALF_LN_2PI
+        cens = torch.nonzero(d.censor > 0).squeeze(1)
+        if cens.numel():
+            gauss = gauss.index_put(
+                (cens,), _interval_nll(d.censor[cens], d.y_lo[cens], d.y_hi[cens], mu[cens],
+                                       sigma[cens])
+            )  # fmt: skip
+        if not d.paired:
+            return gauss
+        log_p_ret = log_surv
+        ret_extra = torch.zeros_like(mu)
+        if threshold is not None:
+            ln_tau, s = threshold[0], threshold[1]
+            log_p_ret = log_p_ret + torch.special.log_ndtr(
+                (mu - ln_tau) / torch.sqrt(sigma**2 + s**2)
+            )
+            ret_extra = torch.special.log_ndtr((d.y - ln_tau) / s)
+        log_p_ret = log_p_ret.clamp(max=-1e-12)
+        dropped = -torch.log(-torch.expm1(log_p_ret))
+        returned = gauss - log_surv - ret_extra
+        return torch.where(d.returned, returned, dropped)
+
+    def penalty(self, theta: torch.Tensor) -> torch.Tensor:
+        total = torch.zeros((), dtype=theta.dtype)
+        for e, sl in zip(self.effects, self.slices(), strict=True):
+            if e.penalty is not None:
+                total = total + e.penalty(theta[sl])
+        return total
+
+
+def _interval_nll(
+    censor: torch.Tensor,
+    y_lo: torch.Tensor,
+    y_hi: torch.Tensor,
+    mu: torch.Tensor,
+    sigma: torch.Tensor,
+) -> torch.Tensor:
+    """-ln P(y in its quantisation interval) (censor 1), below y_hi (2) or above y_lo (3)."""
+    z_lo = (y_lo - mu) / sigma
+    z_hi = (y_hi - mu) / sigma
+    # Phi(b) - Phi(a) loses all digits when both are near 1: use the mirrored tail there.
+    upper = z_lo > 0
+    a = torch.where(upper, -z_hi, z_lo)
+    b = torch.where(upper, -z_lo, z_hi)
+    log_b = torch.special.log_ndtr(b)
+    gap = (torch.special.log_ndtr(a) - log_b).clamp(max=-1e-12)
+    interval = log_b + torch.log(-torch.expm1(gap))
+    below = torch.special.log_ndtr(z_hi)
+    above = torch.special.log_ndtr(-z_lo)
+    out = torch.where(censor == 2, below, torch.where(censor == 3, above, interval))
+    return -out
+
+
+@dataclass
+class Fit:
+    """A fitted model: its parameter vector and training loss (mean NLL per row)."""
+
+    model: Model
+    theta: npt.NDArray[np.float64]
+    loss: float
+    converged: bool
+
+    def effect_params(self, label: str) -> npt.NDArray[np.float64]:
+        for e, sl in zip(self.model.effects, self.model.slices(), strict=True):
+            if e.label == label:
+                return self.theta[sl]
+        raise KeyError(label)
+
+    def at_bound(self) -> list[str]:
+        """Labels of effects with a scalar parameter at (within 1 % of) a bound."""
+        out = []
+        for e, sl in zip(self.model.effects, self.model.slices(), strict=True):
+            th = self.theta[sl]
+            width = e.upper - e.lower
+            finite = np.isfinite(width) & e.scalar
+            near = (np.abs(th - e.lower) < BOUND_TOLERANCE * width) | (
+                np.abs(e.upper - th) < BOUND_TOLERANCE * width
+            )
+            if np.any(near & finite):
+                out.append(e.label)
+        return out
+
+    def row_nll(self, d: Design) -> npt.NDArray[np.float64]:
+        with torch.no_grad():
+            return self.model.nll_rows(torch.as_tensor(self.theta), d).numpy()
+
+
+def initial_base(d: Design, rows: npt.NDArray[np.int64]) -> npt.NDArray[np.float64]:
+    """Baseline start: median residual gain, its spread, no slopes, the return rate."""
+    ret = d.returned.numpy()[rows]
+    r = (d.y.numpy() - d.ln_sim.numpy())[rows][ret]
+    gain = float(np.median(r)) if r.size else 0.0
+    spread = float(np.std(r)) if r.size > 1 else 1.0
+    rate = float(np.clip(ret.mean() if ret.size else 0.99, 0.01, 0.999))
+    return np.array([gain, math.log(max(spread, 0.01)), 0.0, 0.0, math.log(rate / (1 - rate))])
+
+
+def fit(
+    model: Model,
+    d: Design,
+    weights: npt.NDArray[np.float64],
+    start: npt.NDArray[np.float64],
+    *,
+    max_iter: int = MAX_ITER,
+) -> Fit:
+    """Minimise the weighted mean NLL plus penalties from `start` within the bounds.
+
+    Args:
+        model: the effects to fit.
+        d: the design (all rows; rows with weight 0 do not count).
+        weights: (N,) row weights (0/1 for a split, bootstrap multiplicities).
+        start: (P,) initial vector in natural units.
+    """
+    lower, upper = model.bounds()
+    x0 = np.clip(start, lower, upper)
+    use = np.flatnonzero(weights > 0)
+    sub = d.subset(use)
+    w = torch.as_tensor(weights[use], dtype=torch.float64)
+    total = float(w.sum())
+
+    def objective(x: npt.NDArray[np.float64]) -> tuple[float, npt.NDArray[np.float64]]:
+        theta = torch.as_tensor(x, dtype=torch.float64).requires_grad_(True)
+        loss = (model.nll_rows(theta, sub) * w).sum() / total + model.penalty(theta)
+        loss.backward()
+        grad = theta.grad.numpy().copy()  # type: ignore[union-attr]
+        value = float(loss.detach())
+        if not math.isfinite(value) or not np.all(np.isfinite(grad)):
+            return 1e10, np.zeros_like(x)
+        return value, grad
+
+    bounds = [
+        (None if not math.isfinite(lo) else lo, None if not math.isfinite(hi) else hi)
+        for lo, hi in zip(lower, upper, strict=True)
+    ]
+    res = scipy.optimize.minimize(objective, x0, jac=True, method="L-BFGS-B", bounds=bounds,
+                                  options={"maxiter": max_iter})  # fmt: skip
+    value, _ = objective(res.x)
+    return Fit(model, res.x, value, bool(res.success))
+
+
+def start_vectors(
+    model: Model, base: npt.NDArray[np.float64], previous: Fit | None
+) -> list[npt.NDArray[np.float64]]:
+    """Initial vectors: the previous fit's values for shared effects, each new effect's starts."""
+    known: dict[str, npt.NDArray[np.float64]] = {}
+    head = base
+    if previous is not None:
+        head = previous.theta[: len(BASE_NAMES)]
+        for e, sl in zip(previous.model.effects, previous.model.slices(), strict=True):
+            known[e.label] = previous.theta[sl]
+    options: list[list[npt.NDArray[np.float64]]] = []
+    for e in model.effects:
+        options.append([known[e.label]] if e.label in known else e.starts)
+    vectors = [np.concatenate([head] + [o[0] for o in options])]
+    for i, o in enumerate(options):
+        for alt in o[1:]:
+            parts = [head] + [opt[0] for opt in options]
+            parts[i + 1] = alt
+            vectors.append(np.concatenate(parts))
+    return vectors
+
+
+def fit_best(
+    model: Model,
+    d: Design,
+    weights: npt.NDArray[np.float64],
+    base: npt.NDArray[np.float64],
+    previous: Fit | None = None,
+) -> Fit:
+    """The best of the fits from every start vector."""
+    best: Fit | None = None
+    for x0 in start_vectors(model, base, previous):
+        f = fit(model, d, weights, x0)
+        if best is None or f.loss < best.loss:
+            best = f
+    return best  # type: ignore[return-value]

@@ -1,0 +1,155 @@
+"""report.json and report.md of `lads diagnose` (discovery.md §1 and §5.6)."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+from lads.diagnose.analysis import Diagnosis
+from lads.diagnose.catalogue import CATALOGUE
+from lads.files import atomic_write
+
+SCHEMA_VERSION = 1
+
+
+def build_report(
+    dg: Diagnosis, context: dict[str, Any], localization: dict[str, Any], figures: list[str]
+) -> dict[str, Any]:
+    """The report.json document (JSON types only, no NaN)."""
+    effects = []
+    for r in dg.effects:
+        effects.append({
+            "id": r.effect.info.id, "key": r.effect.info.key, "name": r.effect.info.name,
+            "label": r.effect.label, "class": r.effect.class_name,
+            "params": r.params, "ci95": r.ci95,
+            "selection_frequency": r.selection_frequency, "status": r.status,
+            **({"classes": r.effect.extra["classes"]} if "classes" in r.effect.extra else {}),
+        })  # fmt: skip
+    trace = [s.to_json() for s in dg.selection.trace]
+    doc = {
+        "schema_version": SCHEMA_VERSION,
+        "verdict": dg.verdict,
+        "verdict_reasons": dg.reasons,
+        **context,
+        "localization": localization.get("statements", []),
+        "effects": effects,
+        "possible_effects": dg.possible,
+        "alternatives": dg.alternatives,
+        "ambiguity_sets": dg.ambiguity_sets,
+        "noise_model": dg.noise_model,
+        "heldout": dg.heldout,
+        "split": {
+            "groups": dg.split.n_groups,
+            "rows": {
+                "train": int(len(dg.split.train)),
+                "validation": int(len(dg.split.validation)),
+                "test": int(len(dg.split.test)),
+            },
+        },  # fmt: skip
+        "selection_trace": trace,
+        "selection_frequency": dg.frequencies,
+        "baseline": {"ln_gain": float(dg.final.theta[0]), "id": "C0", "key": "global_gain"},
+        "figures": figures,
+        "localization_detail": localization,
+    }
+    return _clean(doc)
+
+
+def _clean(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {str(k): _clean(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_clean(v) for v in value]
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if hasattr(value, "item"):
+        return _clean(value.item())
+    return value
+
+
+def write_report(doc: dict[str, Any], out: Path) -> None:
+    """Write report.json and report.md into `out` atomically."""
+    atomic_write(out / "report.json", (json.dumps(doc, indent=2) + "\n").encode())
+    atomic_write(out / "report.md", markdown(doc).encode())
+
+
+def _fmt(v: Any) -> str:
+    if v is None:
+        return "n/a"
+    if isinstance(v, float):
+        return f"{v:.4g}"
+    if isinstance(v, list):
+        if len(v) > 6:
+            return f"[{len(v)} values]"
+        return "[" + ", ".join(_fmt(x) for x in v) + "]"
+    return str(v)
+
+
+def markdown(doc: dict[str, Any]) -> str:
+    """A person's summary of the report (the template sentence of §5.6 per effect)."""
+    lines = ["# lads diagnose report", ""]
+    lines.append(
+        f"- simulation: `{doc.get('sim_root')}`; real: `{doc.get('real_root')}`; "
+        f"source {doc.get('source')}, {doc.get('mode')}, seed {doc.get('seed')}"
+    )
+    lines.append(f"- beams: {doc.get('rows')}, scans: {doc.get('scans')}; sensor "
+                 f"{doc.get('sensor', {}).get('profile')}")  # fmt: skip
+    lines.append(
+        f"- **verdict: {doc['verdict']}**"
+        + (f" ({'; '.join(doc['verdict_reasons'])})" if doc["verdict_reasons"] else "")
+    )
+    lines += ["", "## Where simulation and reality differ", ""]
+    for s in doc["localization"] or []:
+        lines.append(f"- {s.get('text')}")
+    if not doc["localization"]:
+        lines.append("- no feature shows a significant difference (BH q < 0.05)")
+    lines += ["", "## Missing physics", ""]
+    if not doc["effects"]:
+        lines.append("None: no catalogue effect improved the held-out fit by more than two "
+                     "standard errors.")  # fmt: skip
+    for e in doc["effects"]:
+        params = ", ".join(f"{k} = {_fmt(v)} {_fmt(e['ci95'].get(k))}"
+                           for k, v in e["params"].items())  # fmt: skip
+        where = f" on {e['class']}" if e.get("class") else ""
+        lines.append(
+            f"- **{e['id']} {e['name']}** (`{e['key']}`){where}: {params}; selected "
+            f"in {e['selection_frequency']:.0%} of resamples ({e['status']})."
+        )
+    for p in doc.get("possible_effects", []):
+        lines.append(f"- possible: {p['id']} `{p['key']}` ({p['label']}), selected in "
+                     f"{p['selection_frequency']:.0%} of resamples")  # fmt: skip
+    if doc["ambiguity_sets"] or doc["alternatives"]:
+        lines += ["", "## Alternatives that fit as well", ""]
+        for s in doc["ambiguity_sets"]:
+            names = ", ".join(f"{i} {CATALOGUE[i].name}" for i in s["ids"])
+            lines.append(f"- cannot be separated: {names} ({s['reason']})")
+        for a in doc["alternatives"]:
+            lines.append(f"- {a['id']} `{a['key']}` instead of {', '.join(a['instead_of'])}: "
+                         f"held-out loss {a['delta_loss']:+.4f} (SE {a['se']:.4f}); separate "
+                         f"with {a['separating_data']}")  # fmt: skip
+    nm = doc["noise_model"]
+    lines += ["", "## Noise model", "",
+              f"- {nm['kind']}: sigma(ln I) = {nm['sigma_ln_i']:.3f}, range slope "
+              f"{nm['range_slope']:+.3f}, level slope {nm['level_slope']:+.3f}; return "
+              f"probability {nm['return_probability']:.3f}"]  # fmt: skip
+    h = doc["heldout"]
+    lines += ["", f"## Held-out test groups ({h['groups']} groups, {h['rows']} beams)", "",
+              "| model | RMSE ln I | MAE ln I | R² ln I | dropout Brier | dropout log-loss |",
+              "|---|---:|---:|---:|---:|---:|"]  # fmt: skip
+    for name in ("simulation", "before", "after"):
+        m = h.get(name) or {}
+        lines.append(f"| {name} | {_fmt(m.get('rmse_ln_i'))} | {_fmt(m.get('mae_ln_i'))} | "
+                     f"{_fmt(m.get('r2_ln_i'))} | {_fmt(m.get('dropout_brier'))} | "
+                     f"{_fmt(m.get('dropout_log_loss'))} |")  # fmt: skip
+    lines += ["", "`simulation`: ln I_sim as is; `before`: baseline (global gain, noise, "
+              "constant return rate); `after`: with the selected effects.", ""]  # fmt: skip
+    lines += ["## Selection trace", "", "| step | candidate | Δ held-out loss | SE | ΔBIC | "
+              "at bound | accepted |", "|---:|---|---:|---:|---:|---|---|"]  # fmt: skip
+    for s in doc["selection_trace"]:
+        lines.append(f"| {s['step']} | {s['candidate']} | {s['delta_loss']:.4f} | {s['se']:.4f}"
+                     f" | {s['delta_bic']:.1f} | {s['at_bound']} | {s['accepted']} |")  # fmt: skip
+    if doc.get("figures"):
+        lines += ["", "## Figures", ""] + [f"![{f}]({f})" for f in doc["figures"]]
+    return "\n".join(lines) + "\n"

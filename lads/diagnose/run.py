@@ -1,0 +1,152 @@
+"""`lads diagnose`: trees in, report.json / report.md / figures (and a corrected tree) out.
+
+The runner owns the I/O; the analysis (`analysis.diagnose_design`) and the localisation are
+pure functions of the beam table and a generator seeded from --seed.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from lads.diagnose import figures
+from lads.diagnose.analysis import Diagnosis, Settings, diagnose_design
+from lads.diagnose.beams import paired_table, unpaired_tables
+from lads.diagnose.corrected import write_corrected
+from lads.diagnose.design import Design, paired_design, unpaired_design
+from lads.diagnose.localize import localize, to_json
+from lads.diagnose.report import build_report, write_report
+from lads.diagnose.table import BeamTable
+from lads.diagnose.trees import open_trees
+from lads.errors import DiagnoseError
+
+MIN_ROWS = 2000
+MIN_GROUPS = 10
+LOCALIZE_BOOT = 100
+
+
+def _rng(seed: int, what: str) -> np.random.Generator:
+    digest = hashlib.sha256(f"lads-diagnose/{seed}/{what}".encode()).digest()
+    return np.random.default_rng(int.from_bytes(digest[:8], "little"))
+
+
+def diagnose(
+    sim_root: Path,
+    real_root: Path,
+    source: str,
+    out: Path,
+    *,
+    paired: bool = True,
+    seed: int = 0,
+    write_corrected_to: Path | None = None,
+    settings: Settings | None = None,
+    progress: bool = False,
+) -> dict[str, Any]:
+    """Run one diagnosis and write its report; returns the report document.
+
+    Raises:
+        DiagnoseError: trees that do not correspond or hold another sensor (see
+            `trees.open_trees`), too few beams or groups to fit, or constant intensities.
+    """
+    settings = settings or Settings()
+    torch.set_num_threads(1)  # fits are small; one thread keeps results identical everywhere
+    pair = open_trees(sim_root, real_root, source, paired=paired)
+    if paired:
+        table = paired_table(pair, progress=progress)
+        design = paired_design(table)
+    else:
+        sim_table, table = unpaired_tables(pair, progress=progress)
+        design = unpaired_design(sim_table, table)
+    _check_fit_data(design, sim_root, real_root)
+
+    residual_before = _row_residual(table, design, None)
+    loc_before = localize(table, residual_before, rng=_rng(seed, "localize"),
+                          n_boot=LOCALIZE_BOOT)  # fmt: skip
+    dg = diagnose_design(design, _rng(seed, "fit"), settings)
+    residual_after = _row_residual(table, design, dg)
+    loc_after = localize(table, residual_after, rng=_rng(seed, "localize-after"),
+                         n_boot=LOCALIZE_BOOT)  # fmt: skip
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    figs = _figures(table, design, dg, loc_before, loc_after, out)
+    context = {
+        "sim_root": str(sim_root), "real_root": str(real_root), "source": source,
+        "mode": "paired" if paired else "unpaired", "seed": seed, "rows": int(len(design)),
+        "scans": len(table.scans), "sensor": dataclasses.asdict(table.sensor),
+        "settings": dataclasses.asdict(settings),
+        "localization_after": to_json(loc_after).get("statements", []),
+    }  # fmt: skip
+    doc = build_report(dg, context, to_json(loc_before), figs)
+    write_report(doc, out)
+    if write_corrected_to is not None:
+        write_corrected(pair, table, design, dg.final, Path(write_corrected_to), seed)
+    return doc
+
+
+def _check_fit_data(d: Design, sim_root: Path, real_root: Path) -> None:
+    groups = len(np.unique(d.group))
+    if len(d) < MIN_ROWS or groups < MIN_GROUPS:
+        raise DiagnoseError(
+            f"{sim_root} vs {real_root}: {len(d)} comparable beams in {groups} spatial groups; "
+            f"at least {MIN_ROWS} beams in {MIN_GROUPS} groups are needed to fit and hold out "
+            "effects. Add scans (or, unpaired, scans that cover the same classes and ranges)."
+        )
+    ret = d.returned.numpy()
+    for name, values in (("real", d.y.numpy()[ret]), ("simulated", d.ln_sim.numpy())):
+        if values.size and float(np.ptp(values)) == 0.0:
+            raise DiagnoseError(
+                f"{real_root if name == 'real' else sim_root}: every {name} intensity is the "
+                "same value; there is no intensity variation to explain. Check that the tree "
+                "holds the intensity column (not a constant placeholder)."
+            )
+
+
+def _row_residual(table: BeamTable, d: Design, dg: Diagnosis | None) -> np.ndarray:
+    """(len(table),) residual ln(I_real + h) minus the prediction (NaN where undefined)."""
+    out = np.full(len(table), np.nan)
+    pred = d.ln_sim.numpy()
+    if dg is not None:
+        with torch.no_grad():
+            mu, *_ = dg.final.model.predict(torch.as_tensor(dg.final.theta), d)
+        pred = mu.numpy()
+    ret = d.returned.numpy()
+    out[d.rows[ret]] = d.y.numpy()[ret] - pred[ret]
+    return out
+
+
+def _figures(
+    table: BeamTable, d: Design, dg: Diagnosis, before: Any, after: Any, out: Path
+) -> list[str]:
+    written = [
+        figures.residual_panels(before, after, out / "residuals.png"),
+        figures.heatmaps(before, out / "heatmaps.png"),
+        figures.selection_trace([s.to_json() for s in dg.selection.trace],
+                                out / "selection_trace.png"),
+    ]  # fmt: skip
+    if d.paired:
+        with torch.no_grad():
+            mu, sigma, log_surv, thr = dg.final.model.predict(torch.as_tensor(dg.final.theta), d)
+            p = torch.exp(log_surv)
+            if thr is not None:
+                p = p * torch.special.ndtr((mu - thr[0]) / torch.sqrt(sigma**2 + thr[1] ** 2))
+        prob = np.full(len(table), np.nan)
+        prob[d.rows] = p.numpy()
+        written.append(figures.return_rate(table, prob, out / "return_rate.png"))
+    samples = {f"{r.effect.label}.{k}": v for r in dg.effects for k, v in r.samples.items()
+               if v.size}  # fmt: skip
+    if samples:
+        written.append(figures.bootstrap_histograms(samples, out / "bootstrap.png"))
+    for r in dg.effects:
+        if r.effect.info.id == "C4":
+            gains = np.asarray(r.params["ln_gain_by_ring"])
+            ci = r.ci95.get("ln_gain_by_ring") or [[np.nan, np.nan]] * len(gains)
+            lo = np.array([c[0] for c in ci])
+            hi = np.array([c[1] for c in ci])
+            written.append(figures.ring_gains(gains, lo, hi, out / "ring_gains.png"))
+    return [Path(p).name for p in written]

@@ -1,0 +1,247 @@
+"""Choosing the effects: grouped splits, forward selection, backward pass, stability,
+ambiguity and bootstrap uncertainty (discovery.md §5.4-5.5).
+
+Every split and resample is over spatial groups (scan x 10 m tile), never points: the
+effective sample size of LiDAR residuals is the number of independent surfaces (§2 item 4).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from lads.diagnose.design import Design
+from lads.diagnose.effects import Effect, candidates
+from lads.diagnose.model import Fit, Model, fit, fit_best, initial_base
+
+K_MAX = 4
+MIN_GAIN_NATS = 0.002  # per row: below this an effect is not worth naming
+BIC_THRESHOLD = -10.0
+CLAIM_FREQUENCY = 0.7
+POSSIBLE_FREQUENCY = 0.3
+
+
+@dataclass(frozen=True)
+class Split:
+    """Row indices of the train, validation and test groups (60/20/20 of the groups)."""
+
+    train: npt.NDArray[np.int64]
+    validation: npt.NDArray[np.int64]
+    test: npt.NDArray[np.int64]
+    n_groups: dict[str, int]
+
+
+def split_groups(d: Design, rng: np.random.Generator) -> Split:
+    """Assign whole groups to train / validation / test."""
+    groups = np.unique(d.group)
+    order = rng.permutation(groups)
+    n = len(order)
+    n_test = max(1, int(round(0.2 * n)))
+    n_val = max(1, int(round(0.2 * n)))
+    test_g, val_g = order[:n_test], order[n_test : n_test + n_val]
+    in_test = np.isin(d.group, test_g)
+    in_val = np.isin(d.group, val_g)
+    rows = np.arange(len(d))
+    return Split(
+        train=rows[~in_test & ~in_val],
+        validation=rows[in_val],
+        test=rows[in_test],
+        n_groups={"train": n - n_test - n_val, "validation": n_val, "test": n_test},
+    )
+
+
+def fit_weights(
+    n: int,
+    rows: npt.NDArray[np.int64],
+    cap: int,
+    rng: np.random.Generator,
+    multiplicity: npt.NDArray[np.float64] | None = None,
+) -> npt.NDArray[np.float64]:
+    """(n,) weights: 1 on at most `cap` of `rows` (a uniform subsample), else 0.
+
+    `multiplicity` (n,) scales them (group bootstrap counts). Subsampling rows keeps every
+    group represented while bounding the cost of a fit."""
+    chosen = rows if len(rows) <= cap else rng.choice(rows, cap, replace=False)
+    w = np.zeros(n)
+    w[chosen] = 1.0
+    if multiplicity is not None:
+        w *= multiplicity
+    return w
+
+
+@dataclass(frozen=True)
+class Comparison:
+    """Held-out comparison of a candidate model with the incumbent (positive = better)."""
+
+    delta: float
+    se: float
+    delta_bic: float
+
+
+def compare(
+    new: Fit, old: Fit, d: Design, rows: npt.NDArray[np.int64], n_eff_scale: float, n_fit: float
+) -> Comparison:
+    """Mean per-row NLL gain on `rows` with its cluster SE, and the training delta-BIC."""
+    sub = d.subset(rows)
+    gain = old.row_nll(sub) - new.row_nll(sub)
+    _, inv = np.unique(sub.group, return_inverse=True)
+    g_sum = np.bincount(inv, weights=gain)
+    g_n = np.bincount(inv).astype(np.float64)
+    total = g_n.sum()
+    delta = float(g_sum.sum() / total)
+    k = len(g_sum)
+    se = math.sqrt(k / max(k - 1, 1) * float(((g_sum - delta * g_n) ** 2).sum())) / total
+    n_eff = max(n_fit * n_eff_scale, 2.0)
+    dk = new.model.size - old.model.size
+    delta_bic = 2.0 * (new.loss - old.loss) * n_eff + dk * math.log(n_eff)
+    return Comparison(delta, se, float(delta_bic))
+
+
+def design_effect_scale(d: Design, rows: npt.NDArray[np.int64]) -> float:
+    """n_eff / n from the intra-group correlation of the baseline residual (Kish)."""
+    ret = d.returned.numpy()[rows]
+    r = (d.y.numpy() - d.ln_sim.numpy())[rows][ret]
+    g = d.group[rows][ret]
+    if r.size < 10:
+        return 1.0
+    _, inv = np.unique(g, return_inverse=True)
+    n_g = np.bincount(inv).astype(np.float64)
+    means = np.bincount(inv, weights=r) / n_g
+    within = float(((r - means[inv]) ** 2).sum()) / max(r.size - len(n_g), 1)
+    between = float((n_g * (means - r.mean()) ** 2).sum()) / max(len(n_g) - 1, 1)
+    m = r.size / len(n_g)
+    var_between = max((between - within) / m, 0.0)
+    icc = var_between / max(var_between + within, 1e-12)
+    return 1.0 / (1.0 + (m - 1.0) * icc)
+
+
+@dataclass
+class Step:
+    """One candidate evaluated at one forward step (the selection trace)."""
+
+    step: int
+    candidate: str
+    delta_loss: float
+    se: float
+    delta_bic: float
+    at_bound: bool
+    accepted: bool = False
+
+    def to_json(self) -> dict[str, Any]:
+        return {"step": self.step, "candidate": self.candidate, "delta_loss": self.delta_loss,
+                "se": self.se, "delta_bic": self.delta_bic, "at_bound": self.at_bound,
+                "accepted": self.accepted}  # fmt: skip
+
+
+@dataclass
+class Selection:
+    """Result of forward + backward selection on one training sample."""
+
+    fit: Fit
+    baseline: Fit
+    trace: list[Step] = field(default_factory=list)
+    first_step: dict[str, Comparison] = field(default_factory=dict)
+    fits: dict[str, Fit] = field(default_factory=dict)
+
+    @property
+    def labels(self) -> list[str]:
+        return [e.label for e in self.fit.model.effects]
+
+
+def _passes(c: Comparison, at_bound: bool) -> bool:
+    return (c.delta > 2.0 * c.se and c.delta > MIN_GAIN_NATS
+            and c.delta_bic < BIC_THRESHOLD and not at_bound)  # fmt: skip
+
+
+def forward_backward(
+    d: Design,
+    pool: list[Effect],
+    weights: npt.NDArray[np.float64],
+    validation: npt.NDArray[np.int64],
+    *,
+    heteroscedastic: bool = True,
+    k_max: int = K_MAX,
+) -> Selection:
+    """Greedy forward selection on held-out loss, then a backward pass (§5.5 steps 3-6)."""
+    fit_rows = np.flatnonzero(weights > 0)
+    base = initial_base(d, fit_rows)
+    scale = design_effect_scale(d, fit_rows)
+    n_fit = float(weights.sum())
+    model = Model([], float(d.ln_range.mean()), float(d.ln_sim.mean()), heteroscedastic)
+    baseline = fit(model, d, weights, base)
+    current = baseline
+    sel = Selection(current, baseline)
+    remaining = list(pool)
+    for step in range(1, k_max + 1):
+        results = []
+        for cand in remaining:
+            f = fit_best(current.model.with_effect(cand), d, weights, base, current)
+            c = compare(f, current, d, validation, scale, n_fit)
+            bound = cand.label in f.at_bound()
+            results.append((cand, f, c, bound))
+            sel.trace.append(Step(step, cand.label, c.delta, c.se, c.delta_bic, bound))
+            if step == 1:
+                sel.first_step[cand.label] = c
+                sel.fits[cand.label] = f
+        ok = [r for r in results if _passes(r[2], r[3])]
+        if not ok:
+            break
+        best = max(ok, key=lambda r: r[2].delta)
+        for s in sel.trace[-len(results) :]:
+            s.accepted = s.candidate == best[0].label
+        current = best[1]
+        remaining = [c for c in remaining if c.label != best[0].label]
+    # Backward pass: drop any effect whose removal costs less than 1 SE.
+    changed = True
+    while changed and current.model.effects:
+        changed = False
+        for e in list(current.model.effects):
+            reduced = fit_best(current.model.without(e.label), d, weights, base, current)
+            c = compare(current, reduced, d, validation, scale, n_fit)
+            if c.delta < c.se:
+                current = reduced
+                changed = True
+                break
+    sel.fit = current
+    return sel
+
+
+def pool_for(d: Design, train: npt.NDArray[np.int64]) -> list[Effect]:
+    """The candidate effects for this design (see `effects.candidates`)."""
+    return candidates(d, train_rows=train)
+
+
+def group_multiplicity(
+    d: Design, rows: npt.NDArray[np.int64], rng: np.random.Generator
+) -> npt.NDArray[np.float64]:
+    """(N,) bootstrap counts: the groups of `rows` resampled with replacement."""
+    groups = np.unique(d.group[rows])
+    draw = rng.choice(groups, size=len(groups), replace=True)
+    uniq, counts = np.unique(draw, return_counts=True)
+    mult = np.zeros(len(d))
+    pos = np.searchsorted(uniq, d.group[rows])
+    pos = np.clip(pos, 0, len(uniq) - 1)
+    hit = uniq[pos] == d.group[rows]
+    mult[rows[hit]] = counts[pos[hit]]
+    return mult
+
+
+def bootstrap_params(
+    final: Fit,
+    d: Design,
+    rows: npt.NDArray[np.int64],
+    cap: int,
+    n_boot: int,
+    rng: np.random.Generator,
+) -> npt.NDArray[np.float64]:
+    """(n_boot, P) parameter vectors refitted on group-bootstrap resamples (warm start)."""
+    out = []
+    for _ in range(n_boot):
+        mult = group_multiplicity(d, rows, rng)
+        w = fit_weights(len(d), rows, cap, rng, mult)
+        out.append(fit(final.model, d, w, final.theta, max_iter=100).theta)
+    return np.array(out) if out else np.zeros((0, final.model.size))

@@ -1,0 +1,297 @@
+"""Open a simulated and a real dataset tree of one sensor and read their scans for diagnosis.
+
+`open_trees` checks that the two roots hold scans of the same source and sensor (and, when
+paired, the same relative paths); `TreePair.read_scan` gives one scan as a `Scan`: points at
+zero range removed, every remaining point keeping its row number in the file, labels reduced
+to class ids. The beam table is built from these (`lads.diagnose.beams`).
+
+nuScenes roots are read with the devkit tables when they hold a `v1.0-*` folder; otherwise
+every `*.pcd.bin` under the root is a bare, unlabelled LIDAR_TOP scan (x, y, z, intensity,
+ring as float32), which is what a lone keyframe or a simulator's output usually looks like.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+import numpy.typing as npt
+
+from lads.diagnose.table import SensorInfo
+from lads.errors import ConfigError, DatasetNotFoundError, DiagnoseError, IntensityEncodingError
+from lads.frame import Item
+from lads.physics.projection import MIN_RANGE_M
+from lads.readers import Reader, get_reader
+from lads.sensors.profile import SensorProfile, load_profile
+
+SOURCES: tuple[str, ...] = ("semantickitti", "nuscenes", "wads")
+Tree = Literal["sim", "real"]
+_COLUMNS = {
+    "semantickitti": ("x", "y", "z", "intensity"),
+    "wads": ("x", "y", "z", "intensity"),
+    "nuscenes": ("x", "y", "z", "intensity", "ring"),
+}
+_INSTANCE_BITS = {"semantickitti": True, "wads": True, "nuscenes": False}
+_RAW_NUSCENES_PROFILE = "hdl32e"
+# Sensors that report range-compensated, calibrated reflectivity (HDL-32E v2 firmware in
+# nuScenes); HDL-64E remission (KITTI) and the WADS sensor report raw intensity.
+_CALIBRATED_PROFILES = frozenset({"hdl32e"})
+_EXAMPLES = 3
+
+
+@dataclass(frozen=True, slots=True)
+class Scan:
+    """One scan, zero-range points removed.
+
+    Attributes:
+        relpath: the scan's path relative to its tree root.
+        xyz: (N, 3) float64 coordinates in m, sensor frame.
+        intensity: (N,) float32 intensity in the stored units of the sensor's encoding.
+        labels: (N,) int32 class ids (instance bits removed), or None when unlabelled.
+        ring: (N,) int16 laser channel from the file's ring column (0 = lowest), or None.
+        index: (N,) int64 row of each point in the scan file.
+    """
+
+    relpath: str
+    xyz: npt.NDArray[np.float64]
+    intensity: npt.NDArray[np.float32]
+    labels: npt.NDArray[np.int32] | None
+    ring: npt.NDArray[np.int16] | None
+    index: npt.NDArray[np.int64]
+
+    def __len__(self) -> int:
+        return int(self.xyz.shape[0])
+
+
+@dataclass(frozen=True, slots=True)
+class _TreeSource:
+    """How to read one tree: a project reader and its items, or bare nuScenes files."""
+
+    root: Path
+    reader: Reader | None
+    items: dict[str, Item]
+    labelled: bool
+
+
+@dataclass(frozen=True, slots=True)
+class TreePair:
+    """A simulated and a real tree of one source and sensor, ready to be read scan by scan.
+
+    Attributes:
+        source: "semantickitti", "nuscenes" or "wads".
+        sim_root, real_root: the tree roots.
+        profile: sensor profile of both trees.
+        sensor: what the fitter needs to know about that sensor.
+        sim_scans, real_scans: sorted scan relpaths of each tree (equal when paired).
+        paired: both trees hold the same scans, rendered from the same poses.
+    """
+
+    source: str
+    sim_root: Path
+    real_root: Path
+    profile: SensorProfile
+    sensor: SensorInfo
+    sim_scans: tuple[str, ...]
+    real_scans: tuple[str, ...]
+    paired: bool
+    _trees: dict[str, _TreeSource] = field(repr=False, compare=False)
+
+    def read_scan(self, tree: Tree, relpath: str) -> Scan:
+        """Scan `relpath` of the "sim" or "real" tree (see `Scan`).
+
+        Raises:
+            DiagnoseError: unknown tree or relpath, a file whose size or intensities do not
+                fit the source's format and sensor, or an invalid ring column.
+            ReaderError: the reader cannot read the item (message names the file).
+        """
+        if tree not in self._trees:
+            raise DiagnoseError(f"tree {tree!r}: expected 'sim' or 'real'.")
+        src = self._trees[tree]
+        if relpath not in src.items:
+            scans = self.sim_scans if tree == "sim" else self.real_scans
+            raise DiagnoseError(
+                f"{src.root}: no scan {relpath!r} in the {tree} tree; pass one of its "
+                f"{len(scans)} scans (e.g. {list(scans[:_EXAMPLES])})."
+            )
+        return _read(self.source, self.profile, tree, src, relpath)
+
+
+def open_trees(
+    sim_root: str | Path, real_root: str | Path, source: str, *, paired: bool
+) -> TreePair:
+    """Open the simulated and the real tree of `source` and check they can be compared.
+
+    Args:
+        sim_root, real_root: tree roots as the source's reader takes them (SemanticKITTI and
+            WADS: the folder holding `sequences/`; nuScenes: the dataroot, or any folder of
+            bare `*.pcd.bin` scans).
+        source: "semantickitti", "nuscenes" or "wads" (both trees are of this source).
+        paired: the simulation was rendered from the real poses, scan for scan; both trees
+            must then hold the same relpaths.
+
+    Returns:
+        TreePair. The first scan of each tree has been read to check the sensor.
+
+    Raises:
+        ConfigError: unknown source.
+        DiagnoseError: a root is missing or holds no scans of `source`; paired trees with
+            different relpaths; scans that look like another sensor or format.
+    """
+    if source not in SOURCES:
+        raise ConfigError(f"source {source!r}: expected one of {', '.join(SOURCES)}.")
+    sim = _open_tree(Path(sim_root), source, "sim")
+    real = _open_tree(Path(real_root), source, "real")
+    sim_scans, real_scans = tuple(sorted(sim.items)), tuple(sorted(real.items))
+    if paired and sim_scans != real_scans:
+        raise DiagnoseError(_relpath_mismatch(sim, real, sim_scans, real_scans))
+    profile = load_profile(_profile_name(sim))
+    labelled = sim.labelled or real.labelled
+    enc = profile.intensity
+    sensor = SensorInfo(
+        profile=profile.name,
+        n_rings=profile.channels,
+        encoding_kind=enc.kind,
+        step=enc.step,
+        max_value=enc.max_value,
+        full_scale=enc.reflectivity_full_scale,
+        calibrated=profile.name in _CALIBRATED_PROFILES,
+        has_ring_column=profile.has_ring_column,
+        label_set=source if labelled else None,
+    )
+    pair = TreePair(
+        source, sim.root, real.root, profile, sensor, sim_scans, real_scans, paired,
+        {"sim": sim, "real": real},
+    )  # fmt: skip
+    pair.read_scan("sim", sim_scans[0])
+    pair.read_scan("real", real_scans[0])
+    return pair
+
+
+def _open_tree(root: Path, source: str, tree: str) -> _TreeSource:
+    if not root.is_dir():
+        raise DiagnoseError(
+            f"{root}: the {tree} tree root does not exist or is not a folder; pass the root "
+            f"of a {source} tree."
+        )
+    if source == "nuscenes" and not any(d.is_dir() for d in root.glob("v1.0-*")):
+        files = {
+            p.relative_to(root).as_posix(): Item("nuscenes", p.relative_to(root).as_posix())
+            for p in root.rglob("*.pcd.bin")
+            if p.is_file()
+        }
+        if not files:
+            raise DiagnoseError(
+                f"{root}: the {tree} tree holds no nuScenes scans; expected a dataroot with a "
+                "v1.0-* table folder, or *.pcd.bin files (N x 5 float32: x, y, z, intensity, "
+                "ring) anywhere below it."
+            )
+        return _TreeSource(root, None, files, labelled=False)
+    reader = get_reader(source, root)
+    try:
+        items = reader.items()
+    except DatasetNotFoundError as exc:
+        raise DiagnoseError(f"the {tree} tree holds no {source} scans: {exc}") from exc
+    labelled = all(item.label_relpath is not None for item in items)
+    return _TreeSource(reader.root, reader, {it.relpath: it for it in items}, labelled)
+
+
+def _profile_name(tree: _TreeSource) -> str:
+    return tree.reader.sensor if tree.reader is not None else _RAW_NUSCENES_PROFILE
+
+
+def _relpath_mismatch(
+    sim: _TreeSource, real: _TreeSource, sim_scans: tuple[str, ...], real_scans: tuple[str, ...]
+) -> str:
+    only_sim = sorted(set(sim_scans) - set(real_scans))
+    only_real = sorted(set(real_scans) - set(sim_scans))
+    return (
+        f"paired trees must hold the same scans, but {len(only_sim)} of {len(sim_scans)} scans "
+        f"of the sim tree {sim.root} are missing from the real tree (e.g. "
+        f"{only_sim[:_EXAMPLES]}) and {len(only_real)} of {len(real_scans)} scans of the real "
+        f"tree {real.root} are missing from the sim tree (e.g. {only_real[:_EXAMPLES]}). "
+        "Render the simulation from the real scans' poses with the same relative paths, or "
+        "compare the trees unpaired."
+    )
+
+
+def _read(source: str, profile: SensorProfile, tree: str, src: _TreeSource, relpath: str) -> Scan:
+    path = src.root / relpath
+    columns = _COLUMNS[source]
+    _check_size(path, columns, source, profile, tree)
+    labels_raw: npt.NDArray[Any] | None = None
+    if src.reader is None:
+        points = np.fromfile(path, dtype="<f4").reshape(-1, len(columns))
+        if not np.isfinite(points).all():
+            raise DiagnoseError(
+                f"{path}: NaN or infinite values in the {tree} tree's scan; expected finite "
+                f"float32 {', '.join(columns)}. Re-export the scan."
+            )
+    else:
+        frame = src.reader.read(src.items[relpath])
+        points, columns, labels_raw = frame.points, frame.columns, frame.labels
+    intensity = np.array(points[:, columns.index("intensity")], dtype=np.float32)
+    try:
+        profile.intensity.validate(intensity, f"{path} ({tree} tree)")
+    except IntensityEncodingError as exc:
+        raise DiagnoseError(
+            f"{exc} Both trees must hold {source} scans of the '{profile.name}' sensor; a "
+            f"scan written with another column layout than {len(columns)} float32 columns "
+            f"({', '.join(columns)}) shows up this way too."
+        ) from exc
+    ring = None
+    if "ring" in columns:
+        ring = _checked_ring(points[:, columns.index("ring")], path, tree, profile)
+    xyz = points[:, :3].astype(np.float64)
+    keep = np.flatnonzero(np.sqrt(np.einsum("ij,ij->i", xyz, xyz)) > MIN_RANGE_M)
+    labels = None
+    if labels_raw is not None:
+        ids = labels_raw.astype(np.int64)
+        labels = (ids & 0xFFFF if _INSTANCE_BITS[source] else ids).astype(np.int32)[keep]
+    return Scan(
+        relpath=relpath,
+        xyz=xyz[keep],
+        intensity=intensity[keep],
+        labels=labels,
+        ring=None if ring is None else ring[keep],
+        index=keep.astype(np.int64),
+    )
+
+
+def _check_size(
+    path: Path, columns: tuple[str, ...], source: str, profile: SensorProfile, tree: str
+) -> None:
+    try:
+        size = path.stat().st_size
+    except OSError as exc:
+        raise DiagnoseError(
+            f"{path}: cannot read the {tree} tree's scan ({exc.strerror or exc}); check that "
+            "it exists and is readable."
+        ) from exc
+    record = 4 * len(columns)
+    if size % record == 0:
+        return
+    fits = [c for c in range(3, 9) if size % (4 * c) == 0]
+    raise DiagnoseError(
+        f"{path}: {size} bytes is not a whole number of {len(columns)}-column float32 records "
+        f"({', '.join(columns)}) as {source} scans of the '{profile.name}' sensor have"
+        f"{f'; it would fit {fits} columns' if fits else ''}. The {tree} tree looks written for "
+        f"another sensor or format: write both trees in the {source} layout."
+    )
+
+
+def _checked_ring(
+    column: npt.NDArray[np.float32], path: Path, tree: str, profile: SensorProfile
+) -> npt.NDArray[np.int16]:
+    as_int = np.rint(column)
+    bad = (as_int != column) | (as_int < 0) | (as_int >= profile.channels)
+    if bad.any():
+        raise DiagnoseError(
+            f"{path}: {int(bad.sum())} of {column.size} ring values in the {tree} tree's scan "
+            f"are not integers in [0, {profile.channels}) (e.g. {column[bad][:3].tolist()}), "
+            f"so it has no usable ring column where the '{profile.name}' sensor writes one. "
+            "The trees look like different sensors: write the laser channel (0 = lowest beam) "
+            "in the ring column of both."
+        )
+    return as_int.astype(np.int16)
