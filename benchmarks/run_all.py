@@ -9,6 +9,7 @@ build_speed.json  lads build end to end: frames/s with 1 and 2 jobs, memory, pro
 verify.json       lads verify throughput (MB/s) on a ~450 MB tree
 intensity_speed.json  intensity generator ms per 64-beam frame on one core
 intensity_eval.json   held-out evaluation of the shipped generators against the baselines
+diagnose_real.json    lads diagnose: a simple rho cos/R^2 simulator vs real KITTI and nuScenes
 """
 
 from __future__ import annotations
@@ -34,6 +35,7 @@ BENCHMARKS = (
     "verify_speed",
     "intensity_speed",
     "intensity_eval",
+    "diagnose_real",
 )
 
 
