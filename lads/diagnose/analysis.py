@@ -10,12 +10,11 @@ from typing import Any
 
 import numpy as np
 import numpy.typing as npt
-import torch
 from scipy.stats import wasserstein_distance
 
 from lads.diagnose.catalogue import CATALOGUE
 from lads.diagnose.design import Design
-from lads.diagnose.effects import Effect
+from lads.diagnose.effects import Effect, candidates
 from lads.diagnose.model import BASE_NAMES, Fit, fit_best, initial_base
 from lads.diagnose.select import (
     CLAIM_FREQUENCY,
@@ -28,7 +27,6 @@ from lads.diagnose.select import (
     fit_weights,
     forward_backward,
     group_multiplicity,
-    pool_for,
     split_groups,
 )
 
@@ -88,7 +86,7 @@ def diagnose_design(d: Design, rng: np.random.Generator, settings: Settings) -> 
     """Select, stabilise, quantify and evaluate the effects that explain `d`."""
     split = split_groups(d, rng)
     weights = fit_weights(len(d), split.train, settings.fit_rows, rng)
-    pool = pool_for(d, split.train)
+    pool = candidates(d, train_rows=split.train)
     selection = forward_backward(d, pool, weights, split.validation, k_max=settings.k_max)
 
     # Stability: rerun the selection on group-bootstrap resamples of the training groups,
@@ -295,13 +293,8 @@ def heldout_metrics(
     }
     out["simulation"] = _intensity_metrics(y[ret], sub.ln_sim.numpy()[ret], None, sub, ret)
     for name, f in (("before", baseline), ("after", final)):
-        with torch.no_grad():
-            mu, sigma, log_surv, thr = f.model.predict(torch.as_tensor(f.theta), sub)
-            p = torch.exp(log_surv)
-            if thr is not None:
-                p = p * torch.special.ndtr((mu - thr[0]) / torch.sqrt(sigma**2 + thr[1] ** 2))
-        mu_np, p_np = mu.numpy(), p.numpy()
-        m = _intensity_metrics(y[ret], mu_np[ret], sigma.numpy()[ret], sub, ret)
+        mu_np, sigma_np, p_np = f.predictions(sub)
+        m = _intensity_metrics(y[ret], mu_np[ret], sigma_np[ret], sub, ret)
         if sub.paired:
             obs = sub.returned.numpy().astype(np.float64)
             pc = np.clip(p_np, 1e-9, 1 - 1e-9)

@@ -17,11 +17,10 @@ from pathlib import Path
 
 import numpy as np
 import numpy.typing as npt
-import torch
 
 from lads.diagnose.design import Design
 from lads.diagnose.model import Fit
-from lads.diagnose.table import BeamTable
+from lads.diagnose.table import BeamTable, SensorInfo
 from lads.diagnose.trees import TreePair
 from lads.errors import DiagnoseError
 from lads.files import atomic_write
@@ -46,13 +45,8 @@ def write_corrected(
     if out_root.exists():
         shutil.rmtree(out_root)
     shutil.copytree(pair.sim_root, out_root)
-    with torch.no_grad():
-        mu, sigma, log_surv, thr = fit.model.predict(torch.as_tensor(fit.theta), design)
-        p_ret = torch.exp(log_surv)
-        if thr is not None:
-            p_ret = p_ret * torch.special.ndtr((mu - thr[0]) / torch.sqrt(sigma**2 + thr[1] ** 2))
-    intensity = np.exp(mu.numpy()) - design.half_step
-    p = p_ret.numpy()
+    mu, _, p = fit.predictions(design)
+    intensity = np.exp(mu) - design.half_step
     # Without any dropout effect the constant return rate is the sensor's random loss, which
     # the simulation is not asked to reproduce: only fitted dropout mechanisms remove beams.
     has_dropout = any(e.log_survival is not None or e.extra.get("threshold")
@@ -80,7 +74,7 @@ def _rewrite(
     intensity: npt.NDArray[np.float64],
     p_keep: npt.NDArray[np.float64] | None,
     seed: int,
-    sensor: object,
+    sensor: SensorInfo,
 ) -> None:
     path = out_root / relpath
     cols = _COLUMNS[pair.source]
@@ -88,8 +82,7 @@ def _rewrite(
     if raw.size % cols:
         raise DiagnoseError(f"{path}: {raw.size} float32 values, not a multiple of {cols}.")
     points = raw.reshape(-1, cols).copy()
-    step = float(sensor.step)  # type: ignore[attr-defined]
-    top = float(sensor.max_value)  # type: ignore[attr-defined]
+    step, top = sensor.step, sensor.max_value
     points[rows, 3] = np.clip(np.round(intensity / step) * step, 0.0, top).astype(np.float32)
     keep = np.ones(len(points), dtype=bool)
     label_path = _label_path(pair.source, path)

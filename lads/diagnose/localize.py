@@ -418,7 +418,7 @@ def to_json(loc: Localization) -> dict[str, Any]:
     out = {"n_rows": loc.n_rows, "n_groups": loc.n_groups, "n_boot": loc.n_boot,
            "residual_given": loc.residual_given, "features": features,
            "statements": loc.statements, "heatmaps": heatmaps}  # fmt: skip
-    return dict(_jsonable(out))
+    return dict(json_safe(out))
 
 
 # --- binned statistics -----------------------------------------------------------------
@@ -775,15 +775,16 @@ def _per_row(values: npt.ArrayLike, n: int, name: str) -> F64:
     return arr
 
 
-def _jsonable(value: Any) -> Any:
+def json_safe(value: Any) -> Any:
+    """JSON types only: numpy unwrapped, tuples as lists, NaN/inf as None."""
     if isinstance(value, dict):
-        return {str(k): _jsonable(v) for k, v in value.items()}
+        return {str(k): json_safe(v) for k, v in value.items()}
     if isinstance(value, list | tuple):
-        return [_jsonable(v) for v in value]
+        return [json_safe(v) for v in value]
     if isinstance(value, np.ndarray):
-        return _jsonable(value.tolist())
+        return json_safe(value.tolist())
     if isinstance(value, np.generic):
-        return _jsonable(value.item())
+        return json_safe(value.item())
     if isinstance(value, float):
         return value if math.isfinite(value) else None
     return value

@@ -191,6 +191,17 @@ class Fit:
                 out.append(e.label)
         return out
 
+    def predictions(self, d: Design) -> tuple[npt.NDArray[np.float64], ...]:
+        """(N,) predicted ln(I_real + h), its sigma and P(return) of every row of `d`."""
+        with torch.no_grad():
+            mu, sigma, log_surv, thr = self.model.predict(torch.as_tensor(self.theta), d)
+            p_ret = torch.exp(log_surv)
+            if thr is not None:
+                p_ret = p_ret * torch.special.ndtr(
+                    (mu - thr[0]) / torch.sqrt(sigma**2 + thr[1] ** 2)
+                )
+        return mu.numpy(), sigma.numpy(), p_ret.numpy()
+
     def row_nll(self, d: Design) -> npt.NDArray[np.float64]:
         with torch.no_grad():
             return self.model.nll_rows(torch.as_tensor(self.theta), d).numpy()

@@ -3,12 +3,12 @@
 from __future__ import annotations
 
 import json
-import math
 from pathlib import Path
 from typing import Any
 
 from lads.diagnose.analysis import Diagnosis
 from lads.diagnose.catalogue import CATALOGUE
+from lads.diagnose.localize import json_safe
 from lads.files import atomic_write
 
 SCHEMA_VERSION = 1
@@ -54,19 +54,7 @@ def build_report(
         "figures": figures,
         "localization_detail": localization,
     }
-    return _clean(doc)
-
-
-def _clean(value: Any) -> Any:
-    if isinstance(value, dict):
-        return {str(k): _clean(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [_clean(v) for v in value]
-    if isinstance(value, float):
-        return value if math.isfinite(value) else None
-    if hasattr(value, "item"):
-        return _clean(value.item())
-    return value
+    return json_safe(doc)
 
 
 def write_report(doc: dict[str, Any], out: Path) -> None:

@@ -110,11 +110,7 @@ def _check_fit_data(d: Design, sim_root: Path, real_root: Path) -> None:
 def _row_residual(table: BeamTable, d: Design, dg: Diagnosis | None) -> np.ndarray:
     """(len(table),) residual ln(I_real + h) minus the prediction (NaN where undefined)."""
     out = np.full(len(table), np.nan)
-    pred = d.ln_sim.numpy()
-    if dg is not None:
-        with torch.no_grad():
-            mu, *_ = dg.final.model.predict(torch.as_tensor(dg.final.theta), d)
-        pred = mu.numpy()
+    pred = d.ln_sim.numpy() if dg is None else dg.final.predictions(d)[0]
     ret = d.returned.numpy()
     out[d.rows[ret]] = d.y.numpy()[ret] - pred[ret]
     return out
@@ -130,13 +126,8 @@ def _figures(
                                 out / "selection_trace.png"),
     ]  # fmt: skip
     if d.paired:
-        with torch.no_grad():
-            mu, sigma, log_surv, thr = dg.final.model.predict(torch.as_tensor(dg.final.theta), d)
-            p = torch.exp(log_surv)
-            if thr is not None:
-                p = p * torch.special.ndtr((mu - thr[0]) / torch.sqrt(sigma**2 + thr[1] ** 2))
         prob = np.full(len(table), np.nan)
-        prob[d.rows] = p.numpy()
+        prob[d.rows] = dg.final.predictions(d)[2]
         written.append(figures.return_rate(table, prob, out / "return_rate.png"))
     samples = {f"{r.effect.label}.{k}": v for r in dg.effects for k, v in r.samples.items()
                if v.size}  # fmt: skip

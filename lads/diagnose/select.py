@@ -15,7 +15,7 @@ import numpy as np
 import numpy.typing as npt
 
 from lads.diagnose.design import Design
-from lads.diagnose.effects import Effect, candidates
+from lads.diagnose.effects import Effect
 from lads.diagnose.model import Fit, Model, fit, fit_best, initial_base
 
 K_MAX = 4
@@ -208,11 +208,6 @@ def forward_backward(
                 break
     sel.fit = current
     return sel
-
-
-def pool_for(d: Design, train: npt.NDArray[np.int64]) -> list[Effect]:
-    """The candidate effects for this design (see `effects.candidates`)."""
-    return candidates(d, train_rows=train)
 
 
 def group_multiplicity(
