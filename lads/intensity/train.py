@@ -25,6 +25,7 @@ from __future__ import annotations
 import io
 import json
 import math
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -35,7 +36,14 @@ from tqdm.auto import tqdm
 
 from lads.errors import TrainingError
 from lads.files import atomic_write, atomic_write_figure
-from lads.intensity.cache import CachedFrame, CacheJob, build_cache, compute_statistics, read_frame
+from lads.intensity.cache import (
+    CachedFrame,
+    CacheJob,
+    build_cache,
+    compute_statistics,
+    iter_frames,
+    read_frame,
+)
 from lads.intensity.checkpoint import ModelMeta, TargetSpec, save_model
 from lads.intensity.features import (
     FEATURE_VERSION,
@@ -46,7 +54,7 @@ from lads.intensity.features import (
 )
 from lads.intensity.losses import masked_l1, masked_mse_to
 from lads.intensity.model import Discriminator, Generator
-from lads.intensity.train_config import TrainConfig
+from lads.intensity.train_config import PairSpec, TrainConfig
 
 GEOMETRY = ("ln_range", "cos_incidence", "elevation", "mask")
 MAX_REFLECTANCE = 1.2
@@ -145,6 +153,35 @@ class Nets(torch.nn.Module):
         return torch.cat(planes, 1)
 
 
+class PairFacts:
+    """Per-pair facts gathered while a pass streams the cache, in O(pairs) memory.
+
+    Attributes:
+        labelled: per pair key, whether every target frame carries labels (True without
+            target frames, as `all` of nothing).
+    """
+
+    def __init__(self, pairs: tuple[PairSpec, ...]) -> None:
+        self.labelled = {p.key: True for p in pairs}
+        self._alpha_sum = {p.key: 0.0 for p in pairs}
+        self._alpha_count = {p.key: 0 for p in pairs}
+
+    def observe(self, frames: Iterable[CachedFrame]) -> Iterator[CachedFrame]:
+        """Pass `frames` through unchanged, noting each one's pair facts on the way."""
+        for f in frames:
+            if f.pair in self.labelled and f.role == "target":
+                self.labelled[f.pair] &= f.labelled
+            elif f.pair in self.labelled and f.role == "source":
+                self._alpha_sum[f.pair] += f.extinction_per_m
+                self._alpha_count[f.pair] += 1
+            yield f
+
+    def mean_alpha(self) -> dict[str, float]:
+        """Per pair key, mean extinction of its source frames (1/m); NaN without any."""
+        return {k: s / n if (n := self._alpha_count[k]) else float("nan")
+                for k, s in self._alpha_sum.items()}  # fmt: skip
+
+
 def set_statistics(nets: Nets, stats: Any) -> None:
     nets.g.norm.set_stats(stats.mean, stats.std)
     nets.inv.norm.set_stats(stats.mean, stats.std)
@@ -171,19 +208,12 @@ def train(
     run = run_dir or (Path("runs") / cfg.name)
     run.mkdir(parents=True, exist_ok=True)
     jobs = build_cache(run, cfg, progress=progress)
-    frames_for_stats = [read_frame(run, j) for j in jobs]
     channels = channel_names(cfg.kind == "weather")
-    stats = compute_statistics(frames_for_stats, channels, cfg.pairs)
-    labelled = {
-        p.key: all(f.labelled for f in frames_for_stats if f.pair == p.key and f.role == "target")
-        for p in cfg.pairs
-    }
-    mean_alpha = {
-        p.key: float(np.mean([f.extinction_per_m for f in frames_for_stats
-                              if f.pair == p.key and f.role == "source"]))
-        for p in cfg.pairs
-    }  # fmt: skip
-    del frames_for_stats
+    # One streaming pass over the cache (one frame in memory at a time) for the statistics
+    # and the per-pair facts the networks and the style term need.
+    facts = PairFacts(cfg.pairs)
+    stats = compute_statistics(facts.observe(iter_frames(run, jobs)), channels, cfg.pairs)
+    labelled, mean_alpha = facts.labelled, facts.mean_alpha()
 
     torch.manual_seed(cfg.seed)
     rng = np.random.default_rng(cfg.seed)
