@@ -59,8 +59,12 @@ def _metrics_table(results: dict[str, Any]) -> list[str]:
             for metric, table in beats.items():
                 won = [b for b, ok in table.items() if ok]
                 lost = [b for b, ok in table.items() if not ok]
-                lines.append(f"- {metric}: the generator beats {', '.join(won) or 'none'}; "
-                             f"does not beat {', '.join(lost) or 'none'}.")  # fmt: skip
+                if not lost:
+                    lines.append(f"- {metric}: the generator beats every baseline "
+                                 f"({', '.join(won)}).")  # fmt: skip
+                else:
+                    lines.append(f"- {metric}: the generator beats {', '.join(won) or 'none'}; "
+                                 f"does not beat {', '.join(lost)}.")  # fmt: skip
         lines.append("")
     return lines
 
