@@ -172,7 +172,7 @@ def summarise(report: dict[str, Any]) -> dict[str, Any]:
         "rows": report["rows"],
         "scans": report["scans"],
         # report.json's "baseline" holds the C0 gain of the final model (with the effects).
-        "final_ln_gain_c0": report["baseline"]["ln_gain"],
+        "final_ln_gain_c0": report["baseline"]["ln_gain_with_effects"],
         "effects": [
             {
                 k: e[k]

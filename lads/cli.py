@@ -376,6 +376,13 @@ _register_intensity()
     help="Selection reruns on group-bootstrap resamples (stability).",
 )
 @click.option("--bootstrap", default=None, type=int, help="Bootstrap refits for the CIs.")
+@click.option(
+    "--jobs",
+    default=None,
+    type=click.IntRange(min=1),
+    help="Processes for the resamples and bootstrap refits [default: 2]; the report does not "
+    "depend on it.",
+)
 @_lads_errors
 def diagnose(
     sim_root: Path,
@@ -387,6 +394,7 @@ def diagnose(
     corrected: Path | None,
     resamples: int | None,
     bootstrap: int | None,
+    jobs: int | None,
 ) -> None:
     """Locate where simulation and reality differ, name and fit the missing physics."""
     from lads.diagnose.analysis import Settings
@@ -397,6 +405,8 @@ def diagnose(
         settings = dataclasses.replace(settings, resamples=resamples)
     if bootstrap is not None:
         settings = dataclasses.replace(settings, bootstrap=bootstrap)
+    if jobs is not None:
+        settings = dataclasses.replace(settings, jobs=jobs)
     doc = run_diagnose(
         sim_root,
         real_root,

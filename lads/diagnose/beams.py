@@ -1,10 +1,11 @@
 """Reduce a simulated and a real tree to beam tables (discovery.md §5.1).
 
 Every feature is computed per scan on each tree's own point cloud (vectorised numpy, one
-range image per cloud). Paired mode then associates each simulated return with the nearest
+range image per cloud). Paired mode associates each simulated return with the nearest
 unclaimed real return within `max_pair_distance_m`: a simulated beam without a partner was
 dropped in reality, a real return without one is extra. Unpaired mode keeps one table per
-tree.
+tree. Returns nearer than the sensor profile's `min_range_m` are dropped in both modes, in
+paired mode together with their partners (`lads.diagnose.minrange`).
 
 Geometry features of a row come from its simulated point, or from its real point for
 real-only rows. When only the real scan is labelled, paired rows take their class (and
@@ -16,7 +17,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -24,6 +25,7 @@ import numpy.typing as npt
 from scipy.ndimage import distance_transform_edt
 from tqdm.auto import tqdm
 
+from lads.diagnose.minrange import beyond_min_range, pairs_beyond_min_range
 from lads.diagnose.pairing import pair_points
 from lads.diagnose.table import EDGE_CAP_BEAMS, GROUP_TILE_M, ROW_FIELDS, BeamTable
 from lads.diagnose.trees import Scan, Tree, TreePair
@@ -109,7 +111,9 @@ def paired_table(
 
     Returns:
         BeamTable with scans = pair.sim_scans; per scan the simulated rows in file order,
-        then the real-only rows in file order. meta: mode "paired", max_pair_distance_m.
+        then the real-only rows in file order; returns nearer than the profile's
+        min_range_m and their partners left out. meta: mode "paired", max_pair_distance_m,
+        min_range_m.
 
     Raises:
         DiagnoseError: the pair is unpaired or a scan cannot be read (see `TreePair`).
@@ -125,15 +129,20 @@ def paired_table(
     for i, relpath in enumerate(_bar(pair.sim_scans, progress, "paired beam table")):
         sim, real = pair.read_scan("sim", relpath), pair.read_scan("real", relpath)
         parts.append(_paired_rows(pair, i, sim, real, max_pair_distance_m))
-    meta = {"mode": "paired", "max_pair_distance_m": float(max_pair_distance_m)}
+    meta = {
+        "mode": "paired",
+        "max_pair_distance_m": float(max_pair_distance_m),
+        "min_range_m": pair.profile.min_range_m,
+    }
     return _table(pair, pair.sim_scans, parts, meta)
 
 
 def unpaired_tables(pair: TreePair, *, progress: bool = False) -> tuple[BeamTable, BeamTable]:
-    """One table per tree, one row per return: (sim table, real table).
+    """One table per tree, one row per return beyond the profile's min_range_m: (sim, real).
 
     The sim table has ret_sim True, ret_real False, i_real NaN, real_index -1; the real table
-    the opposite. scans are pair.sim_scans and pair.real_scans. meta: mode "unpaired".
+    the opposite. scans are pair.sim_scans and pair.real_scans. meta: mode "unpaired", tree,
+    min_range_m.
     """
     tables = []
     trees: tuple[tuple[Tree, tuple[str, ...]], ...] = (
@@ -142,10 +151,12 @@ def unpaired_tables(pair: TreePair, *, progress: bool = False) -> tuple[BeamTabl
     for tree, scans in trees:
         parts = []
         for i, relpath in enumerate(_bar(scans, progress, f"{tree} beam table")):
-            scan = pair.read_scan(tree, relpath)
+            scan = _ringed(pair.read_scan(tree, relpath), pair.profile)
+            scan = beyond_min_range(scan, pair.profile.min_range_m)
             feats = cloud_features(scan, pair.profile, pair.sensor.label_set, i)
             parts.append(_own_rows(i, scan, feats, tree, np.arange(len(scan))))
-        tables.append(_table(pair, scans, parts, {"mode": "unpaired", "tree": tree}))
+        meta = {"mode": "unpaired", "tree": tree, "min_range_m": pair.profile.min_range_m}
+        tables.append(_table(pair, scans, parts, meta))
     return tables[0], tables[1]
 
 
@@ -158,6 +169,17 @@ def _rings(xyz: npt.NDArray[np.float64], profile: SensorProfile) -> npt.NDArray[
         return rings_from_scan_order(xyz, profile.channels)
     except InputDataError:
         return profile.channel_of(xyz)
+
+
+def _ringed(scan: Scan, profile: SensorProfile) -> Scan:
+    """`scan` with a ring for every point: its ring column, else recovered from the file.
+
+    Runs before any point is dropped: scan-order recovery (`_rings`) reads the whole file in
+    its stored order, and a cloud thinned by the minimum range filter is not that any more.
+    """
+    if scan.ring is not None or len(scan) == 0:
+        return scan
+    return replace(scan, ring=_rings(scan.xyz, profile).astype(np.int16))
 
 
 def cloud_features(
@@ -290,9 +312,13 @@ def tile_ids(xyz: npt.NDArray[np.float64]) -> npt.NDArray[np.int64]:
 
 def _paired_rows(pair: TreePair, i: int, sim: Scan, real: Scan, max_d: float) -> Rows:
     label_set = pair.sensor.label_set
+    sim, real = _ringed(sim, pair.profile), _ringed(real, pair.profile)
+    # Associate the whole clouds, then drop near points with their partners, so neither tree
+    # keeps half of a pair that straddles the minimum range.
+    partner = pair_points(sim.xyz, real.xyz, max_d)
+    sim, real, partner = pairs_beyond_min_range(sim, real, partner, pair.profile.min_range_m)
     fs = cloud_features(sim, pair.profile, label_set, i)
     fr = cloud_features(real, pair.profile, label_set, i)
-    partner = pair_points(sim.xyz, real.xyz, max_d)
     paired = partner >= 0
     mate = partner[paired]
     claimed = np.zeros(len(real), dtype=bool)

@@ -94,8 +94,14 @@ class Design:
 
 
 def paired_design(table: BeamTable) -> Design:
-    """Design of a paired table: the rows with a simulated return."""
-    rows = np.flatnonzero(table.ret_sim & np.isfinite(table.i_sim))
+    """Design of a paired table: the rows with a simulated return stored below the clip.
+
+    A simulated value stored at the encoding's maximum is only a lower bound of what the
+    simulation meant; used as exact it biases every fitted slope (a near-range clip reads as
+    a flatter range law), so those rows are left out."""
+    top, step = table.sensor.max_value, table.sensor.step
+    clipped = table.i_sim > top - 0.5 * step
+    rows = np.flatnonzero(table.ret_sim & np.isfinite(table.i_sim) & ~clipped)
     t = table.take(rows)
     h = t.sensor.half_step
     i_real = np.nan_to_num(t.i_real, nan=0.0).astype(np.float64)

@@ -15,7 +15,8 @@ from typing import Any, Literal
 import numpy as np
 import numpy.typing as npt
 
-from lads.diagnose.localize import RANGE_EDGES_M, FeatureProfile, Localization
+from lads.diagnose.binning import RANGE_EDGES_M
+from lads.diagnose.localize import FeatureProfile, Localization
 from lads.diagnose.table import BeamTable
 from lads.files import atomic_write_figure
 

@@ -8,7 +8,7 @@ from typing import Any
 
 from lads.diagnose.analysis import Diagnosis
 from lads.diagnose.catalogue import CATALOGUE
-from lads.diagnose.localize import json_safe
+from lads.diagnose.jsonsafe import json_safe
 from lads.files import atomic_write
 
 SCHEMA_VERSION = 1
@@ -50,7 +50,13 @@ def build_report(
         },  # fmt: skip
         "selection_trace": trace,
         "selection_frequency": dg.frequencies,
-        "baseline": {"ln_gain": float(dg.final.theta[0]), "id": "C0", "key": "global_gain"},
+        # C0 alone (the `before` model) and C0 fitted jointly with the effects (`after`).
+        "baseline": {
+            "id": "C0",
+            "key": "global_gain",
+            "ln_gain": float(dg.selection.baseline.theta[0]),
+            "ln_gain_with_effects": float(dg.final.theta[0]),
+        },
         "figures": figures,
         "localization_detail": localization,
     }

@@ -3,7 +3,8 @@
 `open_trees` checks that the two roots hold scans of the same source and sensor (and, when
 paired, the same relative paths); `TreePair.read_scan` gives one scan as a `Scan`: points at
 zero range removed, every remaining point keeping its row number in the file, labels reduced
-to class ids. The beam table is built from these (`lads.diagnose.beams`).
+to class ids. The beam table is built from these (`lads.diagnose.beams`), which also drops
+the points nearer than the sensor's minimum range (`lads.diagnose.minrange`).
 
 nuScenes roots are read with the devkit tables when they hold a `v1.0-*` folder; otherwise
 every `*.pcd.bin` under the root is a bare, unlabelled LIDAR_TOP scan (x, y, z, intensity,
@@ -50,7 +51,9 @@ class Scan:
         xyz: (N, 3) float64 coordinates in m, sensor frame.
         intensity: (N,) float32 intensity in the stored units of the sensor's encoding.
         labels: (N,) int32 class ids (instance bits removed), or None when unlabelled.
-        ring: (N,) int16 laser channel from the file's ring column (0 = lowest), or None.
+        ring: (N,) int16 laser channel (0 = lowest) from the file's ring column, or as
+            recovered from the whole file by the beam table (`lads.diagnose.beams`); None
+            when neither has been done.
         index: (N,) int64 row of each point in the scan file.
     """
 
@@ -63,6 +66,22 @@ class Scan:
 
     def __len__(self) -> int:
         return int(self.xyz.shape[0])
+
+    def range_m(self) -> npt.NDArray[np.float64]:
+        """(N,) float64 distance of every point from the sensor, m."""
+        out: npt.NDArray[np.float64] = np.sqrt(np.einsum("ij,ij->i", self.xyz, self.xyz))
+        return out
+
+    def take(self, idx: npt.NDArray[np.int64]) -> Scan:
+        """The scan restricted to points `idx` (in that order); file rows are kept."""
+        return Scan(
+            relpath=self.relpath,
+            xyz=self.xyz[idx],
+            intensity=self.intensity[idx],
+            labels=None if self.labels is None else self.labels[idx],
+            ring=None if self.ring is None else self.ring[idx],
+            index=self.index[idx],
+        )
 
 
 @dataclass(frozen=True, slots=True)

@@ -15,9 +15,10 @@ import numpy as np
 import pytest
 
 from lads.diagnose.beams import SCAN_GROUP_STRIDE, cloud_features, paired_table, unpaired_tables
+from lads.diagnose.minrange import pairs_beyond_min_range
 from lads.diagnose.pairing import pair_points
 from lads.diagnose.table import EDGE_CAP_BEAMS, GROUP_TILE_M, ROW_FIELDS, BeamTable
-from lads.diagnose.trees import open_trees
+from lads.diagnose.trees import Scan, open_trees
 from lads.errors import ConfigError, DiagnoseError
 from lads.sensors.profile import load_profile
 
@@ -117,7 +118,7 @@ def test_identical_trees_pair_every_point_one_to_one(sim_tree, tmp_path):
     first = table.scan == 0
     assert (table.i_real[first] == points0[table.real_index[first], 3]).all()
     assert (table.i_sim == table.i_real).all()
-    assert table.meta == {"mode": "paired", "max_pair_distance_m": 0.15}
+    assert table.meta == {"mode": "paired", "max_pair_distance_m": 0.15, "min_range_m": 0.9}
 
 
 def test_zero_range_points_are_dropped_but_file_rows_kept(tmp_path):
@@ -133,6 +134,94 @@ def test_zero_range_points_are_dropped_but_file_rows_kept(tmp_path):
     in_file = np.linalg.norm(points[table.sim_index, :3].astype(np.float64), axis=1)
     np.testing.assert_allclose(table.range_m, in_file, rtol=1e-6)
     assert (table.class_id == (labels[table.sim_index] & 0xFFFF)).all()
+
+
+def along_ray(points: np.ndarray, rows: np.ndarray, range_m: float) -> np.ndarray:
+    """`points` with rows `rows` moved along their beams to `range_m`: same ring and azimuth,
+    so the file stays stored ring by ring."""
+    out = points.copy()
+    xyz = out[rows, :3].astype(np.float64)
+    out[rows, :3] = xyz / np.linalg.norm(xyz, axis=1, keepdims=True) * range_m
+    return out
+
+
+def test_points_nearer_than_the_minimum_range_leave_both_trees_paired(tmp_path):
+    """HDL-64E min_range_m = 0.9 m. Ego returns at 0.3 m in both trees, a pair straddling the
+    cut each way (sim 0.85 / real 0.95 m and sim 0.95 / real 0.85 m, 0.1 m apart, so paired)
+    and a control pair at 0.95 m in both: only the control stays, and every kept sim row
+    keeps its own real twin."""
+    points, labels = scene()
+    n_az = len(points) // HDL64.channels
+
+    def row(ring: int, col: int) -> int:
+        return ring * n_az + col
+
+    ego = np.arange(row(0, 0), row(2, 0), 3)  # rings 0 and 1: every third beam
+    straddle_a, straddle_b, control = row(10, 91), row(60, 170), row(40, 10)
+    sim = along_ray(points, ego, 0.3)
+    real = sim.copy()
+    sim = along_ray(along_ray(sim, np.array([straddle_a]), 0.85), np.array([straddle_b]), 0.95)
+    real = along_ray(along_ray(real, np.array([straddle_a]), 0.95), np.array([straddle_b]), 0.85)
+    sim, real = (along_ray(p, np.array([control]), 0.95) for p in (sim, real))
+    sim_root = write_kitti(tmp_path / "sim", {SCAN0: (sim, labels)})
+    real_root = write_kitti(tmp_path / "real", {SCAN0: (real, labels)})
+    pair = open_trees(sim_root, real_root, "semantickitti", paired=True)
+    assert pair.profile.min_range_m == 0.9
+
+    table = paired_table(pair)
+    check_contract(table)
+    dropped = np.concatenate([ego, [straddle_a, straddle_b]])
+    assert len(table) == len(points) - dropped.size
+    assert not np.isin(table.sim_index, dropped).any()
+    assert not np.isin(table.real_index, dropped).any()
+    assert table.ret_sim.all() and table.ret_real.all()  # no spurious dropped or extra beams
+    assert (table.real_index == table.sim_index).all()  # still paired row for row
+    assert (table.range_m >= 0.9).all()
+    assert control in table.sim_index
+    # rings come from the whole file's scan order, before the near points were dropped
+    assert (table.ring == table.sim_index // n_az).all()
+    assert table.meta["min_range_m"] == 0.9
+
+    sim_table, real_table = unpaired_tables(pair)
+    assert set(range(len(points))) - set(sim_table.sim_index) == {*ego, straddle_a}
+    assert set(range(len(points))) - set(real_table.real_index) == {*ego, straddle_b}
+    assert (sim_table.ring == sim_table.sim_index // n_az).all()
+    assert (sim_table.range_m >= 0.9).all() and (real_table.range_m >= 0.9).all()
+
+
+def test_nuscenes_returns_within_one_metre_are_dropped_with_their_ring_column(tmp_path):
+    tree = write_nuscenes(tmp_path / "nusc")
+    path = next(tree.rglob("*.pcd.bin"))
+    points = np.fromfile(path, dtype="<f4").reshape(-1, 5)
+    near = np.arange(0, len(points), 7)
+    points[near, :4] = along_ray(points[:, :4], near, 0.6)[near]
+    points.tofile(path)
+    pair = open_trees(tree, tree, "nuscenes", paired=True)
+    assert pair.profile.min_range_m == 1.0
+    table = paired_table(pair)
+    check_contract(table)
+    assert len(table) == len(points) - near.size
+    assert not np.isin(table.sim_index, near).any()
+    assert table.ret_real.all() and (table.real_index == table.sim_index).all()
+    assert (table.ring == points[table.sim_index, 4]).all()
+
+
+def test_pairs_beyond_min_range_drop_near_points_with_their_partners():
+    def scan(range_m: list[float]) -> Scan:
+        xyz = np.column_stack([range_m, np.zeros((len(range_m), 2))])
+        n = len(range_m)
+        return Scan("s", xyz, np.zeros(n, np.float32), None, None, np.arange(n) + 10)
+
+    sim, real = scan([0.5, 0.95, 2.0, 1.1, 3.0]), scan([0.95, 1.05, 2.0, 0.4, 5.0])
+    # both near; sim near, real beyond; both beyond; sim beyond, real near; sim unpaired
+    partner = np.array([3, 1, 2, 0, -1])
+    kept_sim, kept_real, kept_partner = pairs_beyond_min_range(sim, real, partner, 1.0)
+    assert kept_sim.index.tolist() == [12, 14]  # file rows (index + 10) of sim 2 and 4
+    assert kept_real.index.tolist() == [12, 14]  # real 1 left with its near partner
+    assert kept_partner.tolist() == [0, -1]  # sim 2 -> real 2, now the first kept real
+    out = pairs_beyond_min_range(sim, scan([]), np.full(5, -1), 1.0)
+    assert out[0].index.tolist() == [12, 13, 14] and len(out[1]) == 0
+    assert out[2].tolist() == [-1, -1, -1]
 
 
 def test_real_tree_missing_ten_percent_drops_exactly_those_beams(sim_tree, tmp_path):
@@ -416,4 +505,10 @@ def test_real_nuscenes_dataroot_is_read_with_its_tables(shared_data, tmp_path):
     assert (table.is_ground == np.isin(table.class_id, [24, 25, 26, 27])).all()
     assert table.class_names[24] == "flat.driveable_surface"
     full = table.scan == pair.sim_scans.index(trees.NUSC_FULL_SAMPLE)
-    assert np.bincount(table.ring[full]).tolist() == [1084] * 32
+    points = np.fromfile(root / trees.NUSC_FULL_SAMPLE, dtype="<f4").reshape(-1, 5)
+    beyond = np.linalg.norm(points[:, :3].astype(np.float64), axis=1) >= 1.0  # HDL-32E R1
+    assert 0.2 < 1.0 - beyond.mean() < 0.3  # ego-vehicle returns within 1 m are left out
+    assert sorted(table.sim_index[full]) == np.flatnonzero(beyond).tolist()
+    assert (table.range_m >= 1.0).all()
+    expected = np.bincount(points[beyond, 4].astype(np.int64), minlength=32)
+    assert np.bincount(table.ring[full], minlength=32).tolist() == expected.tolist()

@@ -1,4 +1,4 @@
-"""Localizing the sim-to-real mismatch: lads/diagnose/localize.py and lads/diagnose/figures.py.
+"""Localizing the sim-to-real mismatch: lads/diagnose/{localize,binning,binstats}.py, figures.py.
 
 The beam tables are synthetic: 500 spatial groups (10 scans x 50 tiles) of 100 beams, each
 tile at its own distance, half of them ground. The residual r = ln(I_real + h) - ln(I_sim + h)
@@ -15,7 +15,8 @@ import numpy as np
 import pytest
 
 from lads.diagnose import figures
-from lads.diagnose.localize import FEATURES, Residuals, localize, residuals, to_json
+from lads.diagnose.binning import FEATURES
+from lads.diagnose.localize import Residuals, localize, residuals, to_json
 from lads.diagnose.table import BeamTable, SensorInfo
 from lads.errors import InputDataError
 

@@ -1,0 +1,112 @@
+"""Choosing effects: lads/diagnose/{select,analysis,parallel,design}.py on synthetic tables.
+
+The tables come from `make_table` of test_diagnose_localize (500 spatial groups, a per-group
+random effect standing in for object reflectance); a hidden per-ring gain is written into the
+real intensity so the right answer is known.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from lads.diagnose.analysis import Settings, diagnose_design
+from lads.diagnose.design import paired_design
+from lads.diagnose.parallel import map_fits, restrict
+from lads.diagnose.table import BeamTable
+from tests.unit.test_diagnose_localize import make_table
+
+QUICK = Settings(fit_rows=12000, resamples=4, bootstrap=4, jobs=1)
+
+
+def with_ring_gains(table: BeamTable, sigma_ln: float, seed: int) -> tuple[BeamTable, np.ndarray]:
+    """The table with real returns multiplied by exp(g_ring), g ~ N(0, sigma) centred."""
+    rng = np.random.default_rng(seed)
+    g = rng.normal(0.0, sigma_ln, table.sensor.n_rings)
+    g -= g.mean()
+    h = table.sensor.half_step
+    scale = np.exp(g[table.ring.astype(np.int64)])
+    i_real = np.where(np.isfinite(table.i_real), (table.i_real + h) * scale - h, np.nan)
+    i_real = np.where(table.ret_sim, i_real, table.i_real)
+    return dataclasses.replace(table, i_real=i_real.astype(np.float32)), g
+
+
+@pytest.fixture(scope="module")
+def ring_case():
+    table, g = with_ring_gains(make_table(3, group_sd=0.25, noise=0.1), 0.15, seed=4)
+    design = paired_design(table)
+    return design, g, diagnose_design(design, np.random.default_rng(0), QUICK)
+
+
+def test_per_ring_gains_under_object_noise_are_claimed_and_fitted(ring_case):
+    _, g, dg = ring_case
+    claimed = {r.effect.info.id: r for r in dg.effects if r.status == "claimed"}
+    assert "C4" in claimed
+    assert dg.verdict in ("effects_found", "ambiguous")
+    est = np.asarray(claimed["C4"].params["ln_gain_by_ring"])
+    # Each ring holds ~780 rows from ~40 surfaces: its gain is known to a few hundredths.
+    assert np.corrcoef(est, g)[0, 1] > 0.9
+    assert np.median(np.abs(est - g)) < 0.05
+
+
+def test_alternatives_listed_fit_within_one_standard_error(ring_case):
+    _, _, dg = ring_case
+    for alt in dg.alternatives:
+        assert abs(alt["delta_loss"]) <= alt["se"]
+
+
+def test_held_out_improvement_is_reported_with_its_standard_error(ring_case):
+    _, _, dg = ring_case
+    gain = dg.heldout["test_gain_nats"]
+    assert gain["delta"] > 3.0 * gain["se"] > 0.0
+    assert dg.heldout["after"]["rmse_ln_i"] < dg.heldout["before"]["rmse_ln_i"]
+
+
+def test_the_diagnosis_does_not_depend_on_the_number_of_jobs(ring_case):
+    design, _, serial = ring_case
+    parallel = diagnose_design(design, np.random.default_rng(0),
+                               dataclasses.replace(QUICK, jobs=2))  # fmt: skip
+    assert parallel.frequencies == serial.frequencies
+    assert np.array_equal(parallel.final.theta, serial.final.theta)
+    for a, b in zip(parallel.effects, serial.effects, strict=True):
+        assert a.ci95 == b.ci95
+
+
+def test_a_null_table_claims_nothing():
+    design = paired_design(make_table(5, group_sd=0.25, noise=0.1))
+    dg = diagnose_design(design, np.random.default_rng(0), QUICK)
+    assert [r for r in dg.effects if r.status == "claimed"] == []
+    assert dg.verdict == "no_missing_physics"
+
+
+def test_simulated_values_stored_at_the_clip_are_left_out_of_a_paired_design():
+    table = make_table(6, n_scans=2)
+    top = table.sensor.max_value
+    i_sim = table.i_sim.copy()
+    i_sim[:50] = top
+    design = paired_design(dataclasses.replace(table, i_sim=i_sim))
+    assert not np.isin(np.arange(50), design.rows).any()
+    assert len(design) == int((np.isfinite(table.i_sim) & table.ret_sim).sum()) - int(
+        (table.ret_sim[:50] & np.isfinite(table.i_sim[:50])).sum()
+    )
+
+
+def _sums(design, ws, extra):
+    """A stand-in task: each weighted sum over the rows it uses, like a fit's loss."""
+    y = design.y.numpy()
+    return [float((y[w > 0] * w[w > 0]).sum()) + float(y[extra].sum()) for w in ws]
+
+
+def test_restricted_parts_keep_row_order_and_weights():
+    design = paired_design(make_table(7, n_scans=2))
+    rng = np.random.default_rng(0)
+    ws = [np.where(rng.random(len(design)) < 0.1, rng.integers(1, 3, len(design)), 0).astype(float)
+          for _ in range(3)]  # fmt: skip
+    extra = np.sort(rng.choice(len(design), 40, replace=False))
+    part, part_ws, part_extra = restrict(design, ws, extra)
+    assert np.all(np.diff(part.rows) > 0)
+    assert np.array_equal(part.rows[part_extra], design.rows[extra])
+    assert _sums(part, part_ws, part_extra) == _sums(design, ws, extra)
+    assert map_fits(_sums, design, ws, extra, 1) == map_fits(_sums, design, ws, extra, 2)
