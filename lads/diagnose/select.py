@@ -33,6 +33,8 @@ VALIDATION_SHARE = 0.5
 # *between* groups (object reflectance), while per-ring and per-class terms vary *within* a
 # surface, so that rule rejected 64 ring gains that improved held-out fit by four standard
 # errors. The grouped held-out test with a cluster SE is the guard that is right for both.
+CLAIM_FREQUENCY = 0.7
+POSSIBLE_FREQUENCY = 0.3
 
 
 @dataclass(frozen=True)
