@@ -32,9 +32,10 @@ Bases and scans
   scan order; nuScenes: ring column, 0 = lowest beam), cos(theta) (`incidence_cos` with that
   ring), the edge distance in beams (per ring, in azimuth order, to the nearest neighbour pair
   whose range jumps by > 1 m or whose azimuth gap exceeds 4 beam spacings) and object ids
-  (SemanticKITTI instance ids where present, else a 2 m voxel per class; copies share the
-  objects of their frame). The hidden effects use this "true" geometry; the tool estimates
-  its own from the (possibly subsampled) trees.
+  (SemanticKITTI instance ids where present, else a 2 m voxel per class; each scan, copies
+  included, has its own objects and so its own object reflectance draws). The hidden
+  effects use this "true" geometry; the tool estimates its own from the (possibly
+  subsampled) trees.
 
 Modes (discovery.md §6.2)
 -------------------------
@@ -480,7 +481,10 @@ def _geom(base: str, frames: tuple[BaseFrame, ...], scans: list[Scan]) -> Geom:
     parts: dict[str, list[Any]] = {
         k: [] for k in ("scan", "R", "cos", "ring", "cls", "obj", "edge", "az")
     }
-    obj_offset = np.cumsum([0] + [int(f.obj.max()) + 1 for f in frames])
+    # Object ids are per scan, copies included: each copy stands in for another scene, so
+    # its objects draw their own reflectance offsets. Shared draws would make the copies'
+    # tiles, which the tool holds out as independent groups, repeat the same noise.
+    obj_offset = np.cumsum([0] + [int(frames[s.frame].obj.max()) + 1 for s in scans])
     for si, s in enumerate(scans):
         fr = frames[s.frame]
         p = s.xyz.astype(np.float64)
@@ -494,7 +498,7 @@ def _geom(base: str, frames: tuple[BaseFrame, ...], scans: list[Scan]) -> Geom:
             else (np.full(len(p), -1, dtype=np.int64))
         )
         parts["cls"].append(cls)
-        parts["obj"].append(fr.obj[s.rows] + obj_offset[s.frame])
+        parts["obj"].append(fr.obj[s.rows] + obj_offset[si])
         parts["edge"].append(fr.edge[s.rows])
         parts["az"].append(np.mod(np.degrees(np.arctan2(p[:, 1], p[:, 0])), 360.0))
     cat = {k: np.concatenate(v) for k, v in parts.items()}

@@ -21,6 +21,7 @@ from lads.diagnose.parallel import map_fits
 from lads.diagnose.select import (
     CLAIM_FREQUENCY,
     POSSIBLE_FREQUENCY,
+    Z_RESAMPLE,
     Selection,
     Split,
     bootstrap_params,
@@ -179,8 +180,8 @@ def _resample_labels(
 ) -> list[list[str]]:
     """The labels selected on each resample (a `map_fits` task)."""
     torch.set_num_threads(1)
-    return [forward_backward(d, contenders, w, validation, k_max=k_max, refs=refs).labels
-            for w in ws]  # fmt: skip
+    return [forward_backward(d, contenders, w, validation, k_max=k_max, refs=refs,
+                             z_accept=Z_RESAMPLE).labels for w in ws]  # fmt: skip
 
 
 def _ci(params: dict[str, Any], samples: list[dict[str, Any]]) -> dict[str, Any]:
@@ -236,7 +237,8 @@ def _ambiguity(
     for e in chosen.model.effects:
         members = [e.info.id]
         for cand in pool:
-            if cand.label in selected:
+            # Another parametrisation of the same catalogue effect is not an alternative.
+            if cand.label in selected or cand.info.id == e.info.id:
                 continue
             if cand.info.id not in e.info.confounds and cand.label not in top:
                 continue
@@ -327,7 +329,7 @@ def heldout_metrics(
     sub = d.subset(rows)
     # Intensity errors on returns stored clear of the quantisation floor and the clip: below
     # it the stored value is an interval, and an error in ln I would measure the rounding.
-    ret = sub.returned.numpy() & (sub.censor.numpy() == 0)
+    ret = sub.fits_intensity & (sub.censor.numpy() == 0)
     y = sub.y.numpy()
     out: dict[str, Any] = {
         "rows": int(len(sub)),

@@ -33,6 +33,12 @@ class Design:
             point: censor 1 = interval [y_lo, y_hi], 2 = stored 0 (below y_hi), 3 = stored
             maximum (above y_lo, clipped), 0 = a point (y itself).
         ln_sim: ln(i_sim + h).
+        sim_var: Var[ln(x + h)] for x uniform on i_sim's rounding interval (i_sim +- step / 2,
+            clipped at 0); added to sigma^2 (errors in variables: a simulation stored at
+            0.01 steps knows a value of 0.02 only to +-25 %).
+        sim_ok: bool, the simulated value is informative about the intensity: False where it
+            is stored as 0, which may mean exactly 0 or anything below half a step (the
+            mean of ln(x + h) then differs by 0.39), so only the return enters there.
         returned: bool, reality returned the beam.
         ln_range, range_m, cos, ln_cos (0 where the normal is ill-conditioned), normal_ok.
         ring, class_index (index into `classes`, -1 unknown), scan: int64.
@@ -50,6 +56,8 @@ class Design:
     y_hi: torch.Tensor
     censor: torch.Tensor
     ln_sim: torch.Tensor
+    sim_var: torch.Tensor
+    sim_ok: torch.Tensor
     returned: torch.Tensor
     ln_range: torch.Tensor
     range_m: torch.Tensor
@@ -78,6 +86,11 @@ class Design:
     def __len__(self) -> int:
         return int(self.y.shape[0])
 
+    @property
+    def fits_intensity(self) -> npt.NDArray[np.bool_]:
+        """(N,) numpy bool: rows whose real intensity enters the fit (returned, sim_ok)."""
+        return (self.returned & self.sim_ok).numpy()
+
     def subset(self, idx: npt.NDArray[np.int64]) -> Design:
         """The design restricted to rows `idx` (numpy indices)."""
         t = torch.as_tensor(idx, dtype=torch.long)
@@ -103,9 +116,33 @@ def paired_design(table: BeamTable) -> Design:
     clipped = table.i_sim > top - 0.5 * step
     rows = np.flatnonzero(table.ret_sim & np.isfinite(table.i_sim) & ~clipped)
     t = table.take(rows)
-    h = t.sensor.half_step
     i_real = np.nan_to_num(t.i_real, nan=0.0).astype(np.float64)
-    return _design(t, rows, i_real, t.ret_real.copy(), np.log(t.i_sim.astype(np.float64) + h), True)
+    h, step = t.sensor.half_step, t.sensor.step
+    i_sim = t.i_sim.astype(np.float64)
+    _, sim_var = sim_log_interval(i_sim, step, h)
+    return _design(t, rows, i_real, t.ret_real.copy(), np.log(i_sim + h), True, sim_var,
+                   i_sim >= 0.5 * step)  # fmt: skip
+
+
+def sim_log_interval(
+    i_sim: npt.ArrayLike, step: float, h: float
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    """Mean and variance of ln(x + h), x uniform on the stored value's rounding interval.
+
+    A simulated tree is stored in the sensor's encoding, so a value of k steps stands for
+    anything within half a step of it: its ln is uncertain by Var (errors in variables),
+    large a few steps from 0. The mean differs from ln(i_sim + h) by < 0.02 from one step on
+    (and the stored value may be exact), so only the variance is used. Closed forms:
+    integral of ln u = u ln u - u, of ln^2 u = u (ln^2 u - 2 ln u + 2).
+    """
+    x = np.asarray(i_sim, dtype=np.float64)
+    a = np.maximum(x - 0.5 * step, 0.0) + h
+    b = x + 0.5 * step + h
+    la, lb = np.log(a), np.log(b)
+    width = b - a
+    mean = ((b * lb - b) - (a * la - a)) / width
+    second = (b * (lb * lb - 2.0 * lb + 2.0) - a * (la * la - 2.0 * la + 2.0)) / width
+    return mean, np.maximum(second - mean * mean, 0.0)
 
 
 def unpaired_design(sim: BeamTable, real: BeamTable, *, min_cell_rows: int = 5) -> Design:
@@ -114,10 +151,9 @@ def unpaired_design(sim: BeamTable, real: BeamTable, *, min_cell_rows: int = 5) 
     Every real return whose feature cell holds at least `min_cell_rows` simulated returns gets
     ln_sim = the mean ln(i_sim + h) of that cell; the rest are left out.
     """
-    h = real.sensor.half_step
     key_sim = _cell_key(sim)
     key_real = _cell_key(real)
-    ln_sim_rows = np.log(sim.i_sim.astype(np.float64) + h)
+    ln_sim_rows = np.log(sim.i_sim.astype(np.float64) + sim.sensor.half_step)
     uniq, inverse = np.unique(key_sim, return_inverse=True)
     counts = np.bincount(inverse, minlength=len(uniq))
     means = np.bincount(inverse, weights=ln_sim_rows, minlength=len(uniq)) / np.maximum(counts, 1)
@@ -127,7 +163,9 @@ def unpaired_design(sim: BeamTable, real: BeamTable, *, min_cell_rows: int = 5) 
     rows = np.flatnonzero(found & real.ret_real)
     t = real.take(rows)
     i_real = t.i_real.astype(np.float64)
-    return _design(t, rows, i_real, np.ones(len(rows), dtype=bool), means[pos[rows]], False)
+    # A cell mean over >= min_cell_rows values: its rounding error is averaged away.
+    return _design(t, rows, i_real, np.ones(len(rows), dtype=bool), means[pos[rows]], False,
+                   np.zeros(len(rows)), np.ones(len(rows), dtype=bool))  # fmt: skip
 
 
 def _cell_key(t: BeamTable) -> npt.NDArray[np.int64]:
@@ -145,6 +183,8 @@ def _design(
     returned: npt.NDArray[np.bool_],
     ln_sim: npt.NDArray[np.float64],
     paired: bool,
+    sim_var: npt.NDArray[np.float64],
+    sim_ok: npt.NDArray[np.bool_],
 ) -> Design:
     h, step, top = t.sensor.half_step, t.sensor.step, t.sensor.max_value
     y = np.where(returned, np.log(i_real + h), 0.0)
@@ -175,6 +215,8 @@ def _design(
         y_hi=f64(y_hi),
         censor=torch.as_tensor(censor),
         ln_sim=f64(ln_sim),
+        sim_var=f64(sim_var),
+        sim_ok=torch.as_tensor(sim_ok, dtype=torch.bool),
         returned=torch.as_tensor(returned, dtype=torch.bool),
         ln_range=f64(np.log(np.maximum(t.range_m, 1e-3))),
         range_m=f64(t.range_m),

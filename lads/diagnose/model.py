@@ -3,7 +3,8 @@
 For a beam the simulation returned, with mu = the predicted ln(I_real + h):
 
     mu      = T(ln(I_sim + h) + ln_gain + sum of effect ln-terms)   T: encoding effects, last
-    sigma   = exp(ln_sigma + sigma_range_slope (ln R - m_R) + sigma_level_slope (ln I_sim - m_I))
+    sigma^2 = s_n^2 + Var of ln I_sim within its rounding interval (known, not fitted)
+    ln s_n  = ln_sigma + sigma_range_slope (ln R - m_R) + sigma_level_slope (ln I_sim - m_I)
     P(ret)  = sigmoid(return_logit) * prod of effect survival factors
               * Phi((mu - ln_tau) / sqrt(sigma^2 + s^2))        with D1 (detection threshold)
 
@@ -106,7 +107,9 @@ class Model:
             mu = e.transfer(th, d, mu)  # type: ignore[misc]
         ln_sigma = (theta[1] + theta[2] * (d.ln_range - self.ln_range_ref)
                     + theta[3] * (d.ln_sim - self.ln_sim_ref))  # fmt: skip
-        return mu, torch.exp(ln_sigma), log_surv, threshold
+        # The real value's noise plus the simulated value's own rounding (Design.sim_var).
+        sigma = torch.sqrt(torch.exp(2.0 * ln_sigma) + d.sim_var)
+        return mu, sigma, log_surv, threshold
 
     def nll_rows(self, theta: torch.Tensor, d: Design) -> torch.Tensor:
         """(N,) negative log-likelihood of every row."""
@@ -119,6 +122,8 @@ class Model:
                 (cens,), _interval_nll(d.censor[cens], d.y_lo[cens], d.y_hi[cens], mu[cens],
                                        sigma[cens])
             )  # fmt: skip
+        # A simulated 0 says nothing about the intensity (Design.sim_ok): the return only.
+        gauss = torch.where(d.sim_ok, gauss, torch.zeros_like(gauss))
         if not d.paired:
             return gauss
         log_p_ret = log_surv
@@ -215,7 +220,7 @@ class Fit:
 
 def initial_base(d: Design, rows: npt.NDArray[np.int64]) -> npt.NDArray[np.float64]:
     """Baseline start: median residual gain, its spread, no slopes, the return rate."""
-    ret = d.returned.numpy()[rows]
+    ret = d.fits_intensity[rows]
     r = (d.y.numpy() - d.ln_sim.numpy())[rows][ret]
     gain = float(np.median(r)) if r.size else 0.0
     spread = float(np.std(r)) if r.size > 1 else 1.0

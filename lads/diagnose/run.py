@@ -111,7 +111,7 @@ def _row_residual(table: BeamTable, d: Design, dg: Diagnosis | None) -> np.ndarr
     """(len(table),) residual ln(I_real + h) minus the prediction (NaN where undefined)."""
     out = np.full(len(table), np.nan)
     pred = d.ln_sim.numpy() if dg is None else dg.final.predictions(d)[0]
-    ret = d.returned.numpy()
+    ret = d.fits_intensity
     out[d.rows[ret]] = d.y.numpy()[ret] - pred[ret]
     return out
 

@@ -52,7 +52,7 @@ from lads.intensity.features import (
     STYLES,
     channel_names,
 )
-from lads.intensity.losses import masked_l1, masked_mse_to
+from lads.intensity.losses import balanced_l1, masked_l1, masked_mse_to
 from lads.intensity.model import Discriminator, Generator
 from lads.intensity.train_config import PairSpec, TrainConfig
 
@@ -322,7 +322,9 @@ def _step(
 
         l_id = torch.zeros((), device=device)
         if t.labelled:
-            l_id = masked_l1(nets.g(t.raw, t.mask), t.z, t.mask)
+            l_id = balanced_l1(nets.g(t.raw, t.mask), t.z, t.mask,
+                               t.raw[:, ch.index("reflectance")][:, None],
+                               w.identity_balance)  # fmt: skip
 
         l_style = torch.zeros((), device=device)
         if cfg.kind == "weather" and len(cfg.pairs) > 1:

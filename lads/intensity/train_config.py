@@ -77,6 +77,9 @@ class LossWeights:
     identity: CycleGAN's identity term, here G(target's own physics inputs) ~ target
         intensity, used only when the target frames carry labels (else 0 in effect).
     style: multi-style consistency (weather models).
+    identity_balance: power of the inverse material frequency that weights the identity
+        term's pixels (0: plain mean; 0.5: a material with 100x fewer pixels counts 10x
+        more per pixel), so rare bright materials are learnt (`losses.balanced_l1`).
     """
 
     adversarial: float = 1.0
@@ -84,6 +87,7 @@ class LossWeights:
     physics: float = 1.0
     identity: float = 5.0
     style: float = 1.0
+    identity_balance: float = 0.0
 
 
 @dataclass(frozen=True, slots=True)

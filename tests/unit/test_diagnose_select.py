@@ -11,9 +11,11 @@ import dataclasses
 
 import numpy as np
 import pytest
+import torch
 
 from lads.diagnose.analysis import Settings, diagnose_design
-from lads.diagnose.design import paired_design
+from lads.diagnose.design import paired_design, sim_log_interval
+from lads.diagnose.model import Model
 from lads.diagnose.parallel import map_fits, restrict
 from lads.diagnose.table import BeamTable
 from tests.unit.test_diagnose_localize import make_table
@@ -110,3 +112,29 @@ def test_restricted_parts_keep_row_order_and_weights():
     assert np.array_equal(part.rows[part_extra], design.rows[extra])
     assert _sums(part, part_ws, part_extra) == _sums(design, ws, extra)
     assert map_fits(_sums, design, ws, extra, 1) == map_fits(_sums, design, ws, extra, 2)
+
+
+def test_a_simulated_zero_contributes_its_return_but_not_its_intensity():
+    table = make_table(8, n_scans=2)
+    i_sim = table.i_sim.copy()
+    i_sim[:200] = 0.0
+    base = paired_design(dataclasses.replace(table, i_sim=i_sim))
+    zero = np.isin(base.rows, np.arange(200))
+    assert not base.sim_ok.numpy()[zero].any() and base.sim_ok.numpy()[~zero].all()
+    i_real = table.i_real.copy()
+    i_real[:200] = np.where(np.isfinite(i_real[:200]), 0.9, np.nan)
+    moved = paired_design(dataclasses.replace(table, i_sim=i_sim, i_real=i_real))
+    model = Model([], 0.0, 0.0)
+    theta = torch.tensor([0.0, -1.0, 0.0, 0.0, 3.0], dtype=torch.float64)
+    with torch.no_grad():
+        a, b = model.nll_rows(theta, base).numpy(), model.nll_rows(theta, moved).numpy()
+    assert np.array_equal(a, b)
+
+
+def test_rounding_variance_of_the_simulated_value_falls_with_its_level():
+    step, h = 0.01, 0.005
+    _, var = sim_log_interval(np.array([0.01, 0.02, 0.1, 0.5]), step, h)
+    assert np.all(np.diff(var) < 0)
+    # Far from 0, ln is locally linear: Var ~ (step / (i + h))^2 / 12.
+    assert var[3] == pytest.approx((step / 0.505) ** 2 / 12.0, rel=1e-3)
+    assert var[0] > 0.02
