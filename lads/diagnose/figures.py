@@ -17,6 +17,7 @@ import numpy.typing as npt
 
 from lads.diagnose.binning import RANGE_EDGES_M
 from lads.diagnose.localize import FeatureProfile, Localization
+from lads.diagnose.select import Z_ACCEPT
 from lads.diagnose.table import BeamTable
 from lads.files import atomic_write_figure
 
@@ -257,7 +258,8 @@ def bootstrap_histograms(samples: Mapping[str, npt.ArrayLike], path: Path) -> Pa
 
 
 def selection_trace(steps: Sequence[Mapping[str, Any]], path: Path) -> Path:
-    """Forward selection: held-out loss reduction per candidate with 2 SE error bars.
+    """Forward selection: held-out loss reduction per candidate with 3 SE error bars (the
+    acceptance bar, select.Z_ACCEPT: a bar whose error bar clears 0 passed the z test).
 
     Args:
         steps: one dict per evaluated candidate: "step" (int), "candidate" (effect ID or
@@ -278,11 +280,12 @@ def selection_trace(steps: Sequence[Mapping[str, Any]], path: Path) -> Path:
         colours = ["C2" if a else "0.65" for a in accepted]
         ax.bar(x, np.nan_to_num(delta), color=colours, edgecolor=["k" if a else "none"
                                                                  for a in accepted])  # fmt: skip
-        ax.errorbar(x, delta, yerr=np.nan_to_num(2.0 * se), fmt="none", ecolor="0.2", lw=0.8)
+        ax.errorbar(x, delta, yerr=np.nan_to_num(Z_ACCEPT * se), fmt="none", ecolor="0.2",
+                    lw=0.8)  # fmt: skip
         for xi, d, e, s in zip(x, delta, se, steps, strict=True):
             bic = _num(s.get("delta_bic"))
             if math.isfinite(bic):
-                top = (d if math.isfinite(d) else 0.0) + 2.0 * (e if math.isfinite(e) else 0.0)
+                top = (d if math.isfinite(d) else 0.0) + Z_ACCEPT * (e if math.isfinite(e) else 0.0)
                 ax.annotate(f"dBIC {bic:.0f}", (xi, max(top, 0.0)), xytext=(0, 3),
                             textcoords="offset points", fontsize=7, ha="center",
                             va="bottom")  # fmt: skip
@@ -293,8 +296,8 @@ def selection_trace(steps: Sequence[Mapping[str, Any]], path: Path) -> Path:
         ax.text(0.5, 0.5, "no candidates evaluated", ha="center", va="center")
     ax.axhline(0.0, color="0.3", linewidth=0.8)
     ax.set_xlabel("step: candidate effect", fontsize=8)
-    ax.set_ylabel("held-out loss reduction (deviance per scan)", fontsize=8)
-    ax.set_title("forward selection (green: accepted; error bars 2 SE)", fontsize=10)
+    ax.set_ylabel("held-out loss reduction (nats per beam)", fontsize=8)
+    ax.set_title("forward selection (green: accepted; error bars 3 SE)", fontsize=10)
     return _save(fig, path)
 
 

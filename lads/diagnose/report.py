@@ -101,8 +101,8 @@ def markdown(doc: dict[str, Any]) -> str:
         lines.append("- no feature shows a significant difference (BH q < 0.05)")
     lines += ["", "## Missing physics", ""]
     if not doc["effects"]:
-        lines.append("None: no catalogue effect improved the held-out fit by more than two "
-                     "standard errors.")  # fmt: skip
+        lines.append("None: no catalogue effect improved the held-out fit by more than three "
+                     "cluster standard errors.")  # fmt: skip
     for e in doc["effects"]:
         params = ", ".join(f"{k} = {_fmt(v)} {_fmt(e['ci95'].get(k))}"
                            for k, v in e["params"].items())  # fmt: skip
