@@ -20,7 +20,9 @@ from lads.diagnose.model import BASE_NAMES, Fit, fit_best, initial_base
 from lads.diagnose.parallel import map_fits
 from lads.diagnose.select import (
     CLAIM_FREQUENCY,
+    MIN_GAIN_NATS,
     POSSIBLE_FREQUENCY,
+    Z_ACCEPT,
     Z_RESAMPLE,
     Selection,
     Split,
@@ -147,6 +149,10 @@ def diagnose_design(d: Design, rng: np.random.Generator, settings: Settings) -> 
     heldout = heldout_metrics(d, split.test, selection.baseline, final)
     claimed = [r for r in effects if r.status == "claimed"]
     ambiguous_ids = {i for s in sets for i in s["ids"]}
+    beyond = _beyond_bounds(selection)
+    reasons += [f"{label} would improve the held-out fit by {z:.1f} SE but a parameter sits at "
+                "its catalogue bound: the mismatch it describes is larger than the catalogue "
+                "allows for it, or another effect is missing" for label, z in beyond]  # fmt: skip
     test_gain = compare(final, selection.baseline, d, split.test, 1.0, 1.0)
     heldout["test_gain_nats"] = {"delta": test_gain.delta, "se": test_gain.se}
     if not claimed and effects and test_gain.delta > Z_TEST * test_gain.se:
@@ -158,6 +164,9 @@ def diagnose_design(d: Design, rng: np.random.Generator, settings: Settings) -> 
             f"({test_gain.delta / max(test_gain.se, 1e-12):.1f} SE) but were chosen in fewer "
             "than 70 % of the resamples"
         )
+    elif not claimed and beyond:
+        # Held-out data say something is missing, the catalogue cannot fit it in range.
+        verdict = "ambiguous"
     elif not claimed:
         verdict = "no_missing_physics"
         if possible:
@@ -168,6 +177,18 @@ def diagnose_design(d: Design, rng: np.random.Generator, settings: Settings) -> 
         verdict = "effects_found"
     return Diagnosis(split, selection, final, effects, possible, alternatives, sets, noise,
                      heldout, verdict, reasons, freq)  # fmt: skip
+
+
+def _beyond_bounds(sel: Selection) -> list[tuple[str, float]]:
+    """(label, z) of unselected candidates rejected only for a parameter at a bound."""
+    chosen = set(sel.labels)
+    best: dict[str, float] = {}
+    for s in sel.trace:
+        if s.at_bound and s.candidate not in chosen and s.se > 0:
+            z = s.delta_loss / s.se
+            if z > Z_ACCEPT and s.delta_loss > MIN_GAIN_NATS:
+                best[s.candidate] = max(z, best.get(s.candidate, 0.0))
+    return sorted(best.items(), key=lambda kv: -kv[1])
 
 
 def _resample_labels(

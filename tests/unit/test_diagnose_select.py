@@ -138,3 +138,19 @@ def test_rounding_variance_of_the_simulated_value_falls_with_its_level():
     # Far from 0, ln is locally linear: Var ~ (step / (i + h))^2 / 12.
     assert var[3] == pytest.approx((step / 0.505) ** 2 / 12.0, rel=1e-3)
     assert var[0] > 0.02
+
+
+def test_an_effect_rejected_only_for_its_bound_is_reported_as_beyond_the_catalogue():
+    from types import SimpleNamespace
+
+    from lads.diagnose.analysis import _beyond_bounds
+    from lads.diagnose.select import Selection, Step
+
+    empty = SimpleNamespace(model=SimpleNamespace(effects=[]))
+    sel = Selection(fit=empty, baseline=empty)  # type: ignore[arg-type]
+    sel.trace = [
+        Step(1, "C2", 0.05, 0.01, -20.0, True),  # z 5 at a bound: beyond the catalogue
+        Step(1, "C9", 0.02, 0.01, -20.0, True),  # z 2: not evidence of anything
+        Step(1, "C1", 0.05, 0.01, -20.0, False),  # in range: an ordinary candidate
+    ]
+    assert _beyond_bounds(sel) == [("C2", 5.0)]
