@@ -28,9 +28,9 @@ from lads.diagnose.binstats import (
     bh_q_values,
     target_stats,
 )
-from lads.diagnose.jsonsafe import json_safe
 from lads.diagnose.table import BeamTable
 from lads.errors import InputDataError
+from lads.jsontypes import json_types
 
 MIN_HEATMAP_ROWS = 20
 TARGETS = ("intensity", "dropout")
@@ -261,7 +261,7 @@ def to_json(loc: Localization) -> dict[str, Any]:
     out = {"n_rows": loc.n_rows, "n_groups": loc.n_groups, "n_boot": loc.n_boot,
            "residual_given": loc.residual_given, "features": features,
            "statements": loc.statements, "heatmaps": heatmaps}  # fmt: skip
-    return dict(json_safe(out))
+    return dict(json_types(out))
 
 
 def _heatmap(r: F64, a: Binning, b: Binning, name_a: str, name_b: str) -> Heatmap:

@@ -8,8 +8,8 @@ from typing import Any
 
 from lads.diagnose.analysis import Diagnosis
 from lads.diagnose.catalogue import CATALOGUE
-from lads.diagnose.jsonsafe import json_safe
 from lads.files import atomic_write
+from lads.jsontypes import json_types
 
 SCHEMA_VERSION = 1
 
@@ -60,7 +60,7 @@ def build_report(
         "figures": figures,
         "localization_detail": localization,
     }
-    return json_safe(doc)
+    return json_types(doc)
 
 
 def write_report(doc: dict[str, Any], out: Path) -> None:

@@ -47,6 +47,7 @@ from scipy import stats
 from lads.errors import ConfigError, InputDataError, InvalidPointsError
 from lads.files import atomic_write
 from lads.intensity.features import PHYSICS_FLOOR, FrameImage, frame_image
+from lads.jsontypes import json_types
 from lads.physics.materials import LABEL_SETS, class_materials
 from lads.sensors.profile import SensorProfile
 
@@ -737,24 +738,8 @@ def summarise(pooled: Mapping[str, Mapping[str, Any]], subject: str = SUBJECT) -
 
 
 def jsonable(value: Any) -> Any:
-    """Plain JSON types: floats rounded to 6 significant digits, NaN/inf -> None, numpy
-    scalars and arrays unwrapped, tuples as lists, paths and other objects as str."""
-    if isinstance(value, dict):
-        return {str(k): jsonable(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [jsonable(v) for v in value]
-    if isinstance(value, np.ndarray):
-        return jsonable(value.tolist())
-    if isinstance(value, bool | np.bool_):
-        return bool(value)
-    if isinstance(value, int | np.integer):
-        return int(value)
-    if isinstance(value, float | np.floating):
-        x = float(value)
-        return float(f"{x:.{SIGNIFICANT_DIGITS}g}") if math.isfinite(x) else None
-    if value is None or isinstance(value, str):
-        return value
-    return str(value)
+    """Plain JSON types with floats rounded to SIGNIFICANT_DIGITS (`lads.jsontypes`)."""
+    return json_types(value, significant=SIGNIFICANT_DIGITS)
 
 
 # Report columns: metric key, header.
