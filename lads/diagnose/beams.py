@@ -213,7 +213,7 @@ def cloud_features(
         ring=ring.astype(np.int16),
         azimuth_deg=azimuth,
         elevation_deg=np.degrees(np.arctan2(xyz[:, 2], horizontal_m)).astype(np.float32),
-        range_m=np.sqrt(np.einsum("ij,ij->i", xyz, xyz)).astype(np.float32),
+        range_m=scan.range_m().astype(np.float32),
         cos_incidence=inc.cos.astype(np.float32),
         normal_ok=inc.source != IncidenceSource.MEDIAN,
         class_id=class_id,

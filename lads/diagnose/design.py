@@ -119,15 +119,13 @@ def paired_design(table: BeamTable) -> Design:
     i_real = np.nan_to_num(t.i_real, nan=0.0).astype(np.float64)
     h, step = t.sensor.half_step, t.sensor.step
     i_sim = t.i_sim.astype(np.float64)
-    _, sim_var = sim_log_interval(i_sim, step, h)
+    sim_var = sim_log_variance(i_sim, step, h)
     return _design(t, rows, i_real, t.ret_real.copy(), np.log(i_sim + h), True, sim_var,
                    i_sim >= 0.5 * step)  # fmt: skip
 
 
-def sim_log_interval(
-    i_sim: npt.ArrayLike, step: float, h: float
-) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
-    """Mean and variance of ln(x + h), x uniform on the stored value's rounding interval.
+def sim_log_variance(i_sim: npt.ArrayLike, step: float, h: float) -> npt.NDArray[np.float64]:
+    """(N,) variance of ln(x + h), x uniform on the stored value's rounding interval.
 
     A simulated tree is stored in the sensor's encoding, so a value of k steps stands for
     anything within half a step of it: its ln is uncertain by Var (errors in variables),
@@ -142,7 +140,7 @@ def sim_log_interval(
     width = b - a
     mean = ((b * lb - b) - (a * la - a)) / width
     second = (b * (lb * lb - 2.0 * lb + 2.0) - a * (la * la - 2.0 * la + 2.0)) / width
-    return mean, np.maximum(second - mean * mean, 0.0)
+    return np.maximum(second - mean * mean, 0.0)
 
 
 def unpaired_design(sim: BeamTable, real: BeamTable, *, min_cell_rows: int = 5) -> Design:

@@ -14,7 +14,7 @@ import pytest
 import torch
 
 from lads.diagnose.analysis import Settings, diagnose_design
-from lads.diagnose.design import paired_design, sim_log_interval
+from lads.diagnose.design import paired_design, sim_log_variance
 from lads.diagnose.model import Model
 from lads.diagnose.parallel import map_fits, restrict
 from lads.diagnose.table import BeamTable
@@ -133,7 +133,7 @@ def test_a_simulated_zero_contributes_its_return_but_not_its_intensity():
 
 def test_rounding_variance_of_the_simulated_value_falls_with_its_level():
     step, h = 0.01, 0.005
-    _, var = sim_log_interval(np.array([0.01, 0.02, 0.1, 0.5]), step, h)
+    var = sim_log_variance(np.array([0.01, 0.02, 0.1, 0.5]), step, h)
     assert np.all(np.diff(var) < 0)
     # Far from 0, ln is locally linear: Var ~ (step / (i + h))^2 / 12.
     assert var[3] == pytest.approx((step / 0.505) ** 2 / 12.0, rel=1e-3)
