@@ -5,7 +5,8 @@ torch.set_num_threads(1):
 - network: the shipped synth-to-kitti generator's forward pass on the prepared image;
 - features: projection, incidence, materials and I_P (numpy, `frame_image`);
 - frame: all of `predict_points` (features + network + every point's value + encoding).
-Target (issue 6): <= 100 ms per 64-beam frame for the network on one core.
+Target (issue 6): <= 100 ms per 64-beam frame on one core for the whole stage (`frame`),
+features and per-point values included, not only the network.
 """
 
 from __future__ import annotations
@@ -75,8 +76,8 @@ def main() -> dict[str, Any]:
         "frames": rows,
         "network_ms_median": network,
         "frame_ms_median": float(np.median([r["frame_ms"] for r in rows])),
-        "target_network_ms": TARGET_MS,
-        "meets_target": network <= TARGET_MS,
+        "target_frame_ms": TARGET_MS,
+        "meets_target": float(np.median([r["frame_ms"] for r in rows])) <= TARGET_MS,
         "machine": machine_info(),
     }
     path = write_result("intensity_speed.json", result)

@@ -38,9 +38,32 @@ class WrapConv(nn.Module):
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         p, e = self.pad, self.pad_w_extra
-        x = F.pad(x, (p, p + e, 0, 0), mode="circular")
-        x = F.pad(x, (0, 0, p, p + e))
-        return self.conv(x)
+        if e:
+            x = F.pad(x, (p, p + e, 0, 0), mode="circular")
+            x = F.pad(x, (0, 0, p, p + e))
+            return self.conv(x)
+        # Padding a whole (C, 64, 2048) map circularly copies it, which cost as much as the
+        # convolutions; instead convolve with zero padding and redo only the few output
+        # columns whose window wraps around, from narrow bands of the input.
+        out = self._conv(x, p)
+        if p == 0:
+            return out
+        s, width, out_w = self.conv.stride[1], x.shape[-1], out.shape[-1]
+        left = -(-p // s)  # outputs 0..left-1 reach left of column 0
+        right = (width - 1 - p) // s + 1  # outputs right.. reach past column W-1
+        out[..., :left] = self._conv(
+            torch.cat([x[..., width - p :], x[..., : s * (left - 1) + p + 1]], -1), 0
+        )
+        if right < out_w:
+            tail = s * (out_w - 1) + p - width + 1
+            out[..., right:] = self._conv(
+                torch.cat([x[..., s * right - p :], x[..., :tail]], -1), 0
+            )
+        return out
+
+    def _conv(self, x: torch.Tensor, pad_w: int) -> torch.Tensor:
+        c = self.conv
+        return F.conv2d(x, c.weight, c.bias, c.stride, (self.pad, pad_w))
 
 
 class _Residual(nn.Module):

@@ -78,7 +78,8 @@ def predict_image(
             f"{model.path}: expects channels {list(model.meta.channels)}, the frame has "
             f"{list(fi.channels)}."
         )
-    raw = torch.from_numpy(np.ascontiguousarray(fi.inputs))[None].to(device)
+    raw = torch.from_numpy(np.ascontiguousarray(fi.inputs))[None]
+    raw = raw.to(device=device, memory_format=torch.channels_last)
     mask = raw[:, fi.channels.index("mask") : fi.channels.index("mask") + 1]
     # One thread: CPU convolutions split work by thread count, which changes float sums in
     # the last bits and can flip a quantisation step; a build worker and `lads verify

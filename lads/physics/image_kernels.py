@@ -118,3 +118,28 @@ def image_normals(
             scale = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2) * math.sqrt(b0 * b0 + b1 * b1 + b2 * b2)
             ok[v, u] = good and math.sqrt(n0 * n0 + n1 * n1 + n2 * n2) > 1e-6 * scale
     return normal, ok
+
+
+@numba.njit(cache=True, nogil=True)
+def pixel_normal_cos(
+    normal: npt.NDArray[np.float64],
+    row: npt.NDArray[np.int64],
+    col: npt.NDArray[np.int64],
+    xyz: npt.NDArray[np.float64],
+) -> npt.NDArray[np.float64]:
+    """(M,) |cos| between each point's ray and the normal of its pixel, clipped to [0, 1].
+
+    Args:
+        normal: (H, W, 3) unnormalised normals (`image_normals`).
+        row, col: (M,) pixel of every point.
+        xyz: (M, 3) the points in m, sensor at the origin.
+    """
+    out = np.empty(row.shape[0])
+    for i in range(row.shape[0]):
+        n0 = normal[row[i], col[i], 0]
+        n1 = normal[row[i], col[i], 1]
+        n2 = normal[row[i], col[i], 2]
+        x, y, z = xyz[i, 0], xyz[i, 1], xyz[i, 2]
+        scale = math.sqrt(n0 * n0 + n1 * n1 + n2 * n2) * math.sqrt(x * x + y * y + z * z)
+        out[i] = min(abs(n0 * x + n1 * y + n2 * z) / scale, 1.0) if scale > 0.0 else 0.0
+    return out

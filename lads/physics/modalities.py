@@ -1,8 +1,8 @@
 """Per-point modalities for intensity models: range, channel, incidence, reflectance, I_phy.
 
-Pure numpy (plus a scipy k-d tree), no file I/O. Every function returns one value per input
-point: points are never dropped, because labels and output files are matched by index
-(physics.md §10.7 item 4).
+Pure numpy (plus a scipy k-d tree and compiled loops), no file I/O. Every function returns
+one value per input point: points are never dropped, because labels and output files are
+matched by index (physics.md §10.7 item 4).
 
 The range image (rows = channel, columns = azimuth) lives in `lads.physics.projection`;
 range_m, channels, project and RangeImage are re-exported here.
@@ -36,14 +36,13 @@ __all__ = [
 
 import enum
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 import numpy.typing as npt
-from scipy.spatial import cKDTree
 
 from lads.errors import ConfigError, InvalidPointsError
-from lads.physics.image_kernels import image_normals
+from lads.physics.image_kernels import image_normals, pixel_normal_cos
+from lads.physics.knn_normals import neighbour_cos
 from lads.physics.materials import reflectance_for_labels
 from lads.physics.projection import (
     MIN_RANGE_M,
@@ -282,7 +281,12 @@ def _incidence(
     )
     owner_range = image.range_m.astype(np.float64)[image.row, image.col]
     use = ok[image.row, image.col] & (np.abs(r - owner_range) <= max_depth_jump * owner_range)
-    cos[use] = _abs_cos(normal[image.row[use], image.col[use]], xyz64[use])
+    cos[use] = pixel_normal_cos(
+        normal,
+        image.row[use].astype(np.int64),
+        image.col[use].astype(np.int64),
+        np.ascontiguousarray(xyz64[use]),
+    )
     source[use] = IncidenceSource.IMAGE
 
     rest = np.flatnonzero(~use)
@@ -295,29 +299,11 @@ def _incidence(
     return Incidence(np.clip(cos, 0.0, 1.0).astype(np.float32), source)
 
 
-def _abs_cos(normal: npt.NDArray[np.float64], ray: npt.NDArray[np.float64]) -> Any:
-    dot = np.abs(np.einsum("ij,ij->i", normal, ray))
-    return np.clip(dot / (np.linalg.norm(normal, axis=1) * np.linalg.norm(ray, axis=1)), 0, 1)
-
-
 def _neighbour_cos(
     xyz64: npt.NDArray[np.float64], query: npt.NDArray[np.intp]
 ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.bool_]]:
     """PCA-normal cosine for the `query` points; (M,) cos and (M,) found flags."""
-    k = min(KNN_NEIGHBOURS, len(xyz64))
-    # An unbalanced, uncompacted tree builds ~2x faster and answers the same exact queries;
-    # only the few points without an image normal are queried.
-    tree = cKDTree(xyz64, balanced_tree=False, compact_nodes=False)
-    dist, idx = tree.query(xyz64[query], k=k, distance_upper_bound=KNN_RADIUS_M)
-    valid = np.isfinite(dist.reshape(len(query), k))
-    count = valid.sum(axis=1)
-    # Missing neighbours become the query point itself: offset 0 adds nothing to the sums.
-    offsets = xyz64[np.where(valid, idx.reshape(len(query), k), query[:, None])]
-    offsets -= xyz64[query][:, None, :]
-    first = offsets.sum(axis=1) / np.maximum(count, 1)[:, None]
-    second = np.matmul(offsets.transpose(0, 2, 1), offsets) / np.maximum(count, 1)[:, None, None]
-    eigval, eigvec = np.linalg.eigh(second - first[:, :, None] * first[:, None, :])
-    # eigh sorts ascending: column 0 is the normal, eigval[:, 1] / eigval[:, 2] the planarity
-    planar = eigval[:, 1] >= KNN_MIN_PLANARITY * np.maximum(eigval[:, 2], 1e-300)
-    found = (count >= KNN_MIN_NEIGHBOURS) & planar
-    return _abs_cos(eigvec[:, :, 0], xyz64[query]), found
+    return neighbour_cos(
+        xyz64, query, k=KNN_NEIGHBOURS, radius_m=KNN_RADIUS_M,
+        min_neighbours=KNN_MIN_NEIGHBOURS, min_planarity=KNN_MIN_PLANARITY,
+    )  # fmt: skip

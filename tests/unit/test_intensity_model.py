@@ -5,10 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
+import torch.nn.functional as F
 
 from lads.errors import ConfigError, InvalidPointsError, LadsError, ModelError
 from lads.intensity.checkpoint import ModelMeta, TargetSpec, build_generator, load_model, save_model
 from lads.intensity.features import FEATURE_VERSION, channel_names, frame_image
+from lads.intensity.model import WrapConv
 from lads.intensity.predict import MAX_SHARED_RATIO, predict_points
 from lads.physics.projection import project
 from lads.sensors.profile import load_profile
@@ -199,3 +201,23 @@ def test_style_without_style_channels_is_a_config_error(street):
 
 def test_every_error_is_a_lads_error():
     assert issubclass(ModelError, LadsError)
+
+
+@pytest.mark.parametrize("kernel", [1, 3, 5])
+@pytest.mark.parametrize("stride", [1, 2])
+@pytest.mark.parametrize("width", [8, 13, 64])
+def test_wrap_conv_equals_a_convolution_of_the_circularly_padded_image(kernel, stride, width):
+    """Azimuth wraps (circular), elevation is zero-padded; values and gradients alike."""
+    torch.manual_seed(kernel * 100 + stride * 10 + width)
+    conv = WrapConv(3, 4, kernel, stride).double()
+    x = torch.randn(2, 3, 6, width, dtype=torch.float64, requires_grad=True)
+    p = (kernel - 1) // 2
+    padded = F.pad(F.pad(x, (p, p, 0, 0), mode="circular"), (0, 0, p, p))
+    expected = conv.conv(padded)
+    got = conv(x)
+    assert got.shape == expected.shape
+    torch.testing.assert_close(got, expected, rtol=0, atol=1e-12)
+    grads = torch.autograd.grad((got**2).sum(), [x, conv.conv.weight])
+    expected_grads = torch.autograd.grad((expected**2).sum(), [x, conv.conv.weight])
+    for g, e in zip(grads, expected_grads, strict=True):
+        torch.testing.assert_close(g, e, rtol=0, atol=1e-10)
