@@ -9,6 +9,9 @@ made in parallel with joblib (each job writes only its own group).
 
 Statistics for normalisation and decoding are computed from the cache over *occupied
 pixels only* and keyed to the run's data hash (physics.md §10.4, §10.7 item 6).
+`cache_fingerprint` names the exact cached frames they were computed from, so a stored copy
+(`statistics_to_json`, read back exactly by `statistics_from_json`) is reused only while
+the cache it describes is unchanged.
 """
 
 from __future__ import annotations
@@ -16,6 +19,7 @@ from __future__ import annotations
 import functools
 import hashlib
 import json
+import math
 import urllib.parse
 from collections.abc import Iterable, Iterator
 from dataclasses import asdict, dataclass, field
@@ -306,6 +310,33 @@ def read_frame(run_dir: Path, job: CacheJob) -> CachedFrame:
     )  # fmt: skip
 
 
+def cache_fingerprint(run_dir: Path, jobs: Iterable[CacheJob]) -> str:
+    """sha256 hex digest naming the cached frames of `jobs`, in order (the order a pass
+    streams them, which the float sums depend on).
+
+    Per frame: its node, its job key (what decides its content, FEATURE_VERSION included)
+    and the mtime_ns of its `zarr.json`, which is rewritten whenever the frame is rebuilt,
+    so a frame remade by other code under the same key still changes the digest. One stat
+    per frame and no array read: a few milliseconds per thousand frames.
+
+    Raises:
+        TrainingError: a frame of `jobs` is not in the cache.
+    """
+    digest = hashlib.sha256()
+    for job in jobs:
+        meta = run_dir / CACHE_NAME / job.node / "zarr.json"
+        try:
+            written = meta.stat().st_mtime_ns
+        except OSError:
+            raise TrainingError(
+                f"{meta}: cached frame missing (deleted while training started?); start "
+                "again and the cache rebuilds it."
+            ) from None
+        digest.update(json.dumps([job.node, job.key, written]).encode())
+        digest.update(b"\n")
+    return digest.hexdigest()
+
+
 def iter_frames(run_dir: Path, jobs: Iterable[CacheJob]) -> Iterator[CachedFrame]:
     """The cached frames of `jobs`, in order, each read from zarr only when asked for (one
     frame in memory at a time, for passes over a whole cache)."""
@@ -328,6 +359,76 @@ class Statistics:
     std: dict[str, float]
     targets: dict[str, dict[str, Any]]
     calibration: dict[str, float]
+
+
+# Bump whenever compute_statistics returns anything else for the same frames, so that
+# statistics stored by an older lads are recomputed instead of reused.
+STATISTICS_VERSION = 1
+# JSON has no literal for these; they are stored as the strings Python spells them with.
+_NON_FINITE = ("nan", "inf", "-inf")
+_TARGET_NUMBERS = ("log_mean", "log_std", "floor", "log_k")
+
+
+def number_to_json(value: float) -> float | str:
+    """A float (or int) as strict-JSON data that `number_from_json` reads back exactly:
+    finite values as themselves (json writes floats with repr, the shortest string that
+    round-trips; ints stay ints), NaN and infinities as "nan", "inf", "-inf"."""
+    return value if math.isfinite(value) else str(float(value))
+
+
+def number_from_json(raw: Any) -> float:
+    """Inverse of `number_to_json`. Raises ValueError for anything it does not write."""
+    if isinstance(raw, str) and raw in _NON_FINITE:
+        return float(raw)
+    if isinstance(raw, bool) or not isinstance(raw, int | float):
+        raise ValueError(f"expected a number, got {raw!r}")
+    return raw
+
+
+def _numbers_from_json(raw: Any) -> dict[str, float]:
+    if not isinstance(raw, dict):
+        raise ValueError(f"expected a mapping of numbers, got {type(raw).__name__}")
+    return {str(k): number_from_json(v) for k, v in raw.items()}
+
+
+def statistics_to_json(stats: Statistics) -> dict[str, Any]:
+    """`stats` as strict-JSON data (see `number_to_json`); key order is kept."""
+
+    def numbers(values: dict[str, float]) -> dict[str, float | str]:
+        return {k: number_to_json(v) for k, v in values.items()}
+
+    targets = {
+        key: {"sensor": t["sensor"], **{n: number_to_json(t[n]) for n in _TARGET_NUMBERS}}
+        for key, t in stats.targets.items()
+    }
+    return {"mean": numbers(stats.mean), "std": numbers(stats.std), "targets": targets,
+            "calibration": numbers(stats.calibration)}  # fmt: skip
+
+
+def statistics_from_json(raw: Any, where: str) -> Statistics:
+    """Read back what `statistics_to_json` wrote, value for value.
+
+    Raises:
+        TrainingError: `raw` (from `where`) has another layout, a non-number where a
+            number belongs, or not exactly the NORMALISED_CHANNELS.
+    """
+    try:
+        mean, std = _numbers_from_json(raw["mean"]), _numbers_from_json(raw["std"])
+        if set(mean) != set(NORMALISED_CHANNELS) or set(std) != set(NORMALISED_CHANNELS):
+            raise ValueError(f"channels {sorted(mean)}, expected {sorted(NORMALISED_CHANNELS)}")
+        targets = {}
+        for key, t in raw["targets"].items():
+            if not isinstance(t["sensor"], str):
+                raise ValueError(f"target {key}: sensor {t['sensor']!r} is not a name")
+            numbers = {n: number_from_json(t[n]) for n in _TARGET_NUMBERS}
+            targets[str(key)] = {"sensor": t["sensor"], **numbers}
+        calibration = _numbers_from_json(raw["calibration"])
+    except (KeyError, TypeError, AttributeError, ValueError) as exc:
+        raise TrainingError(
+            f"{where}: not a statistics record as lads writes it ({type(exc).__name__}: "
+            f"{exc}); delete it and it is recomputed from the cache."
+        ) from None
+    return Statistics(mean, std, targets, calibration)
 
 
 # The calibration median of ln(refl / I_P) is estimated from a fixed histogram instead of

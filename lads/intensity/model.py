@@ -12,8 +12,9 @@ PICGAN's layout (physics.md §10.5) scaled for CPU inference, with the authors' 
 - Azimuth wraps around (circular padding along W); elevation does not (zero padding).
 - No normalisation layers: empty pixels would leak into InstanceNorm statistics.
 
-A generator's cost is dominated by its full-resolution layers; with base width 16 a
-64 x 2048 frame takes well under 100 ms on one CPU core (benchmarks/intensity_speed.py).
+A generator's cost is dominated by its full-resolution layers. Inference runs with
+channels-last weights (`checkpoint.load_model`); the whole stage, features included, is timed
+per 64 x 2048 frame on one core by benchmarks/intensity_speed.py.
 """
 
 from __future__ import annotations

@@ -14,7 +14,9 @@ with q = refl / k the calibrated intensity. The critics see geometry with the in
 they judge intensity *given* range, incidence and material. G_T2S maps (geometry, target
 intensity) to material reflectance, which makes the real-domain cycle well posed.
 
-The run folder (`runs/<name>/` by default) holds the cache, `checkpoints/latest.pt`
+The run folder (`runs/<name>/` by default) holds the cache, `statistics.json` (the
+normalisation statistics and pair facts of one pass over the cache, reused by later starts
+while the cache is unchanged: a full dataset takes minutes to re-read), `checkpoints/latest.pt`
 (networks, optimisers, random states, loss history; written atomically every
 `checkpoint_every` steps, so a killed run resumes where it stopped), `loss.png` and
 `history.json`. The final generator goes to the config's `output`.
@@ -22,11 +24,13 @@ The run folder (`runs/<name>/` by default) holds the cache, `checkpoints/latest.
 
 from __future__ import annotations
 
+import hashlib
 import io
 import json
 import math
+from collections import OrderedDict
 from collections.abc import Iterable, Iterator
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
@@ -34,15 +38,22 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from lads.errors import TrainingError
+from lads.errors import LadsError, TrainingError
 from lads.files import atomic_write, atomic_write_figure
 from lads.intensity.cache import (
+    STATISTICS_VERSION,
     CachedFrame,
     CacheJob,
+    Statistics,
     build_cache,
+    cache_fingerprint,
     compute_statistics,
     iter_frames,
+    number_from_json,
+    number_to_json,
     read_frame,
+    statistics_from_json,
+    statistics_to_json,
 )
 from lads.intensity.checkpoint import ModelMeta, TargetSpec, save_model
 from lads.intensity.features import (
@@ -55,10 +66,13 @@ from lads.intensity.features import (
 from lads.intensity.losses import balanced_l1, masked_l1, masked_mse_to
 from lads.intensity.model import Discriminator, Generator
 from lads.intensity.train_config import PairSpec, TrainConfig
+from lads.sensors.profile import load_profile
 
 GEOMETRY = ("ln_range", "cos_incidence", "elevation", "mask")
 MAX_REFLECTANCE = 1.2
 CHECKPOINT = "checkpoints/latest.pt"
+STATISTICS = "statistics.json"
+STATISTICS_FORMAT = "lads-train-statistics"
 FRAME_CACHE = 64  # frames kept in memory; the rest are read from zarr when sampled
 
 
@@ -72,7 +86,11 @@ class Batch:
 
 
 class Sampler:
-    """Random circular azimuth crops of cached frames, seeded; frames read lazily."""
+    """Random circular azimuth crops of cached frames, seeded; frames read lazily.
+
+    At most FRAME_CACHE frames stay in memory, the least recently sampled evicted first.
+    Which frames are held never changes what is sampled: the draws come from `rng` only.
+    """
 
     def __init__(self, run_dir: Path, jobs: list[CacheJob], rng: np.random.Generator) -> None:
         self.run_dir = run_dir
@@ -80,14 +98,18 @@ class Sampler:
         self.by_domain: dict[tuple[str, str], list[CacheJob]] = {}
         for job in jobs:
             self.by_domain.setdefault((job.pair, job.role), []).append(job)
-        self._frames: dict[str, CachedFrame] = {}
+        self._frames: OrderedDict[str, CachedFrame] = OrderedDict()
 
     def frame(self, job: CacheJob) -> CachedFrame:
+        """The cached frame of `job`, read from zarr unless held (least recently used
+        first out, so frames drawn often stay while rarely drawn ones are dropped)."""
         cached = self._frames.get(job.node)
-        if cached is None:
-            if len(self._frames) >= FRAME_CACHE:
-                self._frames.pop(next(iter(self._frames)))
-            cached = self._frames[job.node] = read_frame(self.run_dir, job)
+        if cached is not None:
+            self._frames.move_to_end(job.node)
+            return cached
+        if len(self._frames) >= FRAME_CACHE:
+            self._frames.popitem(last=False)
+        cached = self._frames[job.node] = read_frame(self.run_dir, job)
         return cached
 
     def batch(
@@ -182,6 +204,153 @@ class PairFacts:
                 for k, s in self._alpha_sum.items()}  # fmt: skip
 
 
+@dataclass(frozen=True, slots=True)
+class RunStatistics:
+    """What training takes from one pass over the whole cache.
+
+    Attributes:
+        stats: normalisation and decoding statistics (`compute_statistics`).
+        labelled: per pair key, whether every target frame carries labels.
+        mean_alpha: per pair key, mean extinction of its source frames, 1/m (NaN without).
+    """
+
+    stats: Statistics
+    labelled: dict[str, bool]
+    mean_alpha: dict[str, float]
+
+    def to_json(self) -> dict[str, Any]:
+        """Strict-JSON data that `from_json` reads back exactly (NaN included)."""
+        alpha = {k: number_to_json(v) for k, v in self.mean_alpha.items()}
+        return {"statistics": statistics_to_json(self.stats), "labelled": self.labelled,
+                "mean_alpha": alpha}  # fmt: skip
+
+    @classmethod
+    def from_json(cls, raw: Any, where: str, pairs: tuple[PairSpec, ...]) -> RunStatistics:
+        """Read back `to_json` data made for `pairs`.
+
+        Raises:
+            TrainingError: `raw` (from `where`) is not such data.
+        """
+        keys = [p.key for p in pairs]
+        try:
+            labelled, alpha = raw["labelled"], raw["mean_alpha"]
+            if list(labelled) != keys or list(alpha) != keys:
+                raise ValueError(f"pairs {list(labelled)}, {list(alpha)}; expected {keys}")
+            if not all(isinstance(v, bool) for v in labelled.values()):
+                raise ValueError(f"labelled flags {labelled} are not all true/false")
+            mean_alpha = {k: number_from_json(v) for k, v in alpha.items()}
+            stats = statistics_from_json(raw["statistics"], where)
+        except (KeyError, TypeError, AttributeError, ValueError) as exc:
+            raise TrainingError(
+                f"{where}: not a statistics record as lads writes it ({type(exc).__name__}: "
+                f"{exc}); delete it and it is recomputed from the cache."
+            ) from None
+        if list(stats.targets) != keys:
+            raise TrainingError(f"{where}: statistics of pairs {list(stats.targets)}, "
+                                f"expected {keys}; delete it to recompute.")  # fmt: skip
+        return cls(stats, dict(labelled), mean_alpha)
+
+
+def run_statistics(
+    run: Path, cfg: TrainConfig, jobs: list[CacheJob], channels: tuple[str, ...]
+) -> RunStatistics:
+    """The statistics of the run's cache: read from `run/statistics.json` when that file
+    was made from this very cache, else computed in one streaming pass (one frame in memory
+    at a time) and stored there for the next start.
+
+    A stored file that is missing, unreadable, damaged, or made for other cached frames, a
+    feature definition or statistics code of another version, or other sensor floors, is
+    recomputed and overwritten: the values are identical either way, only the minutes spent
+    re-reading a full dataset on every resume are saved.
+
+    Raises:
+        TrainingError: a cached frame vanished, or a pair has no target intensities.
+    """
+    path = run / STATISTICS
+    key = statistics_key(run, cfg, jobs, channels)
+    stored = _stored_statistics(path, key, cfg.pairs)
+    if stored is not None:
+        return stored
+    facts = PairFacts(cfg.pairs)
+    stats = compute_statistics(facts.observe(iter_frames(run, jobs)), channels, cfg.pairs)
+    found = RunStatistics(stats, facts.labelled, facts.mean_alpha())
+    content = found.to_json()
+    document = {
+        "format": STATISTICS_FORMAT,
+        "key": key,
+        "floors": _floors(stats),
+        "content_sha256": _content_digest(content),
+        "content": content,
+        # For people reading the file; the key already covers all of it.
+        "made_from": {
+            "frames": len(jobs),
+            "data_hash": cfg.data_hash(),
+            "feature_version": FEATURE_VERSION,
+            "statistics_version": STATISTICS_VERSION,
+        },
+    }
+    atomic_write(path, json.dumps(document, indent=1, allow_nan=False).encode())
+    return found
+
+
+def statistics_key(
+    run: Path, cfg: TrainConfig, jobs: list[CacheJob], channels: tuple[str, ...]
+) -> str:
+    """sha256 hex digest of everything the statistics of a run depend on: the cached frames
+    in streaming order (`cache_fingerprint`), the feature definition and channels, the
+    statistics code version, and the pairs (whose keys and domains decide the cache)."""
+    payload = {
+        "frames": cache_fingerprint(run, jobs),
+        "feature_version": FEATURE_VERSION,
+        "statistics_version": STATISTICS_VERSION,
+        "channels": list(channels),
+        "normalised": list(NORMALISED_CHANNELS),
+        "kind": cfg.kind,
+        "data_hash": cfg.data_hash(),
+        "pairs": [asdict(p) for p in cfg.pairs],
+    }
+    text = json.dumps(payload, sort_keys=True, default=str)
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def _stored_statistics(path: Path, key: str, pairs: tuple[PairSpec, ...]) -> RunStatistics | None:
+    """The statistics stored at `path` if they are intact and made under `key` with the
+    sensor floors of today's profiles; None otherwise (including no file)."""
+    try:
+        document = json.loads(path.read_bytes())
+    except (OSError, ValueError):  # absent, unreadable, not UTF-8 or not JSON
+        return None
+    if not isinstance(document, dict) or document.get("format") != STATISTICS_FORMAT:
+        return None
+    if document.get("key") != key or "content" not in document:
+        return None
+    # A flipped digit still parses: only the digest tells a damaged value from a real one.
+    if document.get("content_sha256") != _content_digest(document["content"]):
+        return None
+    try:
+        found = RunStatistics.from_json(document["content"], str(path), pairs)
+        # compute_statistics reads each sensor's detection floor from its profile, outside
+        # the cache: an edited profile makes the stored statistics stale.
+        floors = _floors(found.stats)
+    except LadsError:
+        return None
+    return found if document.get("floors") == floors else None
+
+
+def _floors(stats: Statistics) -> dict[str, float | str]:
+    """Detection floor (reflectivity units) of every sensor the statistics saw, as JSON.
+    Raises SensorProfileError for a sensor without a profile."""
+    return {s: number_to_json(load_profile(s).intensity.detection_floor)
+            for s in stats.calibration}  # fmt: skip
+
+
+def _content_digest(content: Any) -> str:
+    """sha256 of canonical JSON of `content`: json floats round-trip through their repr,
+    so the digest of what was written equals the digest of what is read back."""
+    text = json.dumps(content, sort_keys=True, allow_nan=True)
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
 def set_statistics(nets: Nets, stats: Any) -> None:
     nets.g.norm.set_stats(stats.mean, stats.std)
     nets.inv.norm.set_stats(stats.mean, stats.std)
@@ -209,11 +378,8 @@ def train(
     run.mkdir(parents=True, exist_ok=True)
     jobs = build_cache(run, cfg, progress=progress)
     channels = channel_names(cfg.kind == "weather")
-    # One streaming pass over the cache (one frame in memory at a time) for the statistics
-    # and the per-pair facts the networks and the style term need.
-    facts = PairFacts(cfg.pairs)
-    stats = compute_statistics(facts.observe(iter_frames(run, jobs)), channels, cfg.pairs)
-    labelled, mean_alpha = facts.labelled, facts.mean_alpha()
+    facts = run_statistics(run, cfg, jobs, channels)
+    stats, labelled, mean_alpha = facts.stats, facts.labelled, facts.mean_alpha
 
     torch.manual_seed(cfg.seed)
     rng = np.random.default_rng(cfg.seed)
