@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 import torch
+from scipy import stats
 
 from lads.diagnose.design import Design
 from lads.diagnose.effects import Effect
@@ -38,6 +39,14 @@ VALIDATION_SHARE = 0.5
 # *between* groups (object reflectance), while per-ring and per-class terms vary *within* a
 # surface, so that rule rejected 64 ring gains that improved held-out fit by four standard
 # errors. The grouped held-out test with a cluster SE is the guard that is right for both.
+# A class-confined effect (a glossy car, a retro-reflecting sign) changes only that class's
+# rows, which sit in a few groups. Its gain averaged over every held-out group has a cluster
+# SE dominated by the untouched groups, so z cannot exceed ~sqrt(groups with the class)
+# however consistent the gain is: six signs could never pass z >= 3. It is therefore also
+# tested on its own rows, clustered by group, with Student's t at the same one-sided tail as
+# the z bar (df = groups - 1: few groups need a much larger ratio), provided its gain over
+# all held-out rows is positive. At least MIN_SUPPORT_GROUPS groups must hold the class.
+MIN_SUPPORT_GROUPS = 4
 CLAIM_FREQUENCY = 0.7
 POSSIBLE_FREQUENCY = 0.3
 
@@ -102,6 +111,7 @@ class Comparison:
     delta: float
     se: float
     delta_bic: float
+    groups: int = 0
 
 
 def compare(
@@ -124,7 +134,7 @@ def compare_on(new: Fit, old: Fit, sub: Design, n_eff_scale: float, n_fit: float
     n_eff = max(n_fit * n_eff_scale, 2.0)
     dk = new.model.size - old.model.size
     delta_bic = 2.0 * (new.loss - old.loss) * n_eff + dk * math.log(n_eff)
-    return Comparison(delta, se, float(delta_bic))
+    return Comparison(delta, se, float(delta_bic), k)
 
 
 def design_effect_scale(d: Design, rows: npt.NDArray[np.int64]) -> float:
@@ -156,11 +166,16 @@ class Step:
     delta_bic: float
     at_bound: bool
     accepted: bool = False
+    support: Comparison | None = None
 
     def to_json(self) -> dict[str, Any]:
-        return {"step": self.step, "candidate": self.candidate, "delta_loss": self.delta_loss,
-                "se": self.se, "delta_bic": self.delta_bic, "at_bound": self.at_bound,
-                "accepted": self.accepted}  # fmt: skip
+        out = {"step": self.step, "candidate": self.candidate, "delta_loss": self.delta_loss,
+               "se": self.se, "delta_bic": self.delta_bic, "at_bound": self.at_bound,
+               "accepted": self.accepted}  # fmt: skip
+        if self.support is not None:
+            out["class_rows"] = {"delta_loss": self.support.delta, "se": self.support.se,
+                                 "groups": self.support.groups}  # fmt: skip
+        return out
 
 
 @dataclass
@@ -178,8 +193,27 @@ class Selection:
         return [e.label for e in self.fit.model.effects]
 
 
-def _passes(c: Comparison, at_bound: bool, z_accept: float) -> bool:
-    return c.delta > z_accept * c.se and c.delta > MIN_GAIN_NATS and not at_bound
+def _passes(
+    c: Comparison, at_bound: bool, z_accept: float, support: Comparison | None = None
+) -> bool:
+    if at_bound:
+        return False
+    if c.delta > z_accept * c.se and c.delta > MIN_GAIN_NATS:
+        return True
+    if support is None or c.delta <= 0.0:
+        return False
+    t_crit = float(stats.t.isf(stats.norm.sf(z_accept), df=support.groups - 1))
+    return support.delta > t_crit * support.se and support.delta > MIN_GAIN_NATS
+
+
+def class_rows(held_out: Design, effect: Effect) -> Design | None:
+    """The held-out rows of a class-confined effect's class, if enough groups hold it."""
+    if effect.class_index < 0:
+        return None
+    rows = np.flatnonzero(held_out.class_index.numpy() == effect.class_index)
+    if len(np.unique(held_out.group[rows])) < MIN_SUPPORT_GROUPS:
+        return None
+    return held_out.subset(rows)
 
 
 def forward_backward(
@@ -208,18 +242,23 @@ def forward_backward(
     sel = Selection(current, baseline)
     remaining = list(pool)
     held_out = d.subset(validation)
+    supports = {e.label: class_rows(held_out, e) for e in pool}
     for step in range(1, k_max + 1):
         results = []
         for cand in remaining:
             f = fit_best(current.model.with_effect(cand), d, weights, base, current)
             c = compare_on(f, current, held_out, scale, n_fit)
+            sub = supports[cand.label]
+            support = None if sub is None else compare_on(f, current, sub, scale, n_fit)
             bound = cand.label in f.at_bound()
-            results.append((cand, f, c, bound))
-            sel.trace.append(Step(step, cand.label, c.delta, c.se, c.delta_bic, bound))
+            results.append((cand, f, c, bound, support))
+            sel.trace.append(Step(step, cand.label, c.delta, c.se, c.delta_bic, bound,
+                                  support=support))  # fmt: skip
             if step == 1:
                 sel.first_step[cand.label] = c
                 sel.fits[cand.label] = f
-        ok = [r for r in results if _passes(r[2], r[3], z_accept)]
+        # Ranked by the gain over all held-out rows: what explains the most of the mismatch.
+        ok = [r for r in results if _passes(r[2], r[3], z_accept, r[4])]
         if not ok:
             break
         best = max(ok, key=lambda r: r[2].delta)

@@ -17,6 +17,7 @@ from lads.diagnose.analysis import Settings, diagnose_design
 from lads.diagnose.design import paired_design, sim_log_variance
 from lads.diagnose.model import Model
 from lads.diagnose.parallel import map_fits, restrict
+from lads.diagnose.select import MIN_SUPPORT_GROUPS, Z_ACCEPT, Comparison, _passes
 from lads.diagnose.table import BeamTable
 from tests.unit.test_diagnose_localize import make_table
 
@@ -154,3 +155,49 @@ def test_an_effect_rejected_only_for_its_bound_is_reported_as_beyond_the_catalog
         Step(1, "C1", 0.05, 0.01, -20.0, False),  # in range: an ordinary candidate
     ]
     assert _beyond_bounds(sel) == [("C2", 5.0)]
+
+
+def with_bright_signs(table: BeamTable, ln_gain: float, seed: int) -> BeamTable:
+    """6 rows of 24 object groups relabelled traffic-sign, real intensity x exp(ln_gain) /
+    cos(incidence): a retro-reflector returns the same whatever the angle (catalogue C3r)."""
+    rng = np.random.default_rng(seed)
+    class_id = table.class_id.copy()
+    groups = np.unique(table.group[~table.is_ground])
+    for gid in rng.choice(groups, 24, replace=False):
+        rows = np.flatnonzero((table.group == gid) & table.ret_sim)[:6]
+        class_id[rows] = 81
+    sign = class_id == 81
+    h = table.sensor.half_step
+    gain = np.exp(ln_gain) / table.cos_incidence
+    brighter = np.minimum((table.i_real + h) * gain - h, table.sensor.max_value)
+    i_real = np.where(sign & np.isfinite(table.i_real), brighter, table.i_real)
+    names = {**table.class_names, 81: "traffic-sign"}
+    return dataclasses.replace(table, class_id=class_id, class_names=names,
+                               i_real=i_real.astype(np.float32))  # fmt: skip
+
+
+def test_a_bright_rare_class_is_found_from_its_own_rows():
+    """144 sign rows of 50 000: over all held-out rows the gain is within ~2 cluster SEs (the
+    untouched groups dominate the SE), but on the sign rows it is consistent group by group."""
+    table = with_bright_signs(make_table(6, group_sd=0.25, noise=0.1), 1.0, seed=1)
+    design = paired_design(table)
+    dg = diagnose_design(design, np.random.default_rng(0), QUICK)
+    claimed = {r.effect.label: r for r in dg.effects if r.status == "claimed"}
+    assert "C3r[traffic-sign]" in claimed
+    assert abs(claimed["C3r[traffic-sign]"].params["ln_gain"] - 1.0) < 0.2
+    step = next(s for s in dg.selection.trace if s.candidate == "C3r[traffic-sign]")
+    assert step.support is not None and step.support.groups >= MIN_SUPPORT_GROUPS
+
+
+def test_a_class_confined_gain_passes_on_its_rows_only_with_enough_consistent_groups():
+    overall = Comparison(delta=0.004, se=0.002, delta_bic=0.0, groups=200)
+    consistent = Comparison(delta=0.5, se=0.05, delta_bic=0.0, groups=10)
+    erratic = Comparison(delta=0.5, se=0.15, delta_bic=0.0, groups=10)
+    few = Comparison(delta=0.5, se=0.08, delta_bic=0.0, groups=3)
+    assert not _passes(overall, False, Z_ACCEPT)
+    assert _passes(overall, False, Z_ACCEPT, consistent)
+    assert not _passes(overall, False, Z_ACCEPT, erratic)  # t = 3.3 < t(9) bar of ~4.3
+    assert not _passes(overall, False, Z_ACCEPT, few)  # t = 6.3 < t(2) bar of ~19
+    assert not _passes(overall, True, Z_ACCEPT, consistent)  # at a bound
+    losing = dataclasses.replace(overall, delta=-0.001)
+    assert not _passes(losing, False, Z_ACCEPT, consistent)  # other rows got worse
