@@ -28,8 +28,10 @@ from lads.errors import ModelError
 from lads.files import atomic_write
 from lads.intensity.features import FEATURE_VERSION, NORMALISED_CHANNELS, channel_names
 from lads.intensity.model import Generator
+from lads.physics.materials import material_names
 
 FORMAT = "lads-intensity"
+MATERIAL_DIMS = 4
 FORMAT_VERSION = 1
 
 # The pretrained models shipped in lads/intensity/weights/ (made by `make train`).
@@ -76,6 +78,9 @@ class ModelMeta:
             weather target's intensity in another sensor's units.
         stats_sha256: hash of the normalisation statistics.
         training: free-form record (config, data, seed, steps, metrics).
+        materials: material names whose indices the material channel holds (index i + 1
+            is materials[i]), i.e. `material_names()` at training time.
+        material_dims: length of the learned per-material vector.
     """
 
     name: str
@@ -89,10 +94,13 @@ class ModelMeta:
     calibration: dict[str, float]
     stats_sha256: str = ""
     training: dict[str, Any] = field(default_factory=dict)
+    materials: tuple[str, ...] = ()
+    material_dims: int = MATERIAL_DIMS
 
     def to_json(self) -> dict[str, Any]:
         out = asdict(self)
         out["channels"] = list(self.channels)
+        out["materials"] = list(self.materials)
         return out
 
     @classmethod
@@ -111,6 +119,9 @@ class ModelMeta:
                 calibration={str(k): float(v) for k, v in raw["calibration"].items()},
                 stats_sha256=str(raw["stats_sha256"]),
                 training=dict(raw.get("training", {})),
+                # Absent in files of feature version 1, which load() refuses by version.
+                materials=tuple(str(m) for m in raw.get("materials", ())),
+                material_dims=int(raw.get("material_dims", MATERIAL_DIMS)),
             )
         except (KeyError, TypeError, ValueError) as exc:
             raise ModelError(
@@ -147,7 +158,8 @@ class IntensityModel:
 
 
 def build_generator(meta: ModelMeta) -> Generator:
-    return Generator(meta.channels, NORMALISED_CHANNELS, base=meta.base, blocks=meta.blocks)
+    return Generator(meta.channels, NORMALISED_CHANNELS, base=meta.base, blocks=meta.blocks,
+                     materials=len(meta.materials), material_dims=meta.material_dims)  # fmt: skip
 
 
 def stats_hash(generator: Generator) -> str:
@@ -221,6 +233,12 @@ def load_model(path: str | Path, *, device: str = "cpu") -> IntensityModel:
         raise ModelError(
             f"{where}: input channels {list(meta.channels)} do not match this lads "
             f"({list(expected)}); retrain it (lads train)."
+        )
+    if meta.materials != material_names():
+        raise ModelError(
+            f"{where}: trained with the materials {list(meta.materials)}, this lads has "
+            f"{list(material_names())} (lads/physics/materials.yaml); its material indices "
+            "would name other materials. Retrain it (lads train) or restore materials.yaml."
         )
     generator = build_generator(meta)
     try:

@@ -14,6 +14,11 @@ columns = azimuth; `lads.physics.projection`), never in another sensor's grid (p
     mask           1 where a point owns the pixel
     ln_geometry    ln(cos(theta) / R^n exp(-2 alpha R) + GEOMETRY_FLOOR): I_P per unit
                    reflectance, so I_P can be rebuilt for a predicted reflectance (cycle)
+    material       1 + the material's index in `lads.physics.materials.material_names()`
+                   (0 is an empty pixel): which material, not only its reflectance. A
+                   sensor answers materials of similar diffuse reflectance very differently
+                   (glossy car paint, retro-reflective sheeting, white lane paint); a scalar
+                   reflectance cannot carry that, a learned per-material embedding can.
     rain/snow/fog  one-hot weather style, broadcast (weather models only)
 
 Empty pixels hold 0 in every channel. I_P is computed from materials, incidence and range,
@@ -29,17 +34,23 @@ import numpy as np
 import numpy.typing as npt
 
 from lads.errors import ConfigError, InvalidPointsError
-from lads.physics.materials import LABEL_SETS, reflectance_for_labels
+from lads.physics.materials import (
+    LABEL_SETS,
+    default_material,
+    material_index_for_labels,
+    material_names,
+    reflectance_for_labels,
+)
 from lads.physics.modalities import _incidence, physics_intensity
 from lads.physics.projection import RangeImage, channels_of, checked_xyz, organise
 from lads.physics.result import Outcome
 from lads.sensors.profile import SensorProfile
 
-FEATURE_VERSION = "1"
+FEATURE_VERSION = "2"  # 2: the material channel
 STYLES: tuple[str, ...] = ("rain", "snow", "fog")
 BASE_CHANNELS: tuple[str, ...] = (
     "ln_range", "cos_incidence", "reflectance", "ln_physics", "elevation", "particle", "mask",
-    "ln_geometry",
+    "ln_geometry", "material",
 )  # fmt: skip
 # Channels z-scored with statistics from the training cache; the rest are already O(1).
 NORMALISED_CHANNELS: tuple[str, ...] = ("ln_range", "cos_incidence", "reflectance", "ln_physics")
@@ -156,8 +167,10 @@ def frame_image(
         if label_arr.shape != (n,):
             raise InvalidPointsError(f"labels: shape {label_arr.shape}, expected ({n},).")
         rho = reflectance_for_labels(label_arr, label_set)
+        material = material_index_for_labels(label_arr, label_set)
     else:
         rho = np.full(n, UNKNOWN_REFLECTANCE, dtype=np.float32)
+        material = np.full(n, material_names().index(default_material()), dtype=np.int64)
     phys = physics_intensity(
         rho, cos, r, range_exponent=range_exponent, extinction_per_m=extinction_per_m
     )
@@ -175,6 +188,7 @@ def frame_image(
         "reflectance": rho,
         "ln_physics": np.log(phys.astype(np.float64) + PHYSICS_FLOOR),
         "particle": is_particle.astype(np.float32),
+        "material": (material + 1).astype(np.float32),
         "ln_geometry": np.log(
             physics_intensity(
                 np.ones(n),

@@ -28,7 +28,7 @@ def balanced_l1(
 ) -> torch.Tensor:
     """`masked_l1` with each occupied pixel weighted by n_group^-power, mean weight 1.
 
-    `groups` (B, 1, H, W) holds a value per pixel (a material's reflectance); pixels with
+    `groups` (B, 1, H, W) holds a value per pixel (a material's index); pixels with
     the same value form a group of n_group pixels in the batch. power 0 is the plain pixel
     mean, 1 gives every group the same total weight. Rare bright materials (traffic signs,
     lane paint: ~0.1 % of a KITTI frame's pixels) otherwise hardly enter the mean at all.
@@ -38,7 +38,7 @@ def balanced_l1(
     occupied = mask.expand_as(pred) > 0
     if not bool(occupied.any()):
         return torch.zeros((), dtype=pred.dtype, device=pred.device)
-    # Materials are exact per-class constants; rounding only guards float noise.
+    # Group values are exact per-material constants; rounding only guards float noise.
     keys = torch.round(groups.expand_as(pred)[occupied] * 1e4)
     _, inverse, counts = torch.unique(keys, return_inverse=True, return_counts=True)
     weight = counts[inverse].to(pred.dtype) ** (-power)

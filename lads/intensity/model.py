@@ -107,6 +107,12 @@ class Generator(nn.Module):
 
     H and W must be divisible by 4. `base` sets the width (base, 2 base, 4 base channels at
     full, 1/2 and 1/4 resolution).
+
+    With `materials` > 0 and a "material" channel (1 + material index, 0 empty), that channel
+    is replaced by a learned `material_dims`-vector per material before the convolutions and
+    the linear path: a per-material response the scalar reflectance cannot express. The
+    table starts at zero, so a material never seen in training adds nothing and the model
+    answers from its physics channels alone.
     """
 
     def __init__(
@@ -116,11 +122,22 @@ class Generator(nn.Module):
         *,
         base: int = 16,
         blocks: int = 3,
+        materials: int = 0,
+        material_dims: int = 4,
     ) -> None:
         super().__init__()
         self.channels = tuple(channels)
         self.norm = Normaliser(self.channels, normalised)
+        self.material_channel = (
+            self.channels.index("material") if materials and "material" in self.channels else -1
+        )
         c = len(self.channels)
+        if self.material_channel >= 0:
+            self.material_embedding = nn.Embedding(materials + 1, material_dims)
+            nn.init.zeros_(self.material_embedding.weight)
+            keep = [i for i in range(c) if i != self.material_channel]
+            self.register_buffer("kept", torch.tensor(keep, dtype=torch.long), persistent=False)
+            c = c - 1 + material_dims
         self.e0 = WrapConv(c, base, 3)
         self.e1 = WrapConv(base, 2 * base, 3, stride=2)
         self.e2 = WrapConv(2 * base, 4 * base, 3, stride=2)
@@ -135,6 +152,8 @@ class Generator(nn.Module):
     def forward(self, raw: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
         """raw (B, C, H, W) float32, mask (B, 1, H, W) float32 -> (B, 1, H, W)."""
         x = self.norm(raw, mask)
+        if self.material_channel >= 0:
+            x = self._with_materials(x, raw)
         a0 = F.leaky_relu(self.e0(x), LEAK)
         a1 = F.leaky_relu(self.e1(a0), LEAK)
         a2 = self.mid(F.leaky_relu(self.e2(a1), LEAK))
@@ -143,6 +162,15 @@ class Generator(nn.Module):
         b0 = F.interpolate(b1, scale_factor=2.0, mode="nearest")
         b0 = F.leaky_relu(self.u0(torch.cat([b0, a0], 1)), LEAK)
         return self.head(b0) + self.linear(x)
+
+    def _with_materials(self, x: torch.Tensor, raw: torch.Tensor) -> torch.Tensor:
+        """x with its material channel swapped for the material embedding (0 when empty)."""
+        table = self.material_embedding.weight
+        index = raw[:, self.material_channel].round().long().clamp_(0, table.shape[0] - 1)
+        # Row 0 (empty pixel) is masked rather than trusted to stay zero through training.
+        embedded = F.embedding(index, table) * (index > 0).unsqueeze(-1).to(table.dtype)
+        embedded = embedded.permute(0, 3, 1, 2)
+        return torch.cat([x.index_select(1, self.kept), embedded], 1)
 
 
 class Discriminator(nn.Module):

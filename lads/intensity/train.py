@@ -55,7 +55,7 @@ from lads.intensity.cache import (
     statistics_from_json,
     statistics_to_json,
 )
-from lads.intensity.checkpoint import ModelMeta, TargetSpec, save_model
+from lads.intensity.checkpoint import MATERIAL_DIMS, ModelMeta, TargetSpec, save_model
 from lads.intensity.features import (
     FEATURE_VERSION,
     NORMALISED_CHANNELS,
@@ -66,6 +66,7 @@ from lads.intensity.features import (
 from lads.intensity.losses import balanced_l1, masked_l1, masked_mse_to
 from lads.intensity.model import Discriminator, Generator
 from lads.intensity.train_config import PairSpec, TrainConfig
+from lads.physics.materials import material_names
 from lads.sensors.profile import load_profile
 
 GEOMETRY = ("ln_range", "cos_incidence", "elevation", "mask")
@@ -149,7 +150,10 @@ class Nets(torch.nn.Module):
         weather = cfg.kind == "weather"
         self.channels = channel_names(weather)
         styles = STYLES if weather else ()
-        self.g = Generator(self.channels, NORMALISED_CHANNELS, base=cfg.base, blocks=cfg.blocks)
+        self.g = Generator(
+            self.channels, NORMALISED_CHANNELS, base=cfg.base, blocks=cfg.blocks,
+            materials=len(material_names()), material_dims=MATERIAL_DIMS,
+        )  # fmt: skip
         self.inv_channels = GEOMETRY + ("particle",) + styles + ("z_intensity",)
         self.inv = Generator(self.inv_channels, ("ln_range", "cos_incidence"),
                              base=cfg.base, blocks=cfg.blocks)  # fmt: skip
@@ -426,7 +430,7 @@ def train(
         name=cfg.name, kind=cfg.kind, channels=channels, feature_version=FEATURE_VERSION,
         range_exponent=cfg.range_exponent, base=cfg.base, blocks=cfg.blocks,
         targets={k: TargetSpec(**v) for k, v in stats.targets.items()},
-        calibration=stats.calibration,
+        calibration=stats.calibration, materials=material_names(), material_dims=MATERIAL_DIMS,
         training={"config": cfg.to_dict(), "data_hash": cfg.data_hash(), "steps": cfg.steps,
                   "seed": cfg.seed, "final_losses": history[-1],
                   "cache_frames": len(jobs)},
@@ -489,7 +493,7 @@ def _step(
         l_id = torch.zeros((), device=device)
         if t.labelled:
             l_id = balanced_l1(nets.g(t.raw, t.mask), t.z, t.mask,
-                               t.raw[:, ch.index("reflectance")][:, None],
+                               t.raw[:, ch.index("material")][:, None],
                                w.identity_balance)  # fmt: skip
 
         l_style = torch.zeros((), device=device)

@@ -47,6 +47,7 @@ class _LabelSet:
     classes: dict[int, tuple[str, str]]  # class id -> (class name, material name)
     lookup: npt.NDArray[np.float32]  # (MAX_CLASS_ID + 2,) reflectance per id
     known: npt.NDArray[np.bool_]  # (MAX_CLASS_ID + 2,) id has an entry
+    material: npt.NDArray[np.int16]  # (MAX_CLASS_ID + 2,) index into material_names()
 
 
 @dataclass(frozen=True, slots=True)
@@ -76,6 +77,27 @@ def reflectance_for_labels(labels: npt.ArrayLike, label_set: str) -> npt.NDArray
         ConfigError: unknown label set, or the shipped YAML is invalid.
         InputDataError: labels are not a 1-D integer array, or contain negative values.
     """
+    lset, ids = _classes_of(labels, label_set)
+    return lset.lookup[ids]
+
+
+def material_index_for_labels(labels: npt.ArrayLike, label_set: str) -> npt.NDArray[np.int64]:
+    """Each point's material as an index into `material_names()`, from its class label.
+
+    The same lookup as `reflectance_for_labels` (ids without an entry get the default
+    material, with the same one-time warning), returning *which* material instead of its
+    reflectance: two materials of equal reflectance (white paint and clothing, 0.60) stay
+    apart, which a learned intensity model needs because a sensor answers them differently.
+
+    Raises:
+        ConfigError, InputDataError: as `reflectance_for_labels`.
+    """
+    lset, ids = _classes_of(labels, label_set)
+    return lset.material[ids].astype(np.int64)
+
+
+def _classes_of(labels: npt.ArrayLike, label_set: str) -> tuple[_LabelSet, npt.NDArray[np.intp]]:
+    """The label set and each point's class id (warning once about ids without a material)."""
     table = _table()
     if label_set not in table.label_sets:
         raise ConfigError(
@@ -86,7 +108,17 @@ def reflectance_for_labels(labels: npt.ArrayLike, label_set: str) -> npt.NDArray
     unknown = ~lset.known[ids]
     if unknown.any():
         _warn_unknown(lset, labels, unknown)
-    return lset.lookup[ids]
+    return lset, ids
+
+
+def material_names() -> tuple[str, ...]:
+    """Every material of the shipped YAML, in file order (the order of material indices)."""
+    return tuple(_table().materials)
+
+
+def default_material() -> str:
+    """Name of the material given to unlabelled points and unmapped classes."""
+    return _table().default.name
 
 
 def material_table() -> dict[str, Material]:
@@ -213,6 +245,8 @@ def _label_set(
     classes.update(_classes(spec["classes"], ctx))
     lookup = np.full(_OUT_OF_RANGE + 1, default.reflectance, dtype=np.float32)
     known = np.zeros(_OUT_OF_RANGE + 1, dtype=bool)
+    order = {m: i for i, m in enumerate(materials)}
+    material_of = np.full(_OUT_OF_RANGE + 1, order[default.name], dtype=np.int16)
     for class_id, (class_name, material) in classes.items():
         if material not in materials:
             raise ConfigError(
@@ -221,9 +255,10 @@ def _label_set(
             )
         lookup[class_id] = materials[material].reflectance
         known[class_id] = True
-    lookup.flags.writeable = False
-    known.flags.writeable = False
-    return _LabelSet(name, bool(spec["instance_bits"]), classes, lookup, known)
+        material_of[class_id] = order[material]
+    for table in (lookup, known, material_of):
+        table.flags.writeable = False
+    return _LabelSet(name, bool(spec["instance_bits"]), classes, lookup, known, material_of)
 
 
 def _classes(raw: Any, ctx: str) -> dict[int, tuple[str, str]]:

@@ -12,6 +12,7 @@ from lads.intensity.checkpoint import ModelMeta, TargetSpec, build_generator, lo
 from lads.intensity.features import FEATURE_VERSION, channel_names, frame_image
 from lads.intensity.model import WrapConv
 from lads.intensity.predict import MAX_SHARED_RATIO, predict_points
+from lads.physics.materials import material_names
 from lads.physics.projection import project
 from lads.sensors.profile import load_profile
 from lads.synth import synth_frame
@@ -30,7 +31,7 @@ def _meta(kind: str = "sensor", sensor: str = "hdl64e", **changes) -> ModelMeta:
     values = dict(
         name="tiny", kind=kind, channels=channel_names(styles), feature_version=FEATURE_VERSION,
         range_exponent=1.0, base=4, blocks=1, targets=targets,
-        calibration={"hdl64e": 1.2, "wads64": 0.5},
+        calibration={"hdl64e": 1.2, "wads64": 0.5}, materials=material_names(),
     )  # fmt: skip
     values.update(changes)
     return ModelMeta(**values)
@@ -170,6 +171,83 @@ def test_weights_of_another_feature_version_are_refused(tmp_path):
     path = tiny_model(tmp_path, feature_version="0")
     with pytest.raises(ModelError, match="features v0"):
         load_model(path)
+
+
+def test_weights_trained_with_another_material_list_are_refused(tmp_path):
+    path = tiny_model(tmp_path, materials=("asphalt", "retroreflective_sheeting"))
+    with pytest.raises(ModelError, match="materials.yaml"):
+        load_model(path)
+
+
+def test_the_material_channel_tells_apart_materials_of_equal_reflectance():
+    """Lane paint and clothing are both 0.60: the reflectance channel cannot separate them,
+    the material channel must (a sensor answers them differently); no label is unknown."""
+    xyz = np.array([[10.0, 0.0, -1.0], [0.0, 10.0, -1.0], [-10.0, 0.0, -1.0]])
+    labels = np.array([60, 30, 0], dtype=np.uint32)  # lane-marking, person, unlabeled
+    fi = frame_image(xyz, HDL64, labels=labels, label_set="semantickitti")
+    names, ch = material_names(), fi.channels
+    owned = fi.image.index[fi.image.row, fi.image.col] == np.arange(3)
+    assert owned.all()
+    rho = fi.inputs[ch.index("reflectance"), fi.image.row, fi.image.col]
+    material = fi.inputs[ch.index("material"), fi.image.row, fi.image.col].astype(int) - 1
+    assert rho[0] == rho[1]
+    assert [names[m] for m in material] == ["paint_white", "fabric_clothing", "unknown"]
+    unlabelled = frame_image(xyz, HDL64)
+    assert set(unlabelled.inputs[ch.index("material")][unlabelled.mask]) == {
+        names.index("unknown") + 1.0
+    }
+
+
+def test_a_generator_learns_a_response_that_reflectance_alone_cannot_carry():
+    """Two materials of equal reflectance and geometry, one read 5x brighter by the sensor
+    (retro-reflection, gloss): every physics channel is the same for both, so only the
+    material embedding can separate them, and it does."""
+    from lads.intensity.features import NORMALISED_CHANNELS
+    from lads.intensity.model import Generator
+
+    names = channel_names(False)
+    raw = torch.zeros(1, len(names), 8, 32)
+    raw[:, names.index("mask")] = 1.0
+    raw[:, names.index("reflectance")] = 0.6
+    raw[:, names.index("ln_range")] = 2.0
+    raw[:, names.index("cos_incidence")] = 0.5
+    bright = torch.zeros(8, 32, dtype=torch.bool)
+    bright[:, ::2] = True  # alternate columns: no spatial context tells them apart
+    raw[:, names.index("material")] = torch.where(bright, 12.0, 17.0)
+    target = torch.where(bright, 1.0, -1.0)[None, None] * 0.8  # z units: ln 5 apart at std 1
+    mask = raw[:, names.index("mask")][:, None]
+
+    def fitted_gap() -> float:
+        torch.manual_seed(0)
+        g = Generator(names, NORMALISED_CHANNELS, base=4, blocks=1,
+                      materials=len(material_names()))  # fmt: skip
+        opt = torch.optim.Adam(g.parameters(), lr=0.01)
+        for _ in range(150):
+            opt.zero_grad()
+            loss = (g(raw, mask) - target).abs().mean()
+            loss.backward()
+            opt.step()
+        with torch.no_grad():
+            out = g(raw, mask)[0, 0]
+        return float(out[bright].mean() - out[~bright].mean())
+
+    assert fitted_gap() > 1.4  # of the 1.6 the data ask for
+
+
+def test_a_material_the_model_never_learnt_adds_nothing(tmp_path, street):
+    """The embedding table starts at zero: untouched rows leave the physics channels alone."""
+    from lads.intensity.features import NORMALISED_CHANNELS
+    from lads.intensity.model import Generator
+
+    names = channel_names(False)
+    g = Generator(names, NORMALISED_CHANNELS, base=4, blocks=1, materials=len(material_names()))
+    fi = frame_image(street.xyz, HDL64, labels=street.labels, label_set="semantickitti")
+    raw = torch.from_numpy(fi.inputs)[None]
+    mask = raw[:, names.index("mask")][:, None]
+    other = raw.clone()
+    other[:, names.index("material")] = torch.where(mask[:, 0] > 0, 3.0, 0.0)
+    with torch.no_grad():
+        assert torch.equal(g(raw, mask), g(other, mask))
 
 
 def test_weather_model_refuses_a_style_it_was_not_trained_for(tmp_path, street):
