@@ -17,7 +17,14 @@ from lads.diagnose.analysis import Settings, diagnose_design
 from lads.diagnose.design import paired_design, sim_log_variance
 from lads.diagnose.model import Model
 from lads.diagnose.parallel import map_fits, restrict
-from lads.diagnose.select import MIN_SUPPORT_GROUPS, Z_ACCEPT, Comparison, _passes
+from lads.diagnose.select import (
+    MIN_SUPPORT_GROUPS,
+    Z_ACCEPT,
+    Comparison,
+    _passes,
+    compare_groups,
+    compare_on,
+)
 from lads.diagnose.table import BeamTable
 from tests.unit.test_diagnose_localize import make_table
 
@@ -201,3 +208,39 @@ def test_a_class_confined_gain_passes_on_its_rows_only_with_enough_consistent_gr
     assert not _passes(overall, True, Z_ACCEPT, consistent)  # at a bound
     losing = dataclasses.replace(overall, delta=-0.001)
     assert not _passes(losing, False, Z_ACCEPT, consistent)  # other rows got worse
+
+
+def gains_as_fits(gain: np.ndarray, group: np.ndarray) -> tuple[object, object, object]:
+    """Stand-ins for (new fit, old fit, held-out rows) whose per-row gain is `gain`."""
+    from types import SimpleNamespace
+
+    sub = SimpleNamespace(group=group)
+    new = SimpleNamespace(row_nll=lambda d: np.zeros(len(gain)))
+    old = SimpleNamespace(row_nll=lambda d: gain)
+    return new, old, sub
+
+
+def test_class_rows_count_each_group_once():
+    """Nine tiles, every one gaining, tile sizes 1-24 and gains 7-48 nats/row (a retro gain
+    clipped in some tiles): the row-weighted ratio's t stays below the t(8) bar, each tile
+    counted once clears it. One big tile with a chance gain among null tiles: the reverse."""
+    sizes = np.array([1, 8, 1, 11, 9, 5, 4, 24, 2])
+    per_row = np.array([48.0, 43.0, 6.7, 9.1, 40.0, 41.0, 39.6, 7.9, 44.0])
+    group = np.repeat(np.arange(9), sizes)
+    new, old, sub = gains_as_fits(np.repeat(per_row, sizes), group)
+    overall = Comparison(delta=0.01, se=0.005, delta_bic=0.0, groups=200)
+    by_group = compare_groups(new, old, sub)  # type: ignore[arg-type]
+    by_row = compare_on(new, old, sub, 1.0, 1.0)  # type: ignore[arg-type]
+    assert by_group.groups == 9 and np.isclose(by_group.delta, per_row.mean())
+    assert _passes(overall, False, Z_ACCEPT, by_group)
+    assert not _passes(overall, False, Z_ACCEPT, by_row)
+
+    rng = np.random.default_rng(0)
+    sizes = np.r_[400, np.full(39, 10)]
+    group = np.repeat(np.arange(40), sizes)
+    gain = rng.normal(0.0, 0.05, sizes.sum())
+    gain[group == 0] += 0.05  # one large tile that happens to gain
+    new, old, sub = gains_as_fits(gain, group)
+    assert not _passes(overall, False, Z_ACCEPT, compare_groups(new, old, sub))  # type: ignore[arg-type]
+    by_row = compare_on(new, old, sub, 1.0, 1.0)  # type: ignore[arg-type]
+    assert by_row.delta / by_row.se > 3.0
