@@ -215,15 +215,16 @@ def gains_as_fits(gain: np.ndarray, group: np.ndarray) -> tuple[object, object, 
     from types import SimpleNamespace
 
     sub = SimpleNamespace(group=group)
-    new = SimpleNamespace(row_nll=lambda d: np.zeros(len(gain)))
-    old = SimpleNamespace(row_nll=lambda d: gain)
+    model = SimpleNamespace(size=6)
+    new = SimpleNamespace(row_nll=lambda d: np.zeros(len(gain)), model=model, loss=0.0)
+    old = SimpleNamespace(row_nll=lambda d: gain, model=model, loss=0.0)
     return new, old, sub
 
 
 def test_class_rows_count_each_group_once():
     """Nine tiles, every one gaining, tile sizes 1-24 and gains 7-48 nats/row (a retro gain
     clipped in some tiles): the row-weighted ratio's t stays below the t(8) bar, each tile
-    counted once clears it. One big tile with a chance gain among null tiles: the reverse."""
+    counted once clears it. One big tile with a chance gain among null tiles does not."""
     sizes = np.array([1, 8, 1, 11, 9, 5, 4, 24, 2])
     per_row = np.array([48.0, 43.0, 6.7, 9.1, 40.0, 41.0, 39.6, 7.9, 44.0])
     group = np.repeat(np.arange(9), sizes)
@@ -242,5 +243,3 @@ def test_class_rows_count_each_group_once():
     gain[group == 0] += 0.05  # one large tile that happens to gain
     new, old, sub = gains_as_fits(gain, group)
     assert not _passes(overall, False, Z_ACCEPT, compare_groups(new, old, sub))  # type: ignore[arg-type]
-    by_row = compare_on(new, old, sub, 1.0, 1.0)  # type: ignore[arg-type]
-    assert by_row.delta / by_row.se > 3.0
