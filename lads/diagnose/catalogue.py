@@ -25,7 +25,9 @@ ln I_real - ln I_sim, or of the return probability.
     C10 scan_auto_gain: beta -> - beta (mean ln I_sim of the scan - mean over scans)
     C11 azimuth_blockage: start_deg, width_deg, a, drop_fraction -> + ln(1 - a) in the
         sector, return probability times (1 - drop_fraction) there
-    D1  detection_threshold: ln_tau, s -> P(ret) = Phi((mu - ln_tau) / s), censoring y
+    D1  detection_threshold: ln_tau, s (latent_share) -> P(ret) = Phi((mu - ln_tau) / s);
+        latent_share in [0, 1] is the share of the real value's deviation from mu that the
+        detector also sees (1: the returned y itself is censored, Tobit)
     D2  grazing_range_dropout: cos_c, s_cos -> P(ret) = Phi((cos - cos_c) / s_cos)
     D3  dead_channel: rings, p_drop (and p_drop_by_ring) -> P(ret) (1 - p_drop) on rings
 `mu` is the predicted ln I_real (ln of the stored intensity plus half a step).

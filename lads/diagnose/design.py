@@ -9,17 +9,22 @@ feature-conditional differences are ever fitted (discovery.md §5.1).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
 import torch
+from scipy.special import ndtr, ndtri
 
 from lads.diagnose.table import BeamTable
 
 COS_FLOOR = 0.05  # ln cos(theta) of grazing returns is capped, their normals are unreliable
 EDGE_NEAR_BEAMS = 2.0
 LOW_STEPS = 10  # below this many quantisation steps a stored value is treated as an interval
+ZERO_FIT_STEPS = 2  # the simulation's law is fitted on values stored at least this many steps
+ZERO_FIT_MIN_ROWS = 200
+ZERO_QUANTILES = 16
 
 
 @dataclass(frozen=True)
@@ -36,6 +41,9 @@ class Design:
         sim_var: Var[ln(x + h)] for x uniform on i_sim's rounding interval (i_sim +- step / 2,
             clipped at 0); added to sigma^2 (errors in variables: a simulation stored at
             0.01 steps knows a value of 0.02 only to +-25 %).
+        sim_shift: E[ln(x + h)] - ln(i_sim + h) for x uniform on the same interval: ~0 from one
+            step on, +0.39 at a stored 0. The detection threshold reads it (a power below
+            half a step is not the power of a stored 0); intensity fits do not (sim_ok).
         sim_ok: bool, the simulated value is informative about the intensity: False where it
             is stored as 0, which may mean exactly 0 or anything below half a step (the
             mean of ln(x + h) then differs by 0.39), so only the return enters there.
@@ -57,6 +65,7 @@ class Design:
     censor: torch.Tensor
     ln_sim: torch.Tensor
     sim_var: torch.Tensor
+    sim_shift: torch.Tensor
     sim_ok: torch.Tensor
     returned: torch.Tensor
     ln_range: torch.Tensor
@@ -119,13 +128,64 @@ def paired_design(table: BeamTable) -> Design:
     i_real = np.nan_to_num(t.i_real, nan=0.0).astype(np.float64)
     h, step = t.sensor.half_step, t.sensor.step
     i_sim = t.i_sim.astype(np.float64)
-    sim_var = sim_log_variance(i_sim, step, h)
-    return _design(t, rows, i_real, t.ret_real.copy(), np.log(i_sim + h), True, sim_var,
-                   i_sim >= 0.5 * step)  # fmt: skip
+    sim_mean, sim_var = _sim_log_moments(i_sim, step, h)
+    ln_sim = np.log(i_sim + h)
+    zero = i_sim < 0.5 * step
+    sim_mean[zero] = _zero_power(t, ln_sim, zero, step, h)
+    return _design(t, rows, i_real, t.ret_real.copy(), ln_sim, True, sim_var, ~zero,
+                   sim_mean - ln_sim)  # fmt: skip
+
+
+def _zero_power(
+    t: BeamTable,
+    ln_sim: npt.NDArray[np.float64],
+    zero: npt.NDArray[np.bool_],
+    step: float,
+    h: float,
+) -> npt.NDArray[np.float64]:
+    """ln(x + h) of the stored zeros, x their sub-step power imputed from their geometry.
+
+    A stored 0 hides anything below half a step, and which part of that interval a beam
+    came from differs by class and range (a dark, far class sits near 0): a detection
+    threshold works exactly there. The simulation's own law is fitted on its rows stored
+    clear of the rounding (ln I on ln R, ln cos, class) and extrapolated, clipped to the
+    interval; with too few such rows the interval's uniform mean is kept."""
+    a, b = h, 0.5 * step + h
+    uniform = ((b * math.log(b) - b) - (a * math.log(a) - a)) / (b - a)
+    clear = ~zero & (ln_sim > math.log(ZERO_FIT_STEPS * step + h))
+    x = _geometry_columns(t)
+    if clear.sum() < ZERO_FIT_MIN_ROWS or not zero.any():
+        return np.full(int(zero.sum()), uniform)
+    coef = np.linalg.lstsq(x[clear], ln_sim[clear], rcond=None)[0]
+    spread = max(float(np.std(ln_sim[clear] - x[clear] @ coef)), 1e-3)
+    # E[ln(x + h)] with ln x ~ N(prediction, spread^2) truncated to the zero interval (its
+    # quantiles at evenly spaced levels): a point prediction clipped to the interval would
+    # pile the extremes, where the law's fitted slopes regress to the mean, onto its ends.
+    pred = x[zero] @ coef
+    top = ndtr((math.log(0.5 * step) - pred) / spread)
+    levels = (np.arange(ZERO_QUANTILES) + 0.5) / ZERO_QUANTILES
+    ln_x = pred[:, None] + spread * ndtri(np.maximum(top[:, None] * levels, 1e-300))
+    return np.mean(np.log(np.exp(ln_x) + h), axis=1)
+
+
+def _geometry_columns(t: BeamTable) -> npt.NDArray[np.float64]:
+    """(N, K) regressors of the simulation's law: 1, ln R, ln cos, normal flag, class dummies."""
+    cos = np.clip(t.cos_incidence.astype(np.float64), COS_FLOOR, 1.0)
+    ok = t.normal_ok.astype(np.float64)
+    cols = [np.ones(len(t)), np.log(np.maximum(t.range_m, 1e-3)), ok * np.log(cos), ok]
+    cols += [(t.class_id == c).astype(np.float64) for c in np.unique(t.class_id)[1:]]
+    return np.column_stack(cols)
 
 
 def sim_log_variance(i_sim: npt.ArrayLike, step: float, h: float) -> npt.NDArray[np.float64]:
-    """(N,) variance of ln(x + h), x uniform on the stored value's rounding interval.
+    """(N,) variance of ln(x + h), x uniform on the stored value's rounding interval."""
+    return _sim_log_moments(i_sim, step, h)[1]
+
+
+def _sim_log_moments(
+    i_sim: npt.ArrayLike, step: float, h: float
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    """(mean, variance) of ln(x + h), x uniform on the stored value's rounding interval.
 
     A simulated tree is stored in the sensor's encoding, so a value of k steps stands for
     anything within half a step of it: its ln is uncertain by Var (errors in variables),
@@ -140,7 +200,7 @@ def sim_log_variance(i_sim: npt.ArrayLike, step: float, h: float) -> npt.NDArray
     width = b - a
     mean = ((b * lb - b) - (a * la - a)) / width
     second = (b * (lb * lb - 2.0 * lb + 2.0) - a * (la * la - 2.0 * la + 2.0)) / width
-    return np.maximum(second - mean * mean, 0.0)
+    return mean, np.maximum(second - mean * mean, 0.0)
 
 
 def unpaired_design(sim: BeamTable, real: BeamTable, *, min_cell_rows: int = 5) -> Design:
@@ -163,7 +223,8 @@ def unpaired_design(sim: BeamTable, real: BeamTable, *, min_cell_rows: int = 5) 
     i_real = t.i_real.astype(np.float64)
     # A cell mean over >= min_cell_rows values: its rounding error is averaged away.
     return _design(t, rows, i_real, np.ones(len(rows), dtype=bool), means[pos[rows]], False,
-                   np.zeros(len(rows)), np.ones(len(rows), dtype=bool))  # fmt: skip
+                   np.zeros(len(rows)), np.ones(len(rows), dtype=bool),
+                   np.zeros(len(rows)))  # fmt: skip
 
 
 def _cell_key(t: BeamTable) -> npt.NDArray[np.int64]:
@@ -183,6 +244,7 @@ def _design(
     paired: bool,
     sim_var: npt.NDArray[np.float64],
     sim_ok: npt.NDArray[np.bool_],
+    sim_shift: npt.NDArray[np.float64],
 ) -> Design:
     h, step, top = t.sensor.half_step, t.sensor.step, t.sensor.max_value
     y = np.where(returned, np.log(i_real + h), 0.0)
@@ -214,6 +276,7 @@ def _design(
         censor=torch.as_tensor(censor),
         ln_sim=f64(ln_sim),
         sim_var=f64(sim_var),
+        sim_shift=f64(sim_shift),
         sim_ok=torch.as_tensor(sim_ok, dtype=torch.bool),
         returned=torch.as_tensor(returned, dtype=torch.bool),
         ln_range=f64(np.log(np.maximum(t.range_m, 1e-3))),

@@ -328,7 +328,10 @@ def _darkest_sector(d: Design, train_rows: npt.NDArray[np.int64] | None) -> tupl
 
 def _dropout_effects(d: Design, n: int) -> list[Effect]:
     ln_tau0 = float(np.quantile(d.ln_sim.numpy(), 0.02)) - 0.5
-    d1 = _entry("D1", ("ln_tau", "s"), [(-30.0, 10.0), (0.05, 3.0)], [[ln_tau0, 0.5]])
+    # latent_share (model.py: the share of y - mu the detector sees) lives on [0, 1] and its
+    # ends are the two textbook models, so sitting there says nothing against the effect.
+    d1 = _entry("D1", ("ln_tau", "s", "latent_share"), [(-30.0, 10.0), (0.05, 3.0), (0.0, 1.0)],
+                [[ln_tau0, 0.5, 0.1], [ln_tau0, 0.5, 0.9]], scalar=[True, True, False])  # fmt: skip
     d1.extra["threshold"] = True
     d2 = _entry(
         "D2", ("cos_c", "s_cos"), [(0.0, 0.9), (0.01, 0.5)], [[0.1, 0.05]],

@@ -6,11 +6,12 @@ For a beam the simulation returned, with mu = the predicted ln(I_real + h):
     sigma^2 = s_n^2 + Var of ln I_sim within its rounding interval (known, not fitted)
     ln s_n  = ln_sigma + sigma_range_slope (ln R - m_R) + sigma_level_slope (ln I_sim - m_I)
     P(ret)  = sigmoid(return_logit) * prod of effect survival factors
-              * Phi((mu - ln_tau) / sqrt(sigma^2 + s^2))        with D1 (detection threshold)
+              * Phi((mu - ln_tau) / sqrt(s^2 + lam^2 sigma^2))  with D1 (detection threshold)
 
-A returned beam contributes ln N(y; mu, sigma) + ln P(ret | y), a dropped one ln(1 - P(ret)):
-with D1 the returned value itself is censored, P(ret | y) carrying Phi((y - ln_tau) / s), so
-an attenuation is not under-estimated from the survivors alone (discovery.md §2 item 2).
+A returned beam contributes ln N(y; mu, sigma) + ln P(ret | y), a dropped one ln(1 - P(ret)).
+With D1 the detector sees mu + lam (y - mu): lam = 0 is a threshold on the predicted power
+(the catalogue's form), lam = 1 censors the returned value itself (Tobit), so an attenuation
+is not under-estimated from the survivors alone (discovery.md §2 item 2). lam is fitted.
 Unpaired designs have no dropout information and use the Gaussian part only.
 
 Fits use scipy's L-BFGS-B on the box bounds with exact gradients from torch autograd.
@@ -129,11 +130,11 @@ class Model:
         log_p_ret = log_surv
         ret_extra = torch.zeros_like(mu)
         if threshold is not None:
-            ln_tau, s = threshold[0], threshold[1]
-            log_p_ret = log_p_ret + torch.special.log_ndtr(
-                (mu - ln_tau) / torch.sqrt(sigma**2 + s**2)
-            )
-            ret_extra = torch.special.log_ndtr((d.y - ln_tau) / s)
+            marginal = _log_detect(threshold, mu, sigma, d)
+            log_p_ret = log_p_ret + marginal
+            # Where the intensity does not enter (a simulated 0) the return is scored by its
+            # marginal probability: conditioning on y without its density would double-count.
+            ret_extra = torch.where(d.sim_ok, _log_detect_given_y(threshold, mu, d), marginal)
         log_p_ret = log_p_ret.clamp(max=-1e-12)
         dropped = -torch.log(-torch.expm1(log_p_ret))
         returned = gauss - log_surv - ret_extra
@@ -145,6 +146,37 @@ class Model:
             if e.penalty is not None:
                 total = total + e.penalty(theta[sl])
         return total
+
+
+def _threshold_widths(
+    threshold: torch.Tensor, sigma: torch.Tensor, d: Design
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """(conditional, marginal) widths of the D1 threshold comparison.
+
+    The detector compares a latent ln power L = mu + lam (y - mu) + eta with ln_tau, eta
+    ~ N(0, s^2). lam = 0 is the catalogue's P(ret) = Phi((mu - ln_tau) / s): the return
+    depends on the predicted power only, and the simulated value's rounding (sim_var) blurs
+    it. lam = 1 is the Tobit model: the measured value itself is censored, so survivors are
+    biased upwards. The fit chooses; the marginal over y ~ N(mu, sigma) adds lam^2 sigma^2.
+    """
+    s, lam = threshold[1], threshold[2]
+    cond2 = s**2 + (1.0 - lam) ** 2 * d.sim_var
+    return torch.sqrt(cond2), torch.sqrt(cond2 + lam**2 * sigma**2)
+
+
+def _log_detect(
+    threshold: torch.Tensor, mu: torch.Tensor, sigma: torch.Tensor, d: Design
+) -> torch.Tensor:
+    """ln P(ret) of the detection threshold, y integrated out."""
+    _, width = _threshold_widths(threshold, sigma, d)
+    return torch.special.log_ndtr((mu + d.sim_shift - threshold[0]) / width)
+
+
+def _log_detect_given_y(threshold: torch.Tensor, mu: torch.Tensor, d: Design) -> torch.Tensor:
+    """ln P(ret | y) of the detection threshold for a returned row."""
+    width, _ = _threshold_widths(threshold, torch.zeros_like(mu), d)
+    latent = mu + d.sim_shift + threshold[2] * (d.y - mu - d.sim_shift)
+    return torch.special.log_ndtr((latent - threshold[0]) / width)
 
 
 def _interval_nll(
@@ -208,9 +240,7 @@ class Fit:
             mu, sigma, log_surv, thr = self.model.predict(torch.as_tensor(self.theta), d)
             p_ret = torch.exp(log_surv)
             if thr is not None:
-                p_ret = p_ret * torch.special.ndtr(
-                    (mu - thr[0]) / torch.sqrt(sigma**2 + thr[1] ** 2)
-                )
+                p_ret = p_ret * torch.exp(_log_detect(thr, mu, sigma, d))
         return mu.numpy(), sigma.numpy(), p_ret.numpy()
 
     def row_nll(self, d: Design) -> npt.NDArray[np.float64]:
