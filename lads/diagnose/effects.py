@@ -249,24 +249,49 @@ def _one_class_scale(ci: int, cname: str) -> Effect:
 
 
 def _wet(d: Design, wet: list[int]) -> Effect:
-    wet_index = torch.as_tensor(wet, dtype=torch.long)
+    """C7 over the road-like classes, each with its own wet share w in [0, 1].
 
-    def rows(dd: Design) -> Tensor:
-        return torch.isin(dd.class_index, wet_index)
+    A film darkens a wet surface by (1 - f) and, beyond theta_c, mirrors the beam away (no
+    return); on a class wet in a share w of its area both act on that share. Pooling every
+    road-like class at w = 1 wets the dry ones too (a dry car park that keeps its grazing
+    returns refutes the cutoff), while one candidate per class splits one film over several
+    forward steps, and a per-ring dropout that spans them all wins the first. Fitting w per
+    class names the wet classes in one step; w at 0 or 1 is the expected answer, not a bound.
+    """
+    lookup = torch.zeros(len(d.class_names) + 1, dtype=torch.long)  # 0: not road-like
+    for j, ci in enumerate(wet):
+        lookup[ci] = j + 1
+    names = tuple(f"wet_share_{d.class_names[ci]}" for ci in wet)
+
+    def share(th: Tensor, dd: Design) -> Tensor:
+        padded = torch.cat([torch.zeros(1, dtype=th.dtype), th[3:].clamp(1e-6, 1.0 - 1e-6)])
+        return padded[lookup[dd.class_index.clamp_min(-1)]]
 
     def term(th: Tensor, dd: Design) -> Tensor:
-        return torch.where(
-            rows(dd), torch.log1p(-th[0]).expand_as(dd.cos), torch.zeros_like(dd.cos)
-        )
+        return torch.log1p(-th[0] * share(th, dd))
 
     def survival(th: Tensor, dd: Design) -> Tensor:
-        cos_c = torch.cos(th[1] * math.pi / 180.0)
-        z = (dd.cos - cos_c) / 0.02
-        return torch.where(rows(dd) & dd.normal_ok, _phi_log(z), torch.zeros_like(dd.cos))
+        # The cutoff is sharp in cos(theta); its fitted softness takes up the scatter of the
+        # estimated normals, which a fixed narrow edge turned into huge per-row penalties.
+        w = share(th, dd)
+        z = (dd.cos - torch.cos(th[1] * math.pi / 180.0)) / th[2]
+        kept = torch.logaddexp(torch.log1p(-w), torch.log(w) + _phi_log(z))
+        return torch.where(dd.normal_ok, kept, torch.zeros_like(kept))
 
-    eff = _entry("C7", ("f", "theta_c_deg"), [(0.0, 0.95), (50.0, 89.0)], [[0.3, 75.0]],
-                 ln_term=term, log_survival=survival)  # fmt: skip
+    def export(th: npt.NDArray[np.float64]) -> dict[str, Any]:
+        out: dict[str, Any] = {"f": float(th[0]), "theta_c_deg": float(th[1]),
+                               "cos_softness": float(th[2])}  # fmt: skip
+        out.update({n: float(v) for n, v in zip(names, th[3:], strict=True)})
+        return out
+
+    k = len(wet)
+    eff = _entry("C7", ("f", "theta_c_deg", "cos_softness", *names),
+                 [(0.0, 0.95), (50.0, 89.0), (0.005, 0.2)] + [(0.0, 1.0)] * k,
+                 [[0.3, 75.0, 0.03] + [0.5] * k, [0.5, 60.0, 0.03] + [0.9] * k],
+                 scalar=[True, True, False] + [False] * k, ln_term=term,
+                 log_survival=survival, exporter=export)  # fmt: skip
     eff.extra["classes"] = [d.class_names[ci] for ci in wet]
+    eff.extra["wet_share_names"] = names
     return eff
 
 

@@ -6,12 +6,21 @@ import json
 from pathlib import Path
 from typing import Any
 
-from lads.diagnose.analysis import Diagnosis
+from lads.diagnose.analysis import Diagnosis, EffectReport
 from lads.diagnose.catalogue import CATALOGUE
 from lads.files import atomic_write
 from lads.jsontypes import json_types
 
 SCHEMA_VERSION = 1
+
+
+def _classes(r: EffectReport) -> list[str]:
+    """The classes an effect acts on; for a wet surface those fitted wet on most of it."""
+    names = r.effect.extra.get("wet_share_names")
+    classes = list(r.effect.extra["classes"])
+    if names is None:
+        return classes
+    return [c for c, n in zip(classes, names, strict=True) if r.params.get(n, 0.0) >= 0.5]
 
 
 def build_report(
@@ -25,7 +34,7 @@ def build_report(
             "label": r.effect.label, "class": r.effect.class_name,
             "params": r.params, "ci95": r.ci95,
             "selection_frequency": r.selection_frequency, "status": r.status,
-            **({"classes": r.effect.extra["classes"]} if "classes" in r.effect.extra else {}),
+            **({"classes": _classes(r)} if "classes" in r.effect.extra else {}),
         })  # fmt: skip
     trace = [s.to_json() for s in dg.selection.trace]
     doc = {
