@@ -150,8 +150,7 @@ def _zero_power(
     threshold works exactly there. The simulation's own law is fitted on its rows stored
     clear of the rounding (ln I on ln R, ln cos, class) and extrapolated, clipped to the
     interval; with too few such rows the interval's uniform mean is kept."""
-    a, b = h, 0.5 * step + h
-    uniform = ((b * math.log(b) - b) - (a * math.log(a) - a)) / (b - a)
+    uniform = float(_sim_log_moments(np.zeros(1), step, h)[0][0])
     clear = ~zero & (ln_sim > math.log(ZERO_FIT_STEPS * step + h))
     x = _geometry_columns(t)
     if clear.sum() < ZERO_FIT_MIN_ROWS or not zero.any():

@@ -130,11 +130,11 @@ class Model:
         log_p_ret = log_surv
         ret_extra = torch.zeros_like(mu)
         if threshold is not None:
-            marginal = _log_detect(threshold, mu, sigma, d)
+            marginal, given_y = _log_detect(threshold, mu, sigma, d)
             log_p_ret = log_p_ret + marginal
             # Where the intensity does not enter (a simulated 0) the return is scored by its
             # marginal probability: conditioning on y without its density would double-count.
-            ret_extra = torch.where(d.sim_ok, _log_detect_given_y(threshold, mu, d), marginal)
+            ret_extra = torch.where(d.sim_ok, given_y, marginal)
         log_p_ret = log_p_ret.clamp(max=-1e-12)
         dropped = -torch.log(-torch.expm1(log_p_ret))
         returned = gauss - log_surv - ret_extra
@@ -166,17 +166,13 @@ def _threshold_widths(
 
 def _log_detect(
     threshold: torch.Tensor, mu: torch.Tensor, sigma: torch.Tensor, d: Design
-) -> torch.Tensor:
-    """ln P(ret) of the detection threshold, y integrated out."""
-    _, width = _threshold_widths(threshold, sigma, d)
-    return torch.special.log_ndtr((mu + d.sim_shift - threshold[0]) / width)
-
-
-def _log_detect_given_y(threshold: torch.Tensor, mu: torch.Tensor, d: Design) -> torch.Tensor:
-    """ln P(ret | y) of the detection threshold for a returned row."""
-    width, _ = _threshold_widths(threshold, torch.zeros_like(mu), d)
-    latent = mu + d.sim_shift + threshold[2] * (d.y - mu - d.sim_shift)
-    return torch.special.log_ndtr((latent - threshold[0]) / width)
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """(ln P(ret) with y integrated out, ln P(ret | y) of a returned row) of the threshold."""
+    conditional, marginal = _threshold_widths(threshold, sigma, d)
+    centre = mu + d.sim_shift
+    latent = centre + threshold[2] * (d.y - centre)
+    return (torch.special.log_ndtr((centre - threshold[0]) / marginal),
+            torch.special.log_ndtr((latent - threshold[0]) / conditional))  # fmt: skip
 
 
 def _interval_nll(
@@ -240,7 +236,7 @@ class Fit:
             mu, sigma, log_surv, thr = self.model.predict(torch.as_tensor(self.theta), d)
             p_ret = torch.exp(log_surv)
             if thr is not None:
-                p_ret = p_ret * torch.exp(_log_detect(thr, mu, sigma, d))
+                p_ret = p_ret * torch.exp(_log_detect(thr, mu, sigma, d)[0])
         return mu.numpy(), sigma.numpy(), p_ret.numpy()
 
     def row_nll(self, d: Design) -> npt.NDArray[np.float64]:

@@ -124,10 +124,7 @@ def compare(
 
 def compare_on(new: Fit, old: Fit, sub: Design, n_eff_scale: float, n_fit: float) -> Comparison:
     """`compare` on held-out rows already cut out of the design (cut once, compare often)."""
-    gain = old.row_nll(sub) - new.row_nll(sub)
-    _, inv = np.unique(sub.group, return_inverse=True)
-    g_sum = np.bincount(inv, weights=gain)
-    g_n = np.bincount(inv).astype(np.float64)
+    g_sum, g_n = _group_gains(new, old, sub)
     total = g_n.sum()
     delta = float(g_sum.sum() / total)
     k = len(g_sum)
@@ -146,12 +143,20 @@ def compare_groups(new: Fit, old: Fit, sub: Design) -> Comparison:
     spread of group sizes (1 to 24 sign rows per tile) and of the gain itself (a retro gain
     clipped at the encoding's top in some tiles, not in others) swamp a gain that is positive
     in every group, and lets one large tile carry a chance gain on a null case."""
-    gain = old.row_nll(sub) - new.row_nll(sub)
-    _, inv = np.unique(sub.group, return_inverse=True)
-    means = np.bincount(inv, weights=gain) / np.bincount(inv)
+    g_sum, g_n = _group_gains(new, old, sub)
+    means = g_sum / g_n
     k = len(means)
     se = float(np.std(means, ddof=1)) / math.sqrt(k) if k > 1 else math.inf
     return Comparison(float(means.mean()), se, 0.0, k)
+
+
+def _group_gains(
+    new: Fit, old: Fit, sub: Design
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    """(sum of per-row NLL gains, row count) per group of `sub` (positive = `new` better)."""
+    gain = old.row_nll(sub) - new.row_nll(sub)
+    _, inv = np.unique(sub.group, return_inverse=True)
+    return np.bincount(inv, weights=gain), np.bincount(inv).astype(np.float64)
 
 
 def design_effect_scale(d: Design, rows: npt.NDArray[np.int64]) -> float:

@@ -167,9 +167,8 @@ class Generator(nn.Module):
         """x with its material channel swapped for the material embedding (0 when empty)."""
         table = self.material_embedding.weight
         index = raw[:, self.material_channel].round().long().clamp_(0, table.shape[0] - 1)
-        # Row 0 (empty pixel) is masked rather than trusted to stay zero through training.
-        embedded = F.embedding(index, table) * (index > 0).unsqueeze(-1).to(table.dtype)
-        embedded = embedded.permute(0, 3, 1, 2)
+        # Row 0 (empty pixel) starts at zero and padding_idx keeps it out of every update.
+        embedded = F.embedding(index, table, padding_idx=0).permute(0, 3, 1, 2)
         return torch.cat([x.index_select(1, self.kept), embedded], 1)
 
 
