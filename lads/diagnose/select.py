@@ -19,7 +19,7 @@ from scipy import stats
 from lads.diagnose.design import Design
 from lads.diagnose.effects import Effect
 from lads.diagnose.model import Fit, Model, fit, fit_best, initial_base
-from lads.diagnose.parallel import map_fits
+from lads.diagnose.parallel import fit_models, map_fits
 
 K_MAX = 4
 MIN_GAIN_NATS = 0.002  # per row: below this an effect is not worth naming
@@ -48,6 +48,13 @@ VALIDATION_SHARE = 0.5
 # a much larger ratio), provided its gain over all held-out rows is positive. At least
 # MIN_SUPPORT_GROUPS groups must hold the class.
 MIN_SUPPORT_GROUPS = 4
+# Screening: a forward step fits every candidate on SCREEN_ROWS training rows (a quarter of
+# Settings.fit_rows), then refits the SHORTLIST best (and the SHORTLIST_CONFINED best
+# class-confined ones) on all of them. Fit time is linear in rows, so a step over ~25
+# candidates costs ~1/3 of full fits, and the decision still rests on full fits.
+SCREEN_ROWS = 5000
+SHORTLIST = 4
+SHORTLIST_CONFINED = 2
 CLAIM_FREQUENCY = 0.7
 POSSIBLE_FREQUENCY = 0.3
 
@@ -189,11 +196,12 @@ class Step:
     at_bound: bool
     accepted: bool = False
     support: Comparison | None = None
+    screened: bool = False  # fitted on the screening rows only (not shortlisted)
 
     def to_json(self) -> dict[str, Any]:
         out = {"step": self.step, "candidate": self.candidate, "delta_loss": self.delta_loss,
                "se": self.se, "delta_bic": self.delta_bic, "at_bound": self.at_bound,
-               "accepted": self.accepted}  # fmt: skip
+               "accepted": self.accepted, "screened": self.screened}  # fmt: skip
         if self.support is not None:
             out["class_rows"] = {"delta_loss": self.support.delta, "se": self.support.se,
                                  "groups": self.support.groups,
@@ -229,6 +237,29 @@ def _passes(
     return support.delta > t_crit * support.se and support.delta > MIN_GAIN_NATS
 
 
+def screening_weights(
+    weights: npt.NDArray[np.float64], rows: int | None
+) -> npt.NDArray[np.float64] | None:
+    """`weights` thinned to about `rows` of its rows (every k-th, in order), or None."""
+    use = np.flatnonzero(weights > 0)
+    if rows is None or len(use) <= rows:
+        return None
+    out = np.zeros_like(weights)
+    keep = use[:: -(-len(use) // rows)]
+    out[keep] = weights[keep]
+    return out
+
+
+def _shortlist(screened: list[tuple[Effect, Fit, Comparison, Comparison | None]]) -> set[str]:
+    """Labels worth a full fit: the SHORTLIST best held-out gains of the screening fits,
+    and the SHORTLIST_CONFINED best class-row t ratios of class-confined candidates (whose
+    gain over all rows is small by construction, see MIN_SUPPORT_GROUPS)."""
+    by_gain = sorted(screened, key=lambda r: -r[2].delta)[:SHORTLIST]
+    confined = [r for r in screened if r[3] is not None and r[2].delta > 0.0]
+    by_t = sorted(confined, key=lambda r: -r[3].delta / max(r[3].se, 1e-12))  # type: ignore[union-attr]
+    return {r[0].label for r in by_gain} | {r[0].label for r in by_t[:SHORTLIST_CONFINED]}
+
+
 def class_rows(held_out: Design, effect: Effect) -> Design | None:
     """The held-out rows of a class-confined effect's class, if enough groups hold it."""
     if effect.class_index < 0:
@@ -249,8 +280,15 @@ def forward_backward(
     k_max: int = K_MAX,
     refs: tuple[float, float] | None = None,
     z_accept: float = Z_ACCEPT,
+    screen_rows: int | None = SCREEN_ROWS,
+    jobs: int = 1,
 ) -> Selection:
     """Greedy forward selection on held-out loss, then a backward pass (§5.5 steps 3-6).
+
+    With `screen_rows`, each forward step first fits every candidate on that many of the
+    training rows and refits only a shortlist (`_shortlist`) on all of them; the
+    acceptance tests read the full fits only. The candidates of a step are fitted on `jobs`
+    processes (results do not depend on it).
 
     `refs` (mean ln R, mean ln I_sim) centre the noise model; default: those of `d` (pass
     the whole design's when `d` is a part of it)."""
@@ -266,10 +304,33 @@ def forward_backward(
     remaining = list(pool)
     held_out = d.subset(validation)
     supports = {e.label: class_rows(held_out, e) for e in pool}
+    screen_w = screening_weights(weights, screen_rows)
     for step in range(1, k_max + 1):
         results = []
-        for cand in remaining:
-            f = fit_best(current.model.with_effect(cand), d, weights, base, current)
+        shortlist = {c.label for c in remaining}
+        if screen_w is not None and len(remaining) > SHORTLIST:
+            shortlist = set()
+            screened = []
+            fits = fit_models([current.model.with_effect(c) for c in remaining], d, screen_w,
+                              base, current, jobs)  # fmt: skip
+            for cand, f in zip(remaining, fits, strict=True):
+                c = compare_on(f, current, held_out, scale, float(screen_w.sum()))
+                sub = supports[cand.label]
+                support = None if sub is None else compare_groups(f, current, sub)
+                screened.append((cand, f, c, support))
+            shortlist = _shortlist(screened)
+            for cand, f, c, support in screened:
+                if cand.label in shortlist:
+                    continue
+                bound = cand.label in f.at_bound()
+                sel.trace.append(Step(step, cand.label, c.delta, c.se, c.delta_bic, bound,
+                                      support=support, screened=True))  # fmt: skip
+                if step == 1:
+                    sel.first_step[cand.label] = c
+        listed = [c for c in remaining if c.label in shortlist]
+        fits = fit_models([current.model.with_effect(c) for c in listed], d, weights, base,
+                          current, jobs)  # fmt: skip
+        for cand, f in zip(listed, fits, strict=True):
             c = compare_on(f, current, held_out, scale, n_fit)
             sub = supports[cand.label]
             support = None if sub is None else compare_groups(f, current, sub)
@@ -279,14 +340,14 @@ def forward_backward(
                                   support=support))  # fmt: skip
             if step == 1:
                 sel.first_step[cand.label] = c
-                sel.fits[cand.label] = f
         # Ranked by the gain over all held-out rows: what explains the most of the mismatch.
         ok = [r for r in results if _passes(r[2], r[3], z_accept, r[4])]
         if not ok:
             break
         best = max(ok, key=lambda r: r[2].delta)
-        for s in sel.trace[-len(results) :]:
-            s.accepted = s.candidate == best[0].label
+        for s in sel.trace:
+            if s.step == step:
+                s.accepted = s.candidate == best[0].label
         current = best[1]
         remaining = [c for c in remaining if c.label != best[0].label]
     # Backward pass: drop any effect whose removal costs less than 1 SE.

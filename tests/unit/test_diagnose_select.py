@@ -15,10 +15,13 @@ import torch
 
 from lads.diagnose.analysis import Settings, diagnose_design
 from lads.diagnose.design import paired_design, sim_log_variance
-from lads.diagnose.model import Model
-from lads.diagnose.parallel import map_fits, restrict
+from lads.diagnose.effects import candidates
+from lads.diagnose.model import Model, initial_base
+from lads.diagnose.parallel import fit_models, map_fits, restrict
 from lads.diagnose.select import (
     MIN_SUPPORT_GROUPS,
+    SHORTLIST,
+    SHORTLIST_CONFINED,
     Z_ACCEPT,
     Comparison,
     _passes,
@@ -89,6 +92,25 @@ def test_a_null_table_claims_nothing():
     dg = diagnose_design(design, np.random.default_rng(0), QUICK)
     assert [r for r in dg.effects if r.status == "claimed"] == []
     assert dg.verdict == "no_missing_physics"
+    assert dg.noise_model["kind"] == "homoscedastic"
+
+
+def test_point_noise_that_grows_with_range_is_a_noise_model_not_an_effect():
+    table = make_table(5, group_sd=0.25, noise=0.05)
+    rng = np.random.default_rng(11)
+    h = table.sensor.half_step
+    # sigma rises from ~0.05 at 5 m to ~0.5 at 100 m, zero mean in ln I: no bias to name.
+    sd = 0.05 * (table.range_m / 5.0) ** 0.8
+    scale = np.exp(rng.normal(0.0, 1.0, len(table)) * sd)
+    i_real = np.where(table.ret_sim & np.isfinite(table.i_real),
+                      (table.i_real + h) * scale - h, table.i_real)  # fmt: skip
+    noisy = dataclasses.replace(table, i_real=i_real.astype(np.float32))
+    dg = diagnose_design(paired_design(noisy), np.random.default_rng(0), QUICK)
+    assert dg.noise_model["kind"] == "heteroscedastic"
+    assert dg.noise_model["range_slope"] > 0.1
+    gain = dg.noise_model["heldout_gain_nats"]
+    assert gain["delta"] > 3.0 * gain["se"]
+    assert [r for r in dg.effects if r.status == "claimed"] == []
 
 
 def test_simulated_values_stored_at_the_clip_are_left_out_of_a_paired_design():
@@ -120,6 +142,21 @@ def test_restricted_parts_keep_row_order_and_weights():
     assert np.array_equal(part.rows[part_extra], design.rows[extra])
     assert _sums(part, part_ws, part_extra) == _sums(design, ws, extra)
     assert map_fits(_sums, design, ws, extra, 1) == map_fits(_sums, design, ws, extra, 2)
+
+
+def test_candidate_fits_do_not_depend_on_the_number_of_jobs(ring_case):
+    design = ring_case[0]
+    weights = np.zeros(len(design))
+    weights[::7] = 1.0
+    rows = np.flatnonzero(weights)
+    base = initial_base(design, rows)
+    empty = Model([], float(design.ln_range.mean()), float(design.ln_sim.mean()))
+    models = [empty.with_effect(e) for e in candidates(design)[:5]]
+    serial = fit_models(models, design, weights, base, None, 1)
+    parallel = fit_models(models, design, weights, base, None, 2)
+    for a, b in zip(serial, parallel, strict=True):
+        assert a.model is b.model
+        assert np.array_equal(a.theta, b.theta) and a.loss == b.loss
 
 
 def test_a_simulated_zero_contributes_its_return_but_not_its_intensity():
@@ -243,3 +280,13 @@ def test_class_rows_count_each_group_once():
     gain[group == 0] += 0.05  # one large tile that happens to gain
     new, old, sub = gains_as_fits(gain, group)
     assert not _passes(overall, False, Z_ACCEPT, compare_groups(new, old, sub))  # type: ignore[arg-type]
+
+
+def test_effects_are_accepted_on_full_fits_after_a_screening_pass(ring_case):
+    _, _, dg = ring_case
+    trace = dg.selection.trace
+    assert any(s.screened for s in trace)  # most candidates are only screened...
+    assert all(not s.screened for s in trace if s.accepted)  # ...the winner never is
+    for step in {s.step for s in trace}:
+        full = [s for s in trace if s.step == step and not s.screened]
+        assert 1 <= len(full) <= SHORTLIST + SHORTLIST_CONFINED
