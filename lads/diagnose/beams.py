@@ -25,6 +25,7 @@ import numpy.typing as npt
 from scipy.ndimage import distance_transform_edt
 from tqdm.auto import tqdm
 
+from lads.diagnose.ground_normals import local_ground_cos
 from lads.diagnose.minrange import beyond_min_range, pairs_beyond_min_range
 from lads.diagnose.pairing import pair_points
 from lads.diagnose.table import EDGE_CAP_BEAMS, GROUP_TILE_M, ROW_FIELDS, BeamTable
@@ -188,7 +189,8 @@ def cloud_features(
     """Features of every point of `scan` (see `CloudFeatures`), computed on this cloud alone.
 
     Rings come from the ring column, else from the profile's elevations; incidence from the
-    range image normal (`lads.physics.modalities.incidence`). Labelled scans (label_set not
+    range image normal (`lads.physics.modalities.incidence`), on the ground from local ground
+    planes (`ground_normals.local_ground_cos`). Labelled scans (label_set not
     None and labels present) are ground by class and fit their ground plane on those classes;
     unlabelled ones are ground within GROUND_BAND_M of a robust plane fit.
     """
@@ -208,16 +210,23 @@ def cloud_features(
         class_id = scan.labels.astype(np.int32)
         ground_class = np.isin(scan.labels, GROUND_CLASSES[label_set])
     height = plane_height(xyz, fit_ground_plane(xyz, ground_class))
+    is_ground = ground_class if ground_class is not None else np.abs(height) < GROUND_BAND_M
+    cos = inc.cos.astype(np.float32)
+    normal_ok = inc.source != IncidenceSource.MEDIAN
+    # The ground's image normals are ill-conditioned at range (ground_normals.py).
+    plane_cos, plane_ok = local_ground_cos(np.asarray(xyz, dtype=np.float64), is_ground)
+    cos[plane_ok] = plane_cos[plane_ok]
+    normal_ok = normal_ok | plane_ok
     return CloudFeatures(
         group=scan_index * SCAN_GROUP_STRIDE + tile_ids(xyz),
         ring=ring.astype(np.int16),
         azimuth_deg=azimuth,
         elevation_deg=np.degrees(np.arctan2(xyz[:, 2], horizontal_m)).astype(np.float32),
         range_m=scan.range_m().astype(np.float32),
-        cos_incidence=inc.cos.astype(np.float32),
-        normal_ok=inc.source != IncidenceSource.MEDIAN,
+        cos_incidence=cos,
+        normal_ok=normal_ok,
         class_id=class_id,
-        is_ground=ground_class if ground_class is not None else np.abs(height) < GROUND_BAND_M,
+        is_ground=is_ground,
         height_m=height.astype(np.float32),
         edge_beams=edge_distance(image)[image.row, image.col],
     )

@@ -138,6 +138,7 @@ def candidates(d: Design, *, train_rows: npt.NDArray[np.int64] | None = None) ->
     )  # fmt: skip
     out.append(_entry("C3", ("p_extra",), [(-1.0, 2.0)], [[0.0]],
                       ln_term=lambda th, dd: th[0] * dd.ln_cos))  # fmt: skip
+    out.append(_oren_nayar())
     names = np.array(d.class_names, dtype=object)
     counts = np.bincount(d.class_index.numpy()[d.class_index.numpy() >= 0], minlength=len(names))
     for ci, cname in enumerate(d.class_names):
@@ -211,6 +212,29 @@ def candidates(d: Design, *, train_rows: npt.NDArray[np.int64] | None = None) ->
     if d.paired:
         out.extend(_dropout_effects(d, n))
     return out
+
+
+def _oren_nayar() -> Effect:
+    """C3 as the Oren-Nayar law seen monostatically, relative to Lambert.
+
+    With incidence = exitance = theta and no azimuth difference, the rough-surface radiance
+    over Lambert's is A + B sin(theta) tan(theta), A = 1 - 0.5 s^2 / (s^2 + 0.33), B = 0.45
+    s^2 / (s^2 + 0.09), s the facet slope spread (rad). It rises towards grazing where cos^p
+    only bends, so a rough ground fitted as cos^p leaves a range-like residual that ring
+    offsets and attenuation then chase."""
+
+    def term(th: Tensor, dd: Design) -> Tensor:
+        s2 = th[0] ** 2
+        a = 1.0 - 0.5 * s2 / (s2 + 0.33)
+        b = 0.45 * s2 / (s2 + 0.09)
+        cos = dd.cos.clamp(0.05, 1.0)
+        lobe = torch.log(a + b * (1.0 - cos**2) / cos)
+        return torch.where(dd.normal_ok, lobe, torch.zeros_like(cos))
+
+    # sigma = 0 is Lambert itself, so a fit there gains nothing and is rejected as at bound
+    # like C5's alpha = 0.
+    return _entry("C3", ("sigma_rad",), [(0.0, 0.6)], [[0.2]], label="C3[oren_nayar]",
+                  ln_term=term)  # fmt: skip
 
 
 def _specular(ci: int, cname: str) -> Effect:

@@ -260,6 +260,29 @@ def _shortlist(screened: list[tuple[Effect, Fit, Comparison, Comparison | None]]
     return {r[0].label for r in by_gain} | {r[0].label for r in by_t[:SHORTLIST_CONFINED]}
 
 
+def _simplest_within_one_se(
+    ok: list[tuple[Effect, Fit, Comparison, bool, Comparison | None]],
+    held_out: Design,
+    scale: float,
+    n_fit: float,
+) -> tuple[Effect, Fit, Comparison, bool, Comparison | None]:
+    """The passing candidate to accept: the fewest parameters among those whose held-out loss
+    is within one paired SE of the best gain's (the one-standard-error rule).
+
+    A flexible effect can out-gain the true one by less than its own noise: 64 ring offsets
+    fitted the ground's incidence falloff (each ring meets the ground at one range and
+    angle) 0.005 nats better than the one-parameter incidence law, at a third of its z."""
+    top = max(ok, key=lambda r: r[2].delta)
+    tied = [top]
+    for r in ok:
+        if r is top:
+            continue
+        c = compare_on(top[1], r[1], held_out, scale, n_fit)
+        if c.delta <= c.se:
+            tied.append(r)
+    return min(tied, key=lambda r: (r[0].size, -r[2].delta))
+
+
 def class_rows(held_out: Design, effect: Effect) -> Design | None:
     """The held-out rows of a class-confined effect's class, if enough groups hold it."""
     if effect.class_index < 0:
@@ -344,7 +367,7 @@ def forward_backward(
         ok = [r for r in results if _passes(r[2], r[3], z_accept, r[4])]
         if not ok:
             break
-        best = max(ok, key=lambda r: r[2].delta)
+        best = _simplest_within_one_se(ok, held_out, scale, n_fit)
         for s in sel.trace:
             if s.step == step:
                 s.accepted = s.candidate == best[0].label

@@ -290,3 +290,43 @@ def test_effects_are_accepted_on_full_fits_after_a_screening_pass(ring_case):
     for step in {s.step for s in trace}:
         full = [s for s in trace if s.step == step and not s.screened]
         assert 1 <= len(full) <= SHORTLIST + SHORTLIST_CONFINED
+
+
+def test_of_candidates_within_one_paired_se_the_one_with_fewest_parameters_is_accepted():
+    """A 64-parameter effect out-gains a 1-parameter one by less than the paired SE of their
+    difference: the simpler one is taken. A clear winner keeps its place however large."""
+    from types import SimpleNamespace
+
+    from lads.diagnose.select import _simplest_within_one_se
+
+    rng = np.random.default_rng(3)
+    group = np.repeat(np.arange(100), 20)
+    noise = rng.normal(0.0, 0.3, group.size)
+
+    def candidate(size: int, nll: np.ndarray, delta: float):
+        fit = SimpleNamespace(row_nll=lambda d: nll, model=SimpleNamespace(size=size), loss=0.0)
+        eff = SimpleNamespace(size=size)
+        return (eff, fit, Comparison(delta, 0.01, 0.0, 100), False, None)
+
+    sub = SimpleNamespace(group=group)
+    rings = candidate(64, 1.0 - 0.005 + noise, 0.095)
+    law = candidate(1, 1.0 + noise + rng.normal(0.0, 0.3, group.size), 0.090)
+    assert _simplest_within_one_se([rings, law], sub, 1.0, 1.0) is law  # type: ignore[arg-type]
+    clear = candidate(64, 1.0 - 0.2 + noise, 0.29)
+    assert _simplest_within_one_se([clear, law], sub, 1.0, 1.0) is clear  # type: ignore[arg-type]
+
+
+def test_the_oren_nayar_incidence_law_is_lambert_at_zero_roughness_and_brightens_grazing():
+    design = paired_design(make_table(8, n_scans=2))
+    (on,) = [e for e in candidates(design) if e.label == "C3[oren_nayar]"]
+    assert on.info.id == "C3"
+    zero = on.ln_term(torch.tensor([0.0], dtype=torch.float64), design)
+    assert torch.all(zero == 0.0)
+    s2 = 0.3**2
+    a, b = 1 - 0.5 * s2 / (s2 + 0.33), 0.45 * s2 / (s2 + 0.09)
+    term = on.ln_term(torch.tensor([0.3], dtype=torch.float64), design).numpy()
+    cos = np.maximum(design.cos.numpy(), 0.05)  # grazing normals are capped like ln cos
+    ok = design.normal_ok.numpy()
+    expected = np.log(a + b * (1 - cos**2) / cos)
+    assert np.allclose(term[ok], expected[ok])
+    assert term[ok][cos[ok] < 0.2].min() > 0.0 > term[ok][cos[ok] > 0.99].max()
