@@ -177,10 +177,14 @@ def candidates(d: Design, *, train_rows: npt.NDArray[np.int64] | None = None) ->
             )
         )
         off = 20.0 * d.max_value / 255.0 if d.max_value < 2 else 20.0
+        # Offsets sum to zero like C4's gains: a common offset is the encoding's (C9), and
+        # left free here it let 64 ring offsets stand in for a global offset (half the
+        # rings of the real KITTI fit sat at the bound) or for a range falloff.
         out.append(
             _entry(
                 "C4o", _ring_vector("offset_by_ring", n), [(-off, off)] * n, [[0.0] * n],
                 scalar=[False] * n,
+                penalty=lambda th, off=off: 10.0 * (th.sum() / off) ** 2,
                 transfer=lambda th, dd, mu: torch.log(
                     (torch.exp(mu) - dd.half_step + th[dd.ring]).clamp_min(0.0) + dd.half_step),
                 exporter=lambda th: {"offset_by_ring": [float(v) for v in th]},

@@ -330,3 +330,14 @@ def test_the_oren_nayar_incidence_law_is_lambert_at_zero_roughness_and_brightens
     expected = np.log(a + b * (1 - cos**2) / cos)
     assert np.allclose(term[ok], expected[ok])
     assert term[ok][cos[ok] < 0.2].min() > 0.0 > term[ok][cos[ok] > 0.99].max()
+
+
+def test_ring_offsets_leave_a_common_offset_to_the_encoding():
+    design = paired_design(make_table(8, n_scans=2))
+    (c4o,) = [e for e in candidates(design) if e.label == "C4o"]
+    n = c4o.size
+    spread = torch.tensor(np.tile([0.02, -0.02], n // 2), dtype=torch.float64)
+    common = torch.full((n,), 0.02, dtype=torch.float64)
+    assert float(c4o.penalty(spread)) == pytest.approx(0.0, abs=1e-12)
+    # One common step costs more than any held-out gain an effect is accepted for.
+    assert float(c4o.penalty(common)) > 1.0
