@@ -15,8 +15,10 @@ from typing import Any, TypeVar
 
 import numpy as np
 import numpy.typing as npt
+import torch
 
 from lads.diagnose.design import Design
+from lads.diagnose.model import Fit, Model, fit_best
 
 T = TypeVar("T")
 
@@ -67,39 +69,30 @@ def map_fits(
     return [r for chunk in results for r in chunk]
 
 
-def _fit_models(
+def _fit_one(
     part: Design,
     w: npt.NDArray[np.float64],
-    models: list[Any],
+    model: Model,
     base: npt.NDArray[np.float64],
-    previous: Any,
-) -> list[tuple[npt.NDArray[np.float64], float, bool]]:
-    import torch
-
-    from lads.diagnose.model import fit_best
-
+    previous: Fit | None,
+) -> tuple[npt.NDArray[np.float64], float, bool]:
     torch.set_num_threads(1)
-    out = []
-    for m in models:
-        f = fit_best(m, part, w, base, previous)
-        out.append((f.theta, f.loss, f.converged))
-    return out
+    f = fit_best(model, part, w, base, previous)
+    return f.theta, f.loss, f.converged
 
 
 def fit_models(
-    models: Sequence[Any],
+    models: Sequence[Model],
     d: Design,
     weights: npt.NDArray[np.float64],
     base: npt.NDArray[np.float64],
-    previous: Any,
+    previous: Fit | None,
     jobs: int,
-) -> list[Any]:
+) -> list[Fit]:
     """[fit_best(m, d, weights, base, previous) for m in models], on `jobs` processes.
 
     Each worker gets only the weighted rows, in order (a fit reads nothing else), so every
     sum runs in the same order as a serial fit and the results are bit-identical."""
-    from lads.diagnose.model import Fit, fit_best
-
     if jobs <= 1 or len(models) <= 1:
         return [fit_best(m, d, weights, base, previous) for m in models]
     from joblib import Parallel, delayed
@@ -109,6 +102,6 @@ def fit_models(
     # One task a model: their costs differ tenfold (64 ring gains against one exponent), so
     # fixed chunks leave a core idle; loky hands tasks out as workers free up.
     results = Parallel(n_jobs=jobs, backend="loky")(
-        delayed(_fit_models)(part, w, [m], base, previous) for m in models
+        delayed(_fit_one)(part, w, m, base, previous) for m in models
     )
-    return [Fit(m, *res[0]) for m, res in zip(models, results, strict=True)]
+    return [Fit(m, *res) for m, res in zip(models, results, strict=True)]

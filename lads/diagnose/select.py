@@ -129,9 +129,18 @@ def compare(
     return compare_on(new, old, d.subset(rows), n_eff_scale, n_fit)
 
 
-def compare_on(new: Fit, old: Fit, sub: Design, n_eff_scale: float, n_fit: float) -> Comparison:
-    """`compare` on held-out rows already cut out of the design (cut once, compare often)."""
-    g_sum, g_n = _group_gains(new, old, sub)
+def compare_on(
+    new: Fit,
+    old: Fit,
+    sub: Design,
+    n_eff_scale: float,
+    n_fit: float,
+    old_nll: npt.NDArray[np.float64] | None = None,
+) -> Comparison:
+    """`compare` on held-out rows already cut out of the design (cut once, compare often).
+
+    `old_nll`: `old.row_nll(sub)` when already computed (one incumbent, many candidates)."""
+    g_sum, g_n = _group_gains(new, old, sub, old_nll)
     total = g_n.sum()
     delta = float(g_sum.sum() / total)
     k = len(g_sum)
@@ -158,10 +167,10 @@ def compare_groups(new: Fit, old: Fit, sub: Design) -> Comparison:
 
 
 def _group_gains(
-    new: Fit, old: Fit, sub: Design
+    new: Fit, old: Fit, sub: Design, old_nll: npt.NDArray[np.float64] | None = None
 ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
     """(sum of per-row NLL gains, row count) per group of `sub` (positive = `new` better)."""
-    gain = old.row_nll(sub) - new.row_nll(sub)
+    gain = (old.row_nll(sub) if old_nll is None else old_nll) - new.row_nll(sub)
     _, inv = np.unique(sub.group, return_inverse=True)
     return np.bincount(inv, weights=gain), np.bincount(inv).astype(np.float64)
 
@@ -217,7 +226,6 @@ class Selection:
     baseline: Fit
     trace: list[Step] = field(default_factory=list)
     first_step: dict[str, Comparison] = field(default_factory=dict)
-    fits: dict[str, Fit] = field(default_factory=dict)
 
     @property
     def labels(self) -> list[str]:
@@ -328,42 +336,43 @@ def forward_backward(
     held_out = d.subset(validation)
     supports = {e.label: class_rows(held_out, e) for e in pool}
     screen_w = screening_weights(weights, screen_rows)
+
+    def assess(cand: Effect, f: Fit, n_w: float, incumbent_nll: npt.NDArray[np.float64]) -> tuple:
+        c = compare_on(f, current, held_out, scale, n_w, incumbent_nll)
+        sub = supports[cand.label]
+        return c, None if sub is None else compare_groups(f, current, sub)
+
     for step in range(1, k_max + 1):
         results = []
-        shortlist = {c.label for c in remaining}
+        incumbent_nll = current.row_nll(held_out)
+        listed = list(remaining)
         if screen_w is not None and len(remaining) > SHORTLIST:
-            shortlist = set()
             screened = []
             fits = fit_models([current.model.with_effect(c) for c in remaining], d, screen_w,
                               base, current, jobs)  # fmt: skip
             for cand, f in zip(remaining, fits, strict=True):
-                c = compare_on(f, current, held_out, scale, float(screen_w.sum()))
-                sub = supports[cand.label]
-                support = None if sub is None else compare_groups(f, current, sub)
-                screened.append((cand, f, c, support))
+                screened.append((cand, f, *assess(cand, f, float(screen_w.sum()), incumbent_nll)))
             shortlist = _shortlist(screened)
+            listed = [c for c in remaining if c.label in shortlist]
             for cand, f, c, support in screened:
                 if cand.label in shortlist:
                     continue
-                bound = cand.label in f.at_bound()
-                sel.trace.append(Step(step, cand.label, c.delta, c.se, c.delta_bic, bound,
-                                      support=support, screened=True))  # fmt: skip
+                sel.trace.append(Step(step, cand.label, c.delta, c.se, c.delta_bic,
+                                      cand.label in f.at_bound(), support=support,
+                                      screened=True))  # fmt: skip
                 if step == 1:
                     sel.first_step[cand.label] = c
-        listed = [c for c in remaining if c.label in shortlist]
         fits = fit_models([current.model.with_effect(c) for c in listed], d, weights, base,
                           current, jobs)  # fmt: skip
         for cand, f in zip(listed, fits, strict=True):
-            c = compare_on(f, current, held_out, scale, n_fit)
-            sub = supports[cand.label]
-            support = None if sub is None else compare_groups(f, current, sub)
+            c, support = assess(cand, f, n_fit, incumbent_nll)
             bound = cand.label in f.at_bound()
             results.append((cand, f, c, bound, support))
             sel.trace.append(Step(step, cand.label, c.delta, c.se, c.delta_bic, bound,
                                   support=support))  # fmt: skip
             if step == 1:
                 sel.first_step[cand.label] = c
-        # Ranked by the gain over all held-out rows: what explains the most of the mismatch.
+        # The best held-out gain, or a simpler effect within one SE of it.
         ok = [r for r in results if _passes(r[2], r[3], z_accept, r[4])]
         if not ok:
             break
