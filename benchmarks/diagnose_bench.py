@@ -10,24 +10,26 @@ read OUT/report.json, score it against truth.json (benchmarks/diagnose_cases/sco
 pool the scores. The tool only ever sees the two tree folders.
 
     --subset ci  every case once on SemanticKITTI (seed 0) plus K2, K5 and K18 on nuScenes, M2,
-                 at most 40000 points per scan: 23 runs, ~4 min if the tool takes ~10 s a run
-                 (generation takes < 1 s a run). Writes results/diagnose_ci.{json,md}.
+                 at most 40000 points per scan: 23 runs (generation takes < 1 s a run).
+                 Writes results/diagnose_ci.{json,md}.
     --full       all cases x 20 seeds x both bases (M2; --mode both adds M1), full scans.
                  Writes results/diagnose.{json,md}.
 
 --cases/--seeds/--bases/--mode/--max-points narrow or widen either plan; --keep DIR keeps the
-generated trees and reports.
+generated trees and reports; --workers runs that many at a time (default 2).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import shutil
 import subprocess
 import sys
 import tempfile
 import time
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -67,7 +69,9 @@ def plan(args: argparse.Namespace) -> list[tuple[str, str, int, str]]:
     return runs
 
 
-def tool_command(sim: Path, real: Path, base: str, out: Path, seed: int, corr: Path) -> list[str]:
+def tool_command(
+    sim: Path, real: Path, base: str, out: Path, seed: int, corr: Path, jobs: int = 2
+) -> list[str]:
     """The `lads diagnose` invocation (lads/cli.py runs main() under `python -m lads.cli`)."""
     return [
         sys.executable,
@@ -87,6 +91,8 @@ def tool_command(sim: Path, real: Path, base: str, out: Path, seed: int, corr: P
         str(seed),
         "--write-corrected",
         str(corr),
+        "--jobs",
+        str(jobs),
     ]
 
 
@@ -99,6 +105,7 @@ def run_one(
     *,
     max_points: int | None,
     timeout: float,
+    jobs: int = 2,
 ) -> dict[str, Any]:
     """Generate, diagnose and score one run inside `work`."""
     start = time.perf_counter()
@@ -106,7 +113,7 @@ def run_one(
     gen_s = time.perf_counter() - start
     truth = json.loads((work / "truth.json").read_text())
     out, corr = work / "out", work / "corrected"
-    cmd = tool_command(work / "sim", work / "real", base, out, seed, corr)
+    cmd = tool_command(work / "sim", work / "real", base, out, seed, corr, jobs)
     start = time.perf_counter()
     try:
         proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, check=False)
@@ -230,6 +237,9 @@ def parse(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--mode", choices=["M1", "M2", "both"], default="M2")
     p.add_argument("--max-points", type=int, help="points per scan (ci: 40000, full: all)")
     p.add_argument("--timeout", type=float, default=TOOL_TIMEOUT_S, help="seconds per tool run")
+    p.add_argument("--workers", type=int, default=2,
+                   help="runs at a time; each tool run gets cores // workers processes (its "
+                        "report does not depend on that)")  # fmt: skip
     p.add_argument("--keep", type=Path, help="keep generated trees and reports under this folder")
     p.add_argument("--name", help="results file stem (ci: diagnose_ci, full: diagnose)")
     p.add_argument("--results", type=Path, default=RESULTS, help="results folder")
@@ -244,19 +254,31 @@ def main(argv: list[str] | None = None) -> int:
     runs = plan(args)
     scores = []
     started = time.perf_counter()
-    for case, base, seed, mode in tqdm(runs, desc="diagnose cases", unit="case"):
+    # Several runs at a time: a tool run keeps both cores busy only in its fits, not while
+    # it imports, reads trees, localises or draws figures; two runs side by side fill those
+    # gaps. Reports are identical for any --jobs (lads/diagnose/parallel.py), so only the
+    # wall time changes.
+    workers = max(1, args.workers)
+    jobs = max(1, (os.cpu_count() or 1) // workers)
+
+    def one(run: tuple[str, str, int, str]) -> dict[str, Any]:
+        case, base, seed, mode = run
         tmp = Path(tempfile.mkdtemp(prefix=f"diag_{case}_{base[:4]}_{mode}_{seed}_"))
         try:
-            scores.append(
-                run_one(case, base, seed, mode, tmp, max_points=max_points, timeout=args.timeout)
-            )
+            score = run_one(case, base, seed, mode, tmp, max_points=max_points,
+                            timeout=args.timeout, jobs=jobs)  # fmt: skip
             if args.keep:
                 dest = args.keep / f"{case}_{base}_{mode}_s{seed}"
                 if dest.exists():
                     shutil.rmtree(dest)
                 shutil.copytree(tmp, dest)
+            return score
         finally:
             shutil.rmtree(tmp, ignore_errors=True)
+
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        scores = list(tqdm(pool.map(one, runs), total=len(runs), desc="diagnose cases",
+                           unit="case"))  # fmt: skip
     summary = summarise(scores)
     payload = {
         "subset": subset,
@@ -266,6 +288,7 @@ def main(argv: list[str] | None = None) -> int:
         "summary": summary,
         "runs": scores,
         "seconds": round(time.perf_counter() - started, 1),
+        "workers": workers,
         "machine": machine_info(),
     }
     path = write_result(f"{name}.json", payload, args.results)

@@ -17,7 +17,7 @@ from lads.diagnose.catalogue import CATALOGUE
 from lads.diagnose.design import Design
 from lads.diagnose.effects import Effect, candidates
 from lads.diagnose.model import BASE_NAMES, Fit, Model, fit, fit_best, initial_base
-from lads.diagnose.parallel import map_fits
+from lads.diagnose.parallel import fit_models, map_fits
 from lads.diagnose.select import (
     CLAIM_FREQUENCY,
     MIN_GAIN_NATS,
@@ -111,11 +111,13 @@ def diagnose_design(d: Design, rng: np.random.Generator, settings: Settings) -> 
     strong = {s.candidate for s in selection.trace
               if not s.screened and s.delta_loss > 2.0 * s.se}  # fmt: skip
     contenders = [e for e in pool if e.label in strong or e.label in selection.labels]
+    names = {e.label for e in contenders}
     k_resample = min(settings.k_max, len(selection.labels) + 1)
     counts = dict.fromkeys((e.label for e in pool), 0)
     ws = bootstrap_weights(d, split.train, settings.fit_rows, settings.resamples, rng)
+    warm = {k: f for k, f in selection.starts().items() if all(lb in names for lb in k)}
     chosen_sets = map_fits(_resample_labels, d, ws, split.validation, settings.jobs,
-                           contenders, k_resample, reference_levels(d))  # fmt: skip
+                           contenders, k_resample, reference_levels(d), warm)  # fmt: skip
     for labels in chosen_sets:
         for label in labels:
             counts[label] += 1
@@ -137,7 +139,7 @@ def diagnose_design(d: Design, rng: np.random.Generator, settings: Settings) -> 
         theta = final.theta[sl]
         params = e.export(theta)
         samples = np.array([e.export(b[sl]) for b in boot], dtype=object)
-        ci = _ci(params, list(samples))
+        ci = _ci(params, list(samples), e.extra.get("ci_floor", {}))
         f = freq.get(e.label, 0.0)
         status = "claimed" if f >= CLAIM_FREQUENCY else "possible"
         effects.append(EffectReport(e, params, ci, f, status, _sample_arrays(params, samples)))
@@ -147,7 +149,7 @@ def diagnose_design(d: Design, rng: np.random.Generator, settings: Settings) -> 
             possible.append({"id": e.info.id, "key": e.info.key, "label": e.label,
                              "selection_frequency": f})  # fmt: skip
 
-    alternatives, sets = _ambiguity(d, selection, pool, weights, split)
+    alternatives, sets = _ambiguity(d, selection, pool, weights, split, settings.jobs)
     reasons: list[str] = []
     sets += _range_band_rule(d, selection, reasons)
     noise = _noise_model(final, d, boot, selection, weights, split)
@@ -203,15 +205,25 @@ def _resample_labels(
     contenders: list[Effect],
     k_max: int,
     refs: tuple[float, float],
+    warm: dict[frozenset[str], Fit],
 ) -> list[list[str]]:
-    """The labels selected on each resample (a `map_fits` task)."""
+    """The labels selected on each resample (a `map_fits` task), each fit started from the
+    main selection's fit of the same effects where it has one. No screening: the few
+    contenders are each fitted in full, and warm starts make a full fit cost little more
+    than a screening fit (the per-evaluation overhead, not the rows, dominates)."""
     torch.set_num_threads(1)
     return [forward_backward(d, contenders, w, validation, k_max=k_max, refs=refs,
-                             z_accept=Z_RESAMPLE).labels for w in ws]  # fmt: skip
+                             z_accept=Z_RESAMPLE, warm=warm, screen_rows=None).labels
+            for w in ws]  # fmt: skip
 
 
-def _ci(params: dict[str, Any], samples: list[dict[str, Any]]) -> dict[str, Any]:
+def _ci(
+    params: dict[str, Any], samples: list[dict[str, Any]], floor: dict[str, float] | None = None
+) -> dict[str, Any]:
+    """95 % percentile intervals of `samples`; a scalar's interval spans at least
+    `floor[name]` either side of its estimate (a resolution the bootstrap cannot see)."""
     out: dict[str, Any] = {}
+    floor = floor or {}
     for name, value in params.items():
         vals = [s[name] for s in samples if name in s]
         if not vals:
@@ -226,7 +238,8 @@ def _ci(params: dict[str, Any], samples: list[dict[str, Any]]) -> dict[str, Any]
             out[name] = [[float(a), float(b)] for a, b in zip(lo, hi, strict=True)]
         else:
             lo, hi = np.percentile(np.asarray(vals, dtype=np.float64), [2.5, 97.5])
-            out[name] = [float(lo), float(hi)]
+            pad = floor.get(name, 0.0)
+            out[name] = [float(min(lo, value - pad)), float(max(hi, value + pad))]
     return out
 
 
@@ -244,6 +257,7 @@ def _ambiguity(
     pool: list[Effect],
     weights: npt.NDArray[np.float64],
     split: Split,
+    jobs: int = 1,
 ) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
     """Unselected candidates that, swapped in for a selected effect, fit within 1 SE.
 
@@ -260,16 +274,22 @@ def _ambiguity(
     ranked = sorted(sel.first_step.items(), key=lambda kv: -kv[1].delta)
     top = {label for label, _ in ranked[:4]}
     held_out = d.subset(split.validation)
+    swaps = []
     for e in chosen.model.effects:
-        members = [e.info.id]
         for cand in pool:
             # Another parametrisation of the same catalogue effect is not an alternative.
             if cand.label in selected or cand.info.id == e.info.id:
                 continue
-            if cand.info.id not in e.info.confounds and cand.label not in top:
-                continue
-            swapped = fit_best(chosen.model.without(e.label).with_effect(cand), d, weights,
-                               base, chosen)  # fmt: skip
+            if cand.info.id in e.info.confounds or cand.label in top:
+                swaps.append((e, cand, chosen.model.without(e.label).with_effect(cand)))
+    # A swapped model the selection already fitted on these rows is not fitted again.
+    todo = [m for _, _, m in swaps if m.key not in sel.fitted]
+    fits = dict(zip((m.key for m in todo),
+                    fit_models(todo, d, weights, base, chosen, jobs), strict=True))  # fmt: skip
+    for e in chosen.model.effects:
+        members = [e.info.id]
+        for _, cand, m in (s for s in swaps if s[0] is e):
+            swapped = sel.fitted.get(m.key) or fits[m.key]
             # c.delta = held-out loss of the swapped model minus the chosen one (nats/row):
             # positive when the chosen effect fits better.
             c = compare_on(chosen, swapped, held_out, scale, float(weights.sum()))

@@ -354,7 +354,23 @@ def _blockage(d: Design, train_rows: npt.NDArray[np.int64] | None) -> Effect:
                  exporter=lambda th: {"start_deg": float(th[0] % 360.0),
                                       "width_deg": float(th[1]), "a": float(th[2]),
                                       "drop_fraction": float(th[3])})  # fmt: skip
+    # The sector's edges lie between two azimuth samples, and every bootstrap resample has
+    # the same samples: its spread cannot show that, so the CI is never narrower than one
+    # sample spacing either side (analysis._ci).
+    spacing = azimuth_spacing_deg(d)
+    eff.extra["ci_floor"] = {"start_deg": spacing, "width_deg": spacing}
     return eff
+
+
+def azimuth_spacing_deg(d: Design) -> float:
+    """Median azimuth step (degrees) between consecutive returns of a ring in a scan."""
+    key = d.scan.numpy().astype(np.int64) * (d.n_rings + 1) + d.ring.numpy().astype(np.int64)
+    az = d.azimuth_deg.numpy().astype(np.float64)
+    order = np.lexsort((az, key))
+    same = key[order][1:] == key[order][:-1]
+    steps = np.diff(az[order])[same]
+    steps = steps[steps > 0]
+    return float(np.median(steps)) if steps.size else 0.0
 
 
 def _darkest_sector(d: Design, train_rows: npt.NDArray[np.int64] | None) -> tuple[float, float]:

@@ -83,6 +83,11 @@ class Model:
             start += e.size
         return out
 
+    @property
+    def key(self) -> frozenset[str]:
+        """The set of effect labels (a model's identity, whatever the order they came in)."""
+        return frozenset(e.label for e in self.effects)
+
     def with_effect(self, effect: Effect) -> Model:
         return Model(self.effects + [effect], self.ln_range_ref, self.ln_sim_ref,
                      self.heteroscedastic)  # fmt: skip

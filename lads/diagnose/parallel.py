@@ -18,7 +18,7 @@ import numpy.typing as npt
 import torch
 
 from lads.diagnose.design import Design
-from lads.diagnose.model import Fit, Model, fit_best
+from lads.diagnose.model import BASE_NAMES, Fit, Model, fit, fit_best
 
 T = TypeVar("T")
 
@@ -69,6 +69,27 @@ def map_fits(
     return [r for chunk in results for r in chunk]
 
 
+def fit_warm(
+    model: Model,
+    d: Design,
+    weights: npt.NDArray[np.float64],
+    base: npt.NDArray[np.float64],
+    previous: Fit | None,
+    warm: dict[frozenset[str], Fit] | None = None,
+) -> Fit:
+    """`fit_best`, or one fit started from `warm`'s vector for the same set of effects.
+
+    A stability resample refits the models of the main selection on a resample of its
+    groups: their optimum lies next to the main fit's, so that one start replaces every
+    multi-start of the new effect (R0, m, sigma grids) and converges in a few iterations."""
+    known = None if warm is None else warm.get(model.key)
+    if known is None or known.model.heteroscedastic != model.heteroscedastic:
+        return fit_best(model, d, weights, base, previous)
+    head = known.theta[: len(BASE_NAMES)]
+    x0 = np.concatenate([head] + [known.effect_params(e.label) for e in model.effects])
+    return fit(model, d, weights, x0)
+
+
 def _fit_one(
     part: Design,
     w: npt.NDArray[np.float64],
@@ -88,13 +109,15 @@ def fit_models(
     base: npt.NDArray[np.float64],
     previous: Fit | None,
     jobs: int,
+    warm: dict[frozenset[str], Fit] | None = None,
 ) -> list[Fit]:
-    """[fit_best(m, d, weights, base, previous) for m in models], on `jobs` processes.
+    """[fit_warm(m, d, weights, base, previous, warm) for m in models], on `jobs` processes.
 
     Each worker gets only the weighted rows, in order (a fit reads nothing else), so every
-    sum runs in the same order as a serial fit and the results are bit-identical."""
-    if jobs <= 1 or len(models) <= 1:
-        return [fit_best(m, d, weights, base, previous) for m in models]
+    sum runs in the same order as a serial fit and the results are bit-identical. `warm`
+    is for the serial resamples (it is not sent to workers)."""
+    if jobs <= 1 or len(models) <= 1 or warm is not None:
+        return [fit_warm(m, d, weights, base, previous, warm) for m in models]
     from joblib import Parallel, delayed
 
     keep = np.flatnonzero(weights > 0)

@@ -13,6 +13,7 @@ from typing import Any
 
 import numpy as np
 import torch
+from threadpoolctl import threadpool_limits
 
 from lads.diagnose import figures
 from lads.diagnose.analysis import Diagnosis, Settings, diagnose_design
@@ -53,7 +54,26 @@ def diagnose(
         DiagnoseError: trees that do not correspond or hold another sensor (see
             `trees.open_trees`), too few beams or groups to fit, or constant intensities.
     """
-    settings = settings or Settings()
+    # Every array here is small: a second BLAS thread only spins (it doubled the CPU time of
+    # a run and gained no wall time), and it starves the fit workers of `settings.jobs`.
+    with threadpool_limits(limits=1):
+        return _diagnose(sim_root, real_root, source, out, paired=paired, seed=seed,
+                         write_corrected_to=write_corrected_to,
+                         settings=settings or Settings(), progress=progress)  # fmt: skip
+
+
+def _diagnose(
+    sim_root: Path,
+    real_root: Path,
+    source: str,
+    out: Path,
+    *,
+    paired: bool,
+    seed: int,
+    write_corrected_to: Path | None,
+    settings: Settings,
+    progress: bool,
+) -> dict[str, Any]:
     torch.set_num_threads(1)  # fits are small; one thread keeps results identical everywhere
     pair = open_trees(sim_root, real_root, source, paired=paired)
     if paired:

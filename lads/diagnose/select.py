@@ -18,8 +18,8 @@ from scipy import stats
 
 from lads.diagnose.design import Design
 from lads.diagnose.effects import Effect
-from lads.diagnose.model import Fit, Model, fit, fit_best, initial_base
-from lads.diagnose.parallel import fit_models, map_fits
+from lads.diagnose.model import Fit, Model, fit, initial_base
+from lads.diagnose.parallel import fit_models, fit_warm, map_fits
 
 K_MAX = 4
 MIN_GAIN_NATS = 0.002  # per row: below this an effect is not worth naming
@@ -226,6 +226,13 @@ class Selection:
     baseline: Fit
     trace: list[Step] = field(default_factory=list)
     first_step: dict[str, Comparison] = field(default_factory=dict)
+    # Every model fitted on all the training rows, and those fitted on the screening rows
+    # only, by set of effects: the starts of the stability resamples (`parallel.fit_warm`).
+    fitted: dict[frozenset[str], Fit] = field(default_factory=dict)
+    screened_fits: dict[frozenset[str], Fit] = field(default_factory=dict)
+
+    def starts(self) -> dict[frozenset[str], Fit]:
+        return {**self.screened_fits, **self.fitted}
 
     @property
     def labels(self) -> list[str]:
@@ -313,6 +320,7 @@ def forward_backward(
     z_accept: float = Z_ACCEPT,
     screen_rows: int | None = SCREEN_ROWS,
     jobs: int = 1,
+    warm: dict[frozenset[str], Fit] | None = None,
 ) -> Selection:
     """Greedy forward selection on held-out loss, then a backward pass (§5.5 steps 3-6).
 
@@ -322,16 +330,19 @@ def forward_backward(
     processes (results do not depend on it).
 
     `refs` (mean ln R, mean ln I_sim) centre the noise model; default: those of `d` (pass
-    the whole design's when `d` is a part of it)."""
+    the whole design's when `d` is a part of it). `warm`: fits to start from, by effect set
+    (a resample passes the main selection's `fitted`); a model not in it is fitted from
+    every start."""
     fit_rows = np.flatnonzero(weights > 0)
     base = initial_base(d, fit_rows)
     scale = design_effect_scale(d, fit_rows)
     n_fit = float(weights.sum())
     refs = refs if refs is not None else reference_levels(d)
     model = Model([], refs[0], refs[1], heteroscedastic)
-    baseline = fit(model, d, weights, base)
+    baseline = fit_warm(model, d, weights, base, None, warm)
     current = baseline
     sel = Selection(current, baseline)
+    sel.fitted[model.key] = baseline
     remaining = list(pool)
     held_out = d.subset(validation)
     supports = {e.label: class_rows(held_out, e) for e in pool}
@@ -349,8 +360,9 @@ def forward_backward(
         if screen_w is not None and len(remaining) > SHORTLIST:
             screened = []
             fits = fit_models([current.model.with_effect(c) for c in remaining], d, screen_w,
-                              base, current, jobs)  # fmt: skip
+                              base, current, jobs, warm)  # fmt: skip
             for cand, f in zip(remaining, fits, strict=True):
+                sel.screened_fits[f.model.key] = f
                 screened.append((cand, f, *assess(cand, f, float(screen_w.sum()), incumbent_nll)))
             shortlist = _shortlist(screened)
             listed = [c for c in remaining if c.label in shortlist]
@@ -363,8 +375,9 @@ def forward_backward(
                 if step == 1:
                     sel.first_step[cand.label] = c
         fits = fit_models([current.model.with_effect(c) for c in listed], d, weights, base,
-                          current, jobs)  # fmt: skip
+                          current, jobs, warm)  # fmt: skip
         for cand, f in zip(listed, fits, strict=True):
+            sel.fitted[f.model.key] = f
             c, support = assess(cand, f, n_fit, incumbent_nll)
             bound = cand.label in f.at_bound()
             results.append((cand, f, c, bound, support))
@@ -387,7 +400,7 @@ def forward_backward(
     while changed and current.model.effects:
         changed = False
         for e in list(current.model.effects):
-            reduced = fit_best(current.model.without(e.label), d, weights, base, current)
+            reduced = fit_warm(current.model.without(e.label), d, weights, base, current, warm)
             c = compare_on(current, reduced, held_out, scale, n_fit)
             if c.delta < c.se:
                 current = reduced

@@ -520,6 +520,9 @@ def test_ci_plan_covers_every_case_once_plus_nuscenes():
     assert len(full) == 20 * (20 + 16)
     cmd = diagnose_bench.tool_command(Path("A"), Path("B"), "nuscenes", Path("O"), 3, Path("C"))
     assert cmd[:4] == [sys.executable, "-m", "lads.cli", "diagnose"] and "--paired" in cmd
+    one_core = diagnose_bench.tool_command(Path("A"), Path("B"), "nuscenes", Path("O"), 3,
+                                           Path("C"), jobs=1)  # fmt: skip
+    assert one_core[one_core.index("--jobs") + 1] == "1"
 
 
 def test_bench_runs_a_tool_subprocess_and_scores_its_report(tmp_path, monkeypatch):
@@ -532,7 +535,7 @@ def test_bench_runs_a_tool_subprocess_and_scores_its_report(tmp_path, monkeypatc
         "shutil.copytree(sim, corr)\n"
     )
 
-    def command(sim, real, base, out, seed, corr):
+    def command(sim, real, base, out, seed, corr, jobs):
         return [sys.executable, "-c", fake_tool, str(sim), str(out), str(corr)]
 
     monkeypatch.setattr(diagnose_bench, "tool_command", command)

@@ -13,11 +13,11 @@ import numpy as np
 import pytest
 import torch
 
-from lads.diagnose.analysis import Settings, diagnose_design
+from lads.diagnose.analysis import Settings, _ci, diagnose_design
 from lads.diagnose.design import paired_design, sim_log_variance
-from lads.diagnose.effects import candidates
+from lads.diagnose.effects import azimuth_spacing_deg, candidates
 from lads.diagnose.model import Model, initial_base
-from lads.diagnose.parallel import fit_models, map_fits, restrict
+from lads.diagnose.parallel import fit_models, fit_warm, map_fits, restrict
 from lads.diagnose.select import (
     MIN_SUPPORT_GROUPS,
     SHORTLIST,
@@ -341,3 +341,36 @@ def test_ring_offsets_leave_a_common_offset_to_the_encoding():
     assert float(c4o.penalty(spread)) == pytest.approx(0.0, abs=1e-12)
     # One common step costs more than any held-out gain an effect is accepted for.
     assert float(c4o.penalty(common)) > 1.0
+
+
+def test_a_warm_start_from_the_same_effects_in_another_order_reaches_the_same_fit(ring_case):
+    design = ring_case[0]
+    weights = np.zeros(len(design))
+    weights[::5] = 1.0
+    base = initial_base(design, np.flatnonzero(weights))
+    pool = {e.label: e for e in candidates(design)}
+    empty = Model([], float(design.ln_range.mean()), float(design.ln_sim.mean()))
+    one = empty.with_effect(pool["C4"]).with_effect(pool["C1"])
+    other = empty.with_effect(pool["C1"]).with_effect(pool["C4"])
+    cold = fit_warm(one, design, weights, base, None)
+    warm = fit_warm(other, design, weights, base, None, {one.key: cold})
+    assert other.key == one.key
+    assert warm.loss == pytest.approx(cold.loss, abs=1e-6)
+    assert np.allclose(warm.effect_params("C4"), cold.effect_params("C4"), atol=1e-3)
+
+
+def test_a_parameter_interval_is_never_narrower_than_its_resolution_floor():
+    samples = [{"start_deg": 143.1 + 0.01 * k, "a": 0.4 + 0.001 * k} for k in range(40)]
+    ci = _ci({"start_deg": 143.3, "a": 0.42}, samples, {"start_deg": 0.5})
+    assert ci["start_deg"][0] == pytest.approx(142.8) and ci["start_deg"][1] == pytest.approx(143.8)
+    # Without a floor: the plain 95 % percentile interval of the samples.
+    assert ci["a"] == pytest.approx(list(np.percentile([s["a"] for s in samples], [2.5, 97.5])))
+
+
+def test_the_azimuth_spacing_is_the_median_step_between_returns_of_a_ring(ring_case):
+    design = ring_case[0]
+    spacing = azimuth_spacing_deg(design)
+    scan0 = (design.scan.numpy() == 0) & (design.ring.numpy() == 0)
+    az = np.sort(design.azimuth_deg.numpy()[scan0])
+    assert 0.0 < spacing <= 360.0 / max(scan0.sum() - 1, 1) * 3.0
+    assert spacing == pytest.approx(float(np.median(np.diff(az)[np.diff(az) > 0])), rel=0.5)
