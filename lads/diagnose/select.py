@@ -370,7 +370,8 @@ def forward_backward(
                 if cand.label in shortlist:
                     continue
                 sel.trace.append(Step(step, cand.label, c.delta, c.se, c.delta_bic,
-                                      cand.label in f.at_bound(), support=support,
+                                      cand.label in f.binding_bounds(d, screen_w),
+                                      support=support,
                                       screened=True))  # fmt: skip
                 if step == 1:
                     sel.first_step[cand.label] = c
@@ -379,7 +380,7 @@ def forward_backward(
         for cand, f in zip(listed, fits, strict=True):
             sel.fitted[f.model.key] = f
             c, support = assess(cand, f, n_fit, incumbent_nll)
-            bound = cand.label in f.at_bound()
+            bound = cand.label in f.binding_bounds(d, weights)
             results.append((cand, f, c, bound, support))
             sel.trace.append(Step(step, cand.label, c.delta, c.se, c.delta_bic, bound,
                                   support=support))  # fmt: skip

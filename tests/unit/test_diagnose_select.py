@@ -13,10 +13,16 @@ import numpy as np
 import pytest
 import torch
 
-from lads.diagnose.analysis import Settings, _ci, diagnose_design
+from lads.diagnose.analysis import (
+    Settings,
+    _ci,
+    _ground_only_rule,
+    diagnose_design,
+    effect_family,
+)
 from lads.diagnose.design import paired_design, sim_log_variance
 from lads.diagnose.effects import azimuth_spacing_deg, candidates
-from lads.diagnose.model import Model, initial_base
+from lads.diagnose.model import Fit, Model, initial_base
 from lads.diagnose.parallel import fit_models, fit_warm, map_fits, restrict
 from lads.diagnose.select import (
     MIN_SUPPORT_GROUPS,
@@ -24,6 +30,7 @@ from lads.diagnose.select import (
     SHORTLIST_CONFINED,
     Z_ACCEPT,
     Comparison,
+    Selection,
     _passes,
     compare_groups,
     compare_on,
@@ -374,3 +381,32 @@ def test_the_azimuth_spacing_is_the_median_step_between_returns_of_a_ring(ring_c
     az = np.sort(design.azimuth_deg.numpy()[scan0])
     assert 0.0 < spacing <= 360.0 / max(scan0.sum() - 1, 1) * 3.0
     assert spacing == pytest.approx(float(np.median(np.diff(az)[np.diff(az) > 0])), rel=0.5)
+
+
+def _selection_of(design, labels):
+    pool = {e.label: e for e in candidates(design)}
+    model = Model([pool[k] for k in labels], 0.0, 0.0)
+    fit = Fit(model, np.zeros(model.size), 0.0, True)
+    return Selection(fit, fit)
+
+
+def test_on_ground_only_data_exponent_incidence_and_ring_gains_are_one_ambiguity_set():
+    table = make_table(7, group_sd=0.25, noise=0.1)
+    ground_only = paired_design(table.take(table.is_ground))
+    reasons: list[str] = []
+    sets = _ground_only_rule(ground_only, _selection_of(ground_only, ["C3"]), reasons)
+    assert [s["ids"] for s in sets] == [["C1", "C3", "C4"]]
+    assert "off the ground" in reasons[0]
+    # With walls and objects in the data (half the groups here) the terms are separable,
+    # and an effect outside the ground identities never raises the rule.
+    mixed = paired_design(table)
+    assert _ground_only_rule(mixed, _selection_of(mixed, ["C3"]), []) == []
+    assert _ground_only_rule(ground_only, _selection_of(ground_only, ["C5"]), []) == []
+
+
+def test_parametrisations_of_one_effect_share_a_family_and_classes_do_not():
+    design = paired_design(make_table(7, group_sd=0.25, noise=0.1))
+    fam = {e.label: effect_family(e) for e in candidates(design)}
+    assert fam["C3"] == fam["C3[oren_nayar]"] == ("C3", None)
+    per_class = [k for k in fam if k.startswith("C6[")]
+    assert len({fam[k] for k in per_class}) == len(per_class) >= 2
