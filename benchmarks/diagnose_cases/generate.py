@@ -30,8 +30,9 @@ Bases and scans
   A, B and the oracle hold the same rows (B minus the rows it drops).
 * Per-point geometry is computed once per real frame at full resolution: the ring (KITTI:
   scan order; nuScenes: ring column, 0 = lowest beam), cos(theta) (`incidence_cos` with that
-  ring; ground points: the least-squares plane of their 10 m tile, `ground_plane_cos`), the edge distance in beams (per ring, in azimuth order, to the nearest neighbour pair
-  whose range jumps by > 1 m or whose azimuth gap exceeds 4 beam spacings) and object ids
+  ring; ground points: the least-squares plane of their 10 m tile, `ground_plane_cos`), the
+  edge distance in beams (per ring, in azimuth order, to the nearest neighbour pair whose
+  range jumps by > 1 m or whose azimuth gap exceeds 4 beam spacings) and object ids
   (SemanticKITTI instance ids where present, else a 2 m voxel per class; each scan, copies
   included, has its own objects and so its own object reflectance draws). The hidden
   effects use this "true" geometry; the tool estimates its own from the (possibly

@@ -547,3 +547,15 @@ def test_bench_runs_a_tool_subprocess_and_scores_its_report(tmp_path, monkeypatc
     payload = {"subset": "test", "summary": summarise([score]), "runs": [score]}
     text = diagnose_bench.markdown(payload)
     assert "| K18 |" in text and "null_false_discovery_rate" in text
+
+
+def test_ground_truth_incidence_is_the_ground_planes_and_other_points_keep_theirs():
+    rng = np.random.default_rng(3)
+    xy = rng.uniform(-40.0, 40.0, (4000, 2))
+    xyz = np.column_stack([xy, np.full(len(xy), -1.73)])
+    noisy = np.clip(rng.uniform(0.0, 1.0, len(xy)), 0.05, 1.0)  # image normals, far off
+    ground = np.arange(len(xy)) < 3000
+    cos = gen.ground_plane_cos(xyz, ground, noisy)
+    exact = 1.73 / np.linalg.norm(xyz, axis=1)
+    assert np.allclose(cos[ground], exact[ground], atol=1e-6)
+    assert np.array_equal(cos[~ground], noisy[~ground])
