@@ -168,24 +168,10 @@ def diagnose_design(d: Design, rng: np.random.Generator, settings: Settings) -> 
     reasons: list[str] = []
     sets += _range_band_rule(d, selection, reasons)
     sets += _ground_only_rule(d, selection, reasons)
-    # An effect whose ambiguity set (members that fit within 1 SE of it, §5.5 step 8) is
-    # chosen, by one member or another, in >= 70 % of the resamples is claimed with that set:
-    # the mismatch is stable, only its form is open, and the set says so. Counted apart, a
-    # range law that resamples split 5 : 5 between an exponent and an attenuation (K13) was
-    # reported as no range term at all.
-    ids_by_label = {e.label: e.info.id for e in pool}
-    chosen_ids = [{ids_by_label[label] for label in labels} for labels in chosen_sets]
-    for r in effects:
-        if r.status == "claimed" or settings.resamples == 0:
-            continue
-        for group in (set(x["ids"]) for x in sets if r.effect.info.id in x["ids"]):
-            hit = sum(1 for ids in chosen_ids if ids & group) / n_res
-            if hit >= CLAIM_FREQUENCY:
-                r.status = "claimed"
-                reasons.append(f"{r.effect.label} is claimed with its ambiguity set "
-                               f"{sorted(group)}: one of them was chosen in {hit:.0%} of the "
-                               "resamples")  # fmt: skip
-                break
+    if settings.resamples > 0:
+        ids_by_label = {e.label: e.info.id for e in pool}
+        chosen_ids = [{ids_by_label[label] for label in labels} for labels in chosen_sets]
+        reasons += claim_with_sets(effects, sets, chosen_ids)
     noise = _noise_model(final, d, boot, selection, weights, split)
     heldout = heldout_metrics(d, split.test, selection.baseline, final)
     claimed = [r for r in effects if r.status == "claimed"]
@@ -218,6 +204,33 @@ def diagnose_design(d: Design, rng: np.random.Generator, settings: Settings) -> 
         verdict = "effects_found"
     return Diagnosis(split, selection, final, effects, possible, alternatives, sets, noise,
                      heldout, verdict, reasons, freq)  # fmt: skip
+
+
+def claim_with_sets(
+    effects: list[EffectReport], sets: list[dict[str, Any]], chosen_ids: list[set[str]]
+) -> list[str]:
+    """Claim (in place) each unclaimed effect whose ambiguity set is chosen, by one member
+    or another, in >= CLAIM_FREQUENCY of the resamples (`chosen_ids`: the IDs each chose);
+    returns the reasons to report.
+
+    Members of an ambiguity set fit within 1 SE of each other (§5.5 step 8): when the set
+    is stable the mismatch is, and only its form is open, which the set says. Counted
+    apart, a range law that the resamples split 5 : 5 between an exponent and an
+    attenuation (K13) was reported as no range term at all."""
+    reasons = []
+    n = max(len(chosen_ids), 1)
+    for r in effects:
+        if r.status == "claimed":
+            continue
+        for group in (set(x["ids"]) for x in sets if r.effect.info.id in x["ids"]):
+            hit = sum(1 for ids in chosen_ids if ids & group) / n
+            if hit >= CLAIM_FREQUENCY:
+                r.status = "claimed"
+                reasons.append(f"{r.effect.label} is claimed with its ambiguity set "
+                               f"{sorted(group)}: one of them was chosen in {hit:.0%} of the "
+                               "resamples")  # fmt: skip
+                break
+    return reasons
 
 
 def effect_family(e: Effect) -> tuple[str, str | None]:

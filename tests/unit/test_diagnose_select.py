@@ -14,9 +14,11 @@ import pytest
 import torch
 
 from lads.diagnose.analysis import (
+    EffectReport,
     Settings,
     _ci,
     _ground_only_rule,
+    claim_with_sets,
     diagnose_design,
     effect_family,
 )
@@ -410,3 +412,21 @@ def test_parametrisations_of_one_effect_share_a_family_and_classes_do_not():
     assert fam["C3"] == fam["C3[oren_nayar]"] == ("C3", None)
     per_class = [k for k in fam if k.startswith("C6[")]
     assert len({fam[k] for k in per_class}) == len(per_class) >= 2
+
+
+def test_an_effect_is_claimed_when_its_ambiguity_set_is_stable_though_it_alone_is_not():
+    design = paired_design(make_table(7, group_sd=0.25, noise=0.1))
+    pool = {e.label: e for e in candidates(design)}
+    c1 = EffectReport(pool["C1"], {}, {}, 0.5, "possible")
+    c6 = EffectReport(pool["C6"], {}, {}, 0.4, "possible")
+    sets = [{"ids": ["C1", "C5"]}]
+    # Every resample chose a range law, half of them as an exponent, half as attenuation;
+    # the class scale has no ambiguity set and stays possible.
+    chosen = [{"C1"}] * 5 + [{"C5"}] * 4 + [{"C5", "C6"}]
+    reasons = claim_with_sets([c1, c6], sets, chosen)
+    assert c1.status == "claimed" and c6.status == "possible"
+    assert "['C1', 'C5']" in reasons[0] and "100%" in reasons[0]
+    # A set chosen in 6 of 10 resamples does not make a claim.
+    c1.status = "possible"
+    assert claim_with_sets([c1], sets, [{"C1"}] * 3 + [{"C5"}] * 3 + [set()] * 4) == []
+    assert c1.status == "possible"
