@@ -77,6 +77,7 @@ class EffectReport:
     selection_frequency: float
     status: str  # "claimed" | "possible"
     samples: dict[str, npt.NDArray[np.float64]] = field(default_factory=dict)
+    unidentified: list[str] = field(default_factory=list)  # parameters the data do not inform
 
 
 @dataclass
@@ -148,14 +149,21 @@ def diagnose_design(d: Design, rng: np.random.Generator, settings: Settings) -> 
                             settings.jobs)  # fmt: skip
 
     effects, possible = [], []
+    flat = final.flat_parameters(d, w_all)
     for e, sl in zip(final.model.effects, final.model.slices(), strict=True):
         theta = final.theta[sl]
         params = e.export(theta)
         samples = np.array([e.export(b[sl]) for b in boot], dtype=object)
         ci = _ci(params, list(samples), e.extra.get("ci_floor", {}))
+        unidentified = [n for n in flat.get(e.label, []) if n in params]
+        for n in unidentified:
+            # Anywhere in the catalogue range fits as well: that range is the interval.
+            j = e.names.index(n)
+            ci[n] = [float(e.lower[j]), float(e.upper[j])]
         f = fam_freq.get(e.label, 0.0)
         status = "claimed" if f >= CLAIM_FREQUENCY else "possible"
-        effects.append(EffectReport(e, params, ci, f, status, _sample_arrays(params, samples)))
+        effects.append(EffectReport(e, params, ci, f, status, _sample_arrays(params, samples),
+                                    unidentified))  # fmt: skip
     listed = {effect_family(e) for e in final.model.effects}
     for e in sorted(pool, key=lambda e: -freq.get(e.label, 0.0)):
         f = fam_freq.get(e.label, 0.0)

@@ -20,6 +20,7 @@ Fits use scipy's L-BFGS-B on the box bounds with exact gradients from torch auto
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -251,16 +252,7 @@ class Fit:
         flagged = self.at_bound()
         if not flagged:
             return []
-        use = np.flatnonzero(weights > 0)
-        sub = d.subset(use)
-        w = torch.as_tensor(weights[use], dtype=torch.float64)
-
-        def loss(x: npt.NDArray[np.float64]) -> float:
-            with torch.no_grad():
-                theta = torch.as_tensor(x, dtype=torch.float64)
-                value = (self.model.nll_rows(theta, sub) * w).sum() / w.sum()
-                return float(value + self.model.penalty(theta))
-
+        loss = self._loss_function(d, weights)
         here = loss(self.theta)
         out = []
         for e, sl in zip(self.model.effects, self.model.slices(), strict=True):
@@ -277,6 +269,42 @@ class Fit:
                 if loss(x) - here > FLAT_LOSS:
                     out.append(e.label)
                     break
+        return out
+
+    def _loss_function(
+        self, d: Design, weights: npt.NDArray[np.float64]
+    ) -> Callable[[npt.NDArray[np.float64]], float]:
+        """The training objective (weighted mean NLL plus penalties) as a function of theta."""
+        use = np.flatnonzero(weights > 0)
+        sub = d.subset(use)
+        w = torch.as_tensor(weights[use], dtype=torch.float64)
+
+        def loss(x: npt.NDArray[np.float64]) -> float:
+            with torch.no_grad():
+                theta = torch.as_tensor(x, dtype=torch.float64)
+                value = (self.model.nll_rows(theta, sub) * w).sum() / w.sum()
+                return float(value + self.model.penalty(theta))
+
+        return loss
+
+    def flat_parameters(self, d: Design, weights: npt.NDArray[np.float64]) -> dict[str, list[str]]:
+        """{label: names} of scalar parameters the data do not inform: moving one by
+        BOUND_NUDGE of its range either way (within bounds) changes the training loss by
+        less than FLAT_LOSS. Their bootstrap CI would only echo the start of the refits."""
+        loss = self._loss_function(d, weights)
+        here = loss(self.theta)
+        out: dict[str, list[str]] = {}
+        for e, sl in zip(self.model.effects, self.model.slices(), strict=True):
+            width = e.upper - e.lower
+            for j in np.flatnonzero(e.scalar & np.isfinite(width)):
+                changes = []
+                for sign in (1.0, -1.0):
+                    x = self.theta.copy()
+                    x[sl.start + j] = np.clip(x[sl.start + j] + sign * BOUND_NUDGE * width[j],
+                                              e.lower[j], e.upper[j])  # fmt: skip
+                    changes.append(abs(loss(x) - here))
+                if max(changes) < FLAT_LOSS:
+                    out.setdefault(e.label, []).append(e.names[j])
         return out
 
     def predictions(self, d: Design) -> tuple[npt.NDArray[np.float64], ...]:

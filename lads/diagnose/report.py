@@ -34,6 +34,7 @@ def build_report(
             "label": r.effect.label, "class": r.effect.class_name,
             "params": r.params, "ci95": r.ci95,
             "selection_frequency": r.selection_frequency, "status": r.status,
+            "unidentified_params": r.unidentified,
             **({"classes": _classes(r)} if "classes" in r.effect.extra else {}),
         })  # fmt: skip
     trace = [s.to_json() for s in dg.selection.trace]
@@ -116,6 +117,9 @@ def markdown(doc: dict[str, Any]) -> str:
         params = ", ".join(f"{k} = {_fmt(v)} {_fmt(e['ci95'].get(k))}"
                            for k, v in e["params"].items())  # fmt: skip
         where = f" on {e['class']}" if e.get("class") else ""
+        if e.get("unidentified_params"):
+            params += (f" (not informed by the data: {', '.join(e['unidentified_params'])}; "
+                       "the interval is the catalogue range)")  # fmt: skip
         lines.append(
             f"- **{e['id']} {e['name']}** (`{e['key']}`){where}: {params}; selected "
             f"in {e['selection_frequency']:.0%} of resamples ({e['status']})."

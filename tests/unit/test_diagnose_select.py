@@ -430,3 +430,16 @@ def test_an_effect_is_claimed_when_its_ambiguity_set_is_stable_though_it_alone_i
     c1.status = "possible"
     assert claim_with_sets([c1], sets, [{"C1"}] * 3 + [{"C5"}] * 3 + [set()] * 4) == []
     assert c1.status == "possible"
+
+
+def test_a_parameter_no_fitted_row_informs_is_flagged_and_gets_the_catalogue_range():
+    design = paired_design(make_table(7, group_sd=0.25, noise=0.1))
+    pool = {e.label: e for e in candidates(design)}
+    scaled = [k for k in pool if k.startswith("C6[")][:2]
+    absent, present = pool[scaled[0]], pool[scaled[1]]
+    weights = (design.class_index.numpy() != absent.class_index).astype(np.float64)
+    base = initial_base(design, np.flatnonzero(weights))
+    empty = Model([], float(design.ln_range.mean()), float(design.ln_sim.mean()))
+    fitted = fit_warm(empty.with_effect(absent).with_effect(present), design, weights, base, None)
+    flat = fitted.flat_parameters(design, weights)
+    assert flat == {absent.label: list(absent.names)}
