@@ -319,8 +319,9 @@ def edge_distance(
         gap[gap == 0] = w  # a ring with a single return
         counts = np.bincount(rows, minlength=h)
         med = np.zeros(h)
-        for r in np.flatnonzero(counts >= 3):
-            med[r] = np.median(gap[rows == r])
+        for start, ring_gaps in zip(starts, np.split(gap, starts[1:]), strict=True):
+            if ring_gaps.size >= 3:  # each ring's returns are one contiguous run
+                med[rows[start]] = np.median(ring_gaps)
         spacing = np.maximum(med[rows], 1.0)
         missing = (counts[rows] >= 3) & (gap > EDGE_GAP_SPACINGS * spacing)
         jump = (np.abs(rng[rows, cols] - rng[rows, cols[nxt]]) > jump_m) & ~missing

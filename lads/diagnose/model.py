@@ -264,12 +264,17 @@ class Fit:
                 at_high = abs(e.upper[j] - th[j]) < BOUND_TOLERANCE * width[j]
                 if not (at_low or at_high):
                     continue
-                x = self.theta.copy()
-                x[sl.start + j] += (1.0 if at_low else -1.0) * BOUND_NUDGE * width[j]
-                if loss(x) - here > FLAT_LOSS:
+                inward = (1.0 if at_low else -1.0) * BOUND_NUDGE * width[j]
+                if loss(self._moved(e, sl.start + j, j, inward)) - here > FLAT_LOSS:
                     out.append(e.label)
                     break
         return out
+
+    def _moved(self, e: Effect, index: int, j: int, step: float) -> npt.NDArray[np.float64]:
+        """theta with parameter `index` (the `j`-th of effect `e`) moved by `step`, in bounds."""
+        x = self.theta.copy()
+        x[index] = np.clip(x[index] + step, e.lower[j], e.upper[j])
+        return x
 
     def _loss_function(
         self, d: Design, weights: npt.NDArray[np.float64]
@@ -297,12 +302,8 @@ class Fit:
         for e, sl in zip(self.model.effects, self.model.slices(), strict=True):
             width = e.upper - e.lower
             for j in np.flatnonzero(e.scalar & np.isfinite(width)):
-                changes = []
-                for sign in (1.0, -1.0):
-                    x = self.theta.copy()
-                    x[sl.start + j] = np.clip(x[sl.start + j] + sign * BOUND_NUDGE * width[j],
-                                              e.lower[j], e.upper[j])  # fmt: skip
-                    changes.append(abs(loss(x) - here))
+                changes = [abs(loss(self._moved(e, sl.start + j, j, sign * BOUND_NUDGE * width[j]))
+                               - here) for sign in (1.0, -1.0)]  # fmt: skip
                 if max(changes) < FLAT_LOSS:
                     out.setdefault(e.label, []).append(e.names[j])
         return out
