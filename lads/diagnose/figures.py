@@ -258,13 +258,13 @@ def bootstrap_histograms(samples: Mapping[str, npt.ArrayLike], path: Path) -> Pa
 
 
 def selection_trace(steps: Sequence[Mapping[str, Any]], path: Path) -> Path:
-    """Forward selection: held-out loss reduction per candidate with 3 SE error bars (the
-    acceptance bar, select.Z_ACCEPT: a bar whose error bar clears 0 passed the z test).
+    """Forward selection: held-out loss reduction per candidate with 1 SE error bars, each
+    labelled with its directional score z (the acceptance test: z > select.Z_ACCEPT).
 
     Args:
         steps: one dict per evaluated candidate: "step" (int), "candidate" (effect ID or
             name), "delta_loss" (held-out loss reduction, positive = better), "se" (its
-            cluster-bootstrap SE), "delta_bic", "accepted" (bool).
+            cluster SE), "z" (the held-out directional score in SEs), "accepted" (bool).
         path: PNG path.
 
     Returns:
@@ -280,13 +280,12 @@ def selection_trace(steps: Sequence[Mapping[str, Any]], path: Path) -> Path:
         colours = ["C2" if a else "0.65" for a in accepted]
         ax.bar(x, np.nan_to_num(delta), color=colours, edgecolor=["k" if a else "none"
                                                                  for a in accepted])  # fmt: skip
-        ax.errorbar(x, delta, yerr=np.nan_to_num(Z_ACCEPT * se), fmt="none", ecolor="0.2",
-                    lw=0.8)  # fmt: skip
+        ax.errorbar(x, delta, yerr=np.nan_to_num(se), fmt="none", ecolor="0.2", lw=0.8)
         for xi, d, e, s in zip(x, delta, se, steps, strict=True):
-            bic = _num(s.get("delta_bic"))
-            if math.isfinite(bic):
-                top = (d if math.isfinite(d) else 0.0) + Z_ACCEPT * (e if math.isfinite(e) else 0.0)
-                ax.annotate(f"dBIC {bic:.0f}", (xi, max(top, 0.0)), xytext=(0, 3),
+            z = _num(s.get("z"))
+            if math.isfinite(z):
+                top = (d if math.isfinite(d) else 0.0) + (e if math.isfinite(e) else 0.0)
+                ax.annotate(f"z {z:.1f}", (xi, max(top, 0.0)), xytext=(0, 3),
                             textcoords="offset points", fontsize=7, ha="center",
                             va="bottom")  # fmt: skip
         ax.margins(y=0.15)
@@ -297,7 +296,8 @@ def selection_trace(steps: Sequence[Mapping[str, Any]], path: Path) -> Path:
     ax.axhline(0.0, color="0.3", linewidth=0.8)
     ax.set_xlabel("step: candidate effect", fontsize=8)
     ax.set_ylabel("held-out loss reduction (nats per beam)", fontsize=8)
-    ax.set_title("forward selection (green: accepted; error bars 3 SE)", fontsize=10)
+    ax.set_title(f"forward selection (green: accepted; error bars 1 SE; z: directional score, "
+                 f"accepted above {Z_ACCEPT:.0f})", fontsize=10)  # fmt: skip
     return _save(fig, path)
 
 

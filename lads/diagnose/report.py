@@ -152,11 +152,15 @@ def markdown(doc: dict[str, Any]) -> str:
                      f"{_fmt(m.get('dropout_log_loss'))} |")  # fmt: skip
     lines += ["", "`simulation`: ln I_sim as is; `before`: baseline (global gain, noise, "
               "constant return rate); `after`: with the selected effects.", ""]  # fmt: skip
-    lines += ["## Selection trace", "", "| step | candidate | Δ held-out loss | SE | ΔBIC | "
-              "at bound | accepted |", "|---:|---|---:|---:|---:|---|---|"]  # fmt: skip
+    lines += ["## Selection trace", "",
+              "Δ held-out loss: mean NLL gain per beam on the validation groups, with its "
+              "cluster SE; z: the held-out directional score in SEs, the acceptance test.", "",
+              "| step | candidate | Δ held-out loss | SE | z | ΔBIC | at bound | accepted |",
+              "|---:|---|---:|---:|---:|---:|---|---|"]  # fmt: skip
     for s in doc["selection_trace"]:
         lines.append(f"| {s['step']} | {s['candidate']} | {s['delta_loss']:.4f} | {s['se']:.4f}"
-                     f" | {s['delta_bic']:.1f} | {s['at_bound']} | {s['accepted']} |")  # fmt: skip
+                     f" | {s.get('z', float('nan')):.1f} | {s['delta_bic']:.1f} | {s['at_bound']}"
+                     f" | {s['accepted']} |")  # fmt: skip
     if doc.get("figures"):
         lines += ["", "## Figures", ""] + [f"![{f}]({f})" for f in doc["figures"]]
     return "\n".join(lines) + "\n"

@@ -18,14 +18,19 @@ from scipy import stats
 
 from lads.diagnose.design import Design
 from lads.diagnose.effects import Effect
-from lads.diagnose.model import Fit, Model, fit, initial_base
+from lads.diagnose.model import Fit, Model, RowTerms, directional_gain, fit, initial_base
 from lads.diagnose.parallel import fit_models, fit_warm, map_fits
 
 K_MAX = 4
 MIN_GAIN_NATS = 0.002  # per row: below this an effect is not worth naming
-# Held-out gain needed to accept, in cluster standard errors: two-sided 5 % with a Bonferroni
-# correction over the ~20 candidates of a forward step, so a null case rarely admits a
-# chance winner.
+BASELINE_SHARE = 0.005  # ... nor below 0.5 % of the baseline's held-out loss (§5.5 step 4)
+# Held-out directional score (model.directional_gain) needed to accept, in cluster standard
+# errors: two-sided 5 % with a Bonferroni correction over the ~20 candidates of a forward
+# step, so a null case rarely admits a chance winner. The score, not the held-out NLL gain,
+# is the test: the gain's z is about half the score's for the same effect (it also pays for
+# the new fit's own noise), so a bar of 3 on the gain was a bar of ~6 on the evidence and
+# missed an attenuation at 2.7 gain-SEs. The gain still decides among passing candidates
+# and must beat `gain_floor`.
 Z_ACCEPT = 3.0
 # The stability resamples re-run the choice at a lower bar: the main selection has already
 # tested significance; a resample asks whether the *same* effect wins when the training
@@ -114,12 +119,21 @@ def fit_weights(
 
 @dataclass(frozen=True)
 class Comparison:
-    """Held-out comparison of a candidate model with the incumbent (positive = better)."""
+    """Held-out comparison of a candidate model with the incumbent (positive = better).
+
+    delta, se: mean per-row NLL gain and its SE; score, score_se: mean per-row directional
+    gain (`model.directional_gain`) and its SE, the test statistic (`z`)."""
 
     delta: float
     se: float
     delta_bic: float
     groups: int = 0
+    score: float = 0.0
+    score_se: float = math.inf
+
+    @property
+    def z(self) -> float:
+        return self.score / self.score_se if self.score_se > 0 else 0.0
 
 
 def compare(
@@ -129,50 +143,90 @@ def compare(
     return compare_on(new, old, d.subset(rows), n_eff_scale, n_fit)
 
 
+@dataclass(frozen=True)
+class Incumbent:
+    """A model's per-row NLL and likelihood terms on held-out rows (cut once, compare often)."""
+
+    nll: npt.NDArray[np.float64]
+    terms: RowTerms
+
+    @classmethod
+    def of(cls, f: Fit, sub: Design) -> Incumbent:
+        return cls(f.row_nll(sub), f.row_terms(sub))
+
+
 def compare_on(
     new: Fit,
     old: Fit,
     sub: Design,
     n_eff_scale: float,
     n_fit: float,
-    old_nll: npt.NDArray[np.float64] | None = None,
+    incumbent: Incumbent | None = None,
 ) -> Comparison:
-    """`compare` on held-out rows already cut out of the design (cut once, compare often).
+    """`compare` on held-out rows already cut out of the design, with the directional score.
 
-    `old_nll`: `old.row_nll(sub)` when already computed (one incumbent, many candidates)."""
-    g_sum, g_n = _group_gains(new, old, sub, old_nll)
-    total = g_n.sum()
-    delta = float(g_sum.sum() / total)
-    k = len(g_sum)
-    se = math.sqrt(k / max(k - 1, 1) * float(((g_sum - delta * g_n) ** 2).sum())) / total
+    `incumbent`: `Incumbent.of(old, sub)` when already computed (one incumbent, many
+    candidates)."""
     n_eff = max(n_fit * n_eff_scale, 2.0)
     dk = new.model.size - old.model.size
     delta_bic = 2.0 * (new.loss - old.loss) * n_eff + dk * math.log(n_eff)
-    return Comparison(delta, se, float(delta_bic), k)
+    return by_rows(*row_gains(new, old, sub, incumbent), sub.group, float(delta_bic))
+
+
+def row_gains(
+    new: Fit, old: Fit, sub: Design, incumbent: Incumbent | None = None
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    """(N,) per-row NLL gain and directional score of `new` over `old` (positive = better)."""
+    inc = incumbent if incumbent is not None else Incumbent.of(old, sub)
+    return inc.nll - new.row_nll(sub), directional_gain(new, old, sub, inc.terms)
+
+
+def gain_on(new: Fit, old: Fit, sub: Design) -> Comparison:
+    """The held-out NLL gain alone (no score): for models that are not nested, where only
+    "which predicts better" is asked (the one-SE rule, ambiguity sets)."""
+    return by_rows(old.row_nll(sub) - new.row_nll(sub), None, sub.group)
+
+
+def by_rows(
+    gain: npt.NDArray[np.float64],
+    score: npt.NDArray[np.float64] | None,
+    group: npt.NDArray[np.int64],
+    delta_bic: float = 0.0,
+) -> Comparison:
+    """Per-row means of the gain and the score with their cluster (ratio-estimator) SEs."""
+    _, inv = np.unique(group, return_inverse=True)
+    g_n = np.bincount(inv).astype(np.float64)
+    total, k = g_n.sum(), len(g_n)
+
+    def mean_se(rows: npt.NDArray[np.float64]) -> tuple[float, float]:
+        g_sum = np.bincount(inv, weights=rows)
+        mean = float(g_sum.sum() / total)
+        return mean, math.sqrt(k / max(k - 1, 1) * float(((g_sum - mean * g_n) ** 2).sum())) / total
+
+    if score is None:
+        return Comparison(*mean_se(gain), delta_bic, k)
+    return Comparison(*mean_se(gain), delta_bic, k, *mean_se(score))
 
 
 def compare_groups(new: Fit, old: Fit, sub: Design) -> Comparison:
-    """Mean over groups of each group's mean per-row gain on `sub`, with its SE over groups.
+    """`by_groups` of `new` over `old` on the held-out rows `sub` of a class."""
+    return by_groups(old.row_nll(sub) - new.row_nll(sub), sub.group)
+
+
+def by_groups(gain: npt.NDArray[np.float64], group: npt.NDArray[np.int64]) -> Comparison:
+    """Mean over groups of each group's mean per-row gain, with its SE over groups.
 
     The test of a class-confined effect on its own rows. Every group (an independent surface,
-    discovery.md §2 item 4) counts once: the row-weighted ratio of `compare_on` lets the
+    discovery.md §2 item 4) counts once: the row-weighted ratio of `by_rows` lets the
     spread of group sizes (1 to 24 sign rows per tile) and of the gain itself (a retro gain
     clipped at the encoding's top in some tiles, not in others) swamp a gain that is positive
     in every group, and lets one large tile carry a chance gain on a null case."""
-    g_sum, g_n = _group_gains(new, old, sub)
-    means = g_sum / g_n
-    k = len(means)
+    _, inv = np.unique(group, return_inverse=True)
+    g_n = np.bincount(inv).astype(np.float64)
+    k = len(g_n)
+    means = np.bincount(inv, weights=gain) / g_n
     se = float(np.std(means, ddof=1)) / math.sqrt(k) if k > 1 else math.inf
     return Comparison(float(means.mean()), se, 0.0, k)
-
-
-def _group_gains(
-    new: Fit, old: Fit, sub: Design, old_nll: npt.NDArray[np.float64] | None = None
-) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
-    """(sum of per-row NLL gains, row count) per group of `sub` (positive = `new` better)."""
-    gain = (old.row_nll(sub) if old_nll is None else old_nll) - new.row_nll(sub)
-    _, inv = np.unique(sub.group, return_inverse=True)
-    return np.bincount(inv, weights=gain), np.bincount(inv).astype(np.float64)
 
 
 def design_effect_scale(d: Design, rows: npt.NDArray[np.int64]) -> float:
@@ -206,13 +260,20 @@ class Step:
     accepted: bool = False
     support: Comparison | None = None
     screened: bool = False  # fitted on the screening rows only (not shortlisted)
+    z: float = 0.0  # the held-out directional score in cluster SEs (the acceptance test)
+
+    @classmethod
+    def of(cls, step: int, label: str, c: Comparison, at_bound: bool, **kw: Any) -> Step:
+        return cls(step, label, c.delta, c.se, c.delta_bic, at_bound, z=c.z, **kw)
 
     def to_json(self) -> dict[str, Any]:
         out = {"step": self.step, "candidate": self.candidate, "delta_loss": self.delta_loss,
-               "se": self.se, "delta_bic": self.delta_bic, "at_bound": self.at_bound,
-               "accepted": self.accepted, "screened": self.screened}  # fmt: skip
+               "se": self.se, "z": self.z, "delta_bic": self.delta_bic,
+               "at_bound": self.at_bound, "accepted": self.accepted,
+               "screened": self.screened}  # fmt: skip
         if self.support is not None:
             out["class_rows"] = {"delta_loss": self.support.delta, "se": self.support.se,
+                                 "t": self.support.delta / max(self.support.se, 1e-300),
                                  "groups": self.support.groups,
                                  "statistic": "mean of group mean gains"}  # fmt: skip
         return out
@@ -230,6 +291,7 @@ class Selection:
     # only, by set of effects: the starts of the stability resamples (`parallel.fit_warm`).
     fitted: dict[frozenset[str], Fit] = field(default_factory=dict)
     screened_fits: dict[frozenset[str], Fit] = field(default_factory=dict)
+    floor: float = MIN_GAIN_NATS  # the held-out gain an effect had to beat (`gain_floor`)
 
     def starts(self) -> dict[frozenset[str], Fit]:
         return {**self.screened_fits, **self.fitted}
@@ -240,16 +302,37 @@ class Selection:
 
 
 def _passes(
-    c: Comparison, at_bound: bool, z_accept: float, support: Comparison | None = None
+    c: Comparison,
+    at_bound: bool,
+    z_accept: float,
+    floor: float,
+    support: Comparison | None = None,
 ) -> bool:
+    """The directional score beats `z_accept` and the NLL gain beats `floor` (nats/row) on
+    all held-out rows; or, for a class-confined effect, the gain over its class's groups
+    beats the t bar and the floor.
+
+    On class rows the gain, not the score, is tested: a group mean of per-row scores over
+    a few tiles is heavy-tailed, and with the score a chance offset of the few cars in a
+    sample (their own reflectance draws) passed the t bar."""
     if at_bound:
         return False
-    if c.delta > z_accept * c.se and c.delta > MIN_GAIN_NATS:
+    if c.z > z_accept and c.delta > floor:
         return True
     if support is None or c.delta <= 0.0:
         return False
     t_crit = float(stats.t.isf(stats.norm.sf(z_accept), df=support.groups - 1))
-    return support.delta > t_crit * support.se and support.delta > MIN_GAIN_NATS
+    return support.delta > t_crit * support.se and support.delta > floor
+
+
+def gain_floor(baseline_nll: float) -> float:
+    """The smallest held-out NLL gain (nats/row) an effect is accepted for: MIN_GAIN_NATS,
+    or BASELINE_SHARE of the baseline's held-out loss if larger (discovery.md §5.5 step 4).
+
+    The directional score finds consistent effects far below the noise; the floor keeps
+    the ones too small to matter out, such as a class whose few objects happen to be
+    brighter than its mean in this sample."""
+    return max(MIN_GAIN_NATS, BASELINE_SHARE * abs(baseline_nll))
 
 
 def screening_weights(
@@ -278,8 +361,6 @@ def _shortlist(screened: list[tuple[Effect, Fit, Comparison, Comparison | None]]
 def _simplest_within_one_se(
     ok: list[tuple[Effect, Fit, Comparison, bool, Comparison | None]],
     held_out: Design,
-    scale: float,
-    n_fit: float,
 ) -> tuple[Effect, Fit, Comparison, bool, Comparison | None]:
     """The passing candidate to accept: the fewest parameters among those whose held-out loss
     is within one paired SE of the best gain's (the one-standard-error rule).
@@ -292,7 +373,7 @@ def _simplest_within_one_se(
     for r in ok:
         if r is top:
             continue
-        c = compare_on(top[1], r[1], held_out, scale, n_fit)
+        c = gain_on(top[1], r[1], held_out)
         if c.delta <= c.se:
             tied.append(r)
     return min(tied, key=lambda r: (r[0].size, -r[2].delta))
@@ -321,6 +402,7 @@ def forward_backward(
     screen_rows: int | None = SCREEN_ROWS,
     jobs: int = 1,
     warm: dict[frozenset[str], Fit] | None = None,
+    floor: float | None = None,
 ) -> Selection:
     """Greedy forward selection on held-out loss, then a backward pass (§5.5 steps 3-6).
 
@@ -332,7 +414,7 @@ def forward_backward(
     `refs` (mean ln R, mean ln I_sim) centre the noise model; default: those of `d` (pass
     the whole design's when `d` is a part of it). `warm`: fits to start from, by effect set
     (a resample passes the main selection's `fitted`); a model not in it is fitted from
-    every start."""
+    every start. `floor`: the held-out gain to beat (nats/row); default `gain_floor`."""
     fit_rows = np.flatnonzero(weights > 0)
     base = initial_base(d, fit_rows)
     scale = design_effect_scale(d, fit_rows)
@@ -341,21 +423,23 @@ def forward_backward(
     model = Model([], refs[0], refs[1], heteroscedastic)
     baseline = fit_warm(model, d, weights, base, None, warm)
     current = baseline
-    sel = Selection(current, baseline)
+    held_out = d.subset(validation)
+    if floor is None:
+        floor = gain_floor(float(np.mean(baseline.row_nll(held_out))))
+    sel = Selection(current, baseline, floor=floor)
     sel.fitted[model.key] = baseline
     remaining = list(pool)
-    held_out = d.subset(validation)
     supports = {e.label: class_rows(held_out, e) for e in pool}
     screen_w = screening_weights(weights, screen_rows)
 
-    def assess(cand: Effect, f: Fit, n_w: float, incumbent_nll: npt.NDArray[np.float64]) -> tuple:
-        c = compare_on(f, current, held_out, scale, n_w, incumbent_nll)
+    def assess(cand: Effect, f: Fit, n_w: float, incumbent: Incumbent) -> tuple:
+        c = compare_on(f, current, held_out, scale, n_w, incumbent)
         sub = supports[cand.label]
         return c, None if sub is None else compare_groups(f, current, sub)
 
     for step in range(1, k_max + 1):
         results = []
-        incumbent_nll = current.row_nll(held_out)
+        incumbent = Incumbent.of(current, held_out)
         listed = list(remaining)
         if screen_w is not None and len(remaining) > SHORTLIST:
             screened = []
@@ -363,47 +447,45 @@ def forward_backward(
                               base, current, jobs, warm)  # fmt: skip
             for cand, f in zip(remaining, fits, strict=True):
                 sel.screened_fits[f.model.key] = f
-                screened.append((cand, f, *assess(cand, f, float(screen_w.sum()), incumbent_nll)))
+                screened.append((cand, f, *assess(cand, f, float(screen_w.sum()), incumbent)))
             shortlist = _shortlist(screened)
             listed = [c for c in remaining if c.label in shortlist]
             for cand, f, c, support in screened:
                 if cand.label in shortlist:
                     continue
-                sel.trace.append(Step(step, cand.label, c.delta, c.se, c.delta_bic,
-                                      cand.label in f.binding_bounds(d, screen_w),
-                                      support=support,
-                                      screened=True))  # fmt: skip
+                sel.trace.append(Step.of(step, cand.label, c,
+                                         cand.label in f.binding_bounds(d, screen_w),
+                                         support=support, screened=True))  # fmt: skip
                 if step == 1:
                     sel.first_step[cand.label] = c
         fits = fit_models([current.model.with_effect(c) for c in listed], d, weights, base,
                           current, jobs, warm)  # fmt: skip
         for cand, f in zip(listed, fits, strict=True):
             sel.fitted[f.model.key] = f
-            c, support = assess(cand, f, n_fit, incumbent_nll)
+            c, support = assess(cand, f, n_fit, incumbent)
             bound = cand.label in f.binding_bounds(d, weights)
             results.append((cand, f, c, bound, support))
-            sel.trace.append(Step(step, cand.label, c.delta, c.se, c.delta_bic, bound,
-                                  support=support))  # fmt: skip
+            sel.trace.append(Step.of(step, cand.label, c, bound, support=support))
             if step == 1:
                 sel.first_step[cand.label] = c
         # The best held-out gain, or a simpler effect within one SE of it.
-        ok = [r for r in results if _passes(r[2], r[3], z_accept, r[4])]
+        ok = [r for r in results if _passes(r[2], r[3], z_accept, floor, r[4])]
         if not ok:
             break
-        best = _simplest_within_one_se(ok, held_out, scale, n_fit)
+        best = _simplest_within_one_se(ok, held_out)
         for s in sel.trace:
             if s.step == step:
                 s.accepted = s.candidate == best[0].label
         current = best[1]
         remaining = [c for c in remaining if c.label != best[0].label]
-    # Backward pass: drop any effect whose removal costs less than 1 SE.
+    # Backward pass: drop any effect whose removal costs less than 1 SE (of the score).
     changed = True
     while changed and current.model.effects:
         changed = False
         for e in list(current.model.effects):
             reduced = fit_warm(current.model.without(e.label), d, weights, base, current, warm)
             c = compare_on(current, reduced, held_out, scale, n_fit)
-            if c.delta < c.se:
+            if c.z < 1.0:
                 current = reduced
                 changed = True
                 break
@@ -412,11 +494,15 @@ def forward_backward(
 
 
 def group_multiplicity(
-    d: Design, rows: npt.NDArray[np.int64], rng: np.random.Generator
+    d: Design, rows: npt.NDArray[np.int64], rng: np.random.Generator, by_scan: bool = False
 ) -> npt.NDArray[np.float64]:
-    """(N,) bootstrap counts: the groups of `rows` resampled with replacement."""
-    groups = np.unique(d.group[rows])
-    draw = rng.choice(groups, size=len(groups), replace=True)
+    """(N,) bootstrap counts: the groups of `rows` resampled with replacement; `by_scan`:
+    in two stages, the scans with replacement, then each drawn scan's groups."""
+    groups, first = np.unique(d.group[rows], return_index=True)
+    if by_scan:
+        draw = _two_stage_draw(groups, d.scan.numpy()[rows[first]], rng)
+    else:
+        draw = rng.choice(groups, size=len(groups), replace=True)
     uniq, counts = np.unique(draw, return_counts=True)
     mult = np.zeros(len(d))
     pos = np.searchsorted(uniq, d.group[rows])
@@ -426,18 +512,36 @@ def group_multiplicity(
     return mult
 
 
+def _two_stage_draw(
+    groups: npt.NDArray[np.int64], scan_of: npt.NDArray[np.int64], rng: np.random.Generator
+) -> npt.NDArray[np.int64]:
+    """Groups drawn scan first (`scan_of`: each group's scan), then within each drawn scan."""
+    scans = np.unique(scan_of)
+    parts = []
+    for s in rng.choice(scans, size=len(scans), replace=True):
+        own = groups[scan_of == s]
+        parts.append(rng.choice(own, size=len(own), replace=True))
+    return np.concatenate(parts)
+
+
 def reference_levels(d: Design) -> tuple[float, float]:
     """(mean ln R, mean ln I_sim) of the design: the centre of the noise model."""
     return float(d.ln_range.mean()), float(d.ln_sim.mean())
 
 
 def bootstrap_weights(
-    d: Design, rows: npt.NDArray[np.int64], cap: int, n: int, rng: np.random.Generator
+    d: Design,
+    rows: npt.NDArray[np.int64],
+    cap: int,
+    n: int,
+    rng: np.random.Generator,
+    by_scan: bool = False,
 ) -> list[npt.NDArray[np.float64]]:
-    """`n` fit-weight vectors over group-bootstrap resamples of `rows` (drawn in order)."""
+    """`n` fit-weight vectors over group-bootstrap resamples of `rows` (drawn in order);
+    `by_scan`: scans first, then groups within them (`group_multiplicity`)."""
     out = []
     for _ in range(n):
-        mult = group_multiplicity(d, rows, rng)
+        mult = group_multiplicity(d, rows, rng, by_scan)
         out.append(fit_weights(len(d), rows, cap, rng, mult))
     return out
 
@@ -459,6 +563,9 @@ def bootstrap_params(
     jobs: int = 1,
 ) -> npt.NDArray[np.float64]:
     """(n_boot, P) parameter vectors refitted on group-bootstrap resamples (warm start)."""
-    ws = bootstrap_weights(d, rows, cap, n_boot, rng)
+    # Scans first: what varies between scans (their gain, their AGC level, their own
+    # objects) is fixed in a tile bootstrap, whose intervals then missed a scan-level AGC's
+    # beta and an attenuation by 2-3 bootstrap SDs. With one scan this is the tile bootstrap.
+    ws = bootstrap_weights(d, rows, cap, n_boot, rng, by_scan=True)
     out = map_fits(_refits, d, ws, np.zeros(0, dtype=np.int64), jobs, final)
     return np.array(out) if out else np.zeros((0, final.model.size))

@@ -24,9 +24,10 @@ from lads.diagnose.analysis import (
 )
 from lads.diagnose.design import paired_design, sim_log_variance
 from lads.diagnose.effects import azimuth_spacing_deg, candidates
-from lads.diagnose.model import Fit, Model, initial_base
+from lads.diagnose.model import Fit, Model, directional_gain, fit, initial_base, nll_from_terms
 from lads.diagnose.parallel import fit_models, fit_warm, map_fits, restrict
 from lads.diagnose.select import (
+    MIN_GAIN_NATS,
     MIN_SUPPORT_GROUPS,
     SHORTLIST,
     SHORTLIST_CONFINED,
@@ -34,8 +35,11 @@ from lads.diagnose.select import (
     Comparison,
     Selection,
     _passes,
-    compare_groups,
-    compare_on,
+    by_groups,
+    by_rows,
+    gain_floor,
+    group_multiplicity,
+    row_gains,
 )
 from lads.diagnose.table import BeamTable
 from tests.unit.test_diagnose_localize import make_table
@@ -94,6 +98,63 @@ def test_the_diagnosis_does_not_depend_on_the_number_of_jobs(ring_case):
     assert np.array_equal(parallel.final.theta, serial.final.theta)
     for a, b in zip(parallel.effects, serial.effects, strict=True):
         assert a.ci95 == b.ci95
+
+
+def test_the_directional_score_is_the_slope_of_each_rows_nll_toward_the_new_fit(ring_case):
+    design, _, dg = ring_case
+    rows = np.arange(0, len(design), 7)
+    sub = design.subset(rows)
+    new, old = dg.selection.fit, dg.selection.baseline
+    score = directional_gain(new, old, sub)
+    eps = 1e-6
+    start, end = old.row_terms(sub), new.row_terms(sub)
+    step = torch.full((len(sub),), eps, dtype=torch.float64)
+    with torch.no_grad():
+        moved = nll_from_terms(start.toward(end, step), sub).numpy()
+    assert np.allclose(score, (old.row_nll(sub) - moved) / eps, rtol=1e-3, atol=1e-6)
+
+
+def test_on_held_out_rows_the_score_has_twice_the_z_of_the_nll_gain():
+    """A weak ring pattern fitted on half the groups, judged on the other half: the gain
+    pays for the fit's own noise and is second order in the effect, the score is not."""
+    table, _ = with_ring_gains(make_table(3, group_sd=0.25, noise=0.1), 0.05, seed=4)
+    d = paired_design(table)
+    groups = np.unique(d.group)
+    train = np.flatnonzero(np.isin(d.group, groups[::2]))
+    held = d.subset(np.flatnonzero(~np.isin(d.group, groups[::2])))
+    w = np.zeros(len(d))
+    w[train] = 1.0
+    base = initial_base(d, train)
+    model = Model([], float(d.ln_range.mean()), float(d.ln_sim.mean()))
+    old = fit(model, d, w, base)
+    (ring,) = [e for e in candidates(d) if e.info.id == "C4" and e.label == "C4"]
+    new = fit_models([model.with_effect(ring)], d, w, base, old, 1)[0]
+    c = by_rows(*row_gains(new, old, held), held.group)
+    assert c.delta > 0.0
+    assert 1.5 < c.z / (c.delta / c.se) < 3.0
+
+
+def test_the_parameter_bootstrap_draws_whole_scans_before_their_tiles(ring_case):
+    """A tile bootstrap keeps every scan in every replicate, so what differs between scans
+    never varies; drawing the scans first leaves one out in almost every replicate (10
+    scans: all are drawn with probability 10!/10^10 < 0.001), and a tile is always kept or
+    dropped whole."""
+    d = ring_case[0]
+    rows = np.arange(len(d))
+    scans = d.scan.numpy()
+    n_scans = len(np.unique(scans))
+    assert n_scans == 10
+    rng = np.random.default_rng(1)
+    missing = {False: 0, True: 0}
+    for by_scan in (False, True):
+        for _ in range(40):
+            m = group_multiplicity(d, rows, rng, by_scan=by_scan)
+            present = np.unique(scans[m > 0])
+            missing[by_scan] += len(present) < n_scans
+            for g in np.unique(d.group)[:50]:
+                assert len(np.unique(m[d.group == g])) == 1
+    assert missing[False] == 0
+    assert missing[True] >= 38
 
 
 def test_a_null_table_claims_nothing():
@@ -203,9 +264,9 @@ def test_an_effect_rejected_only_for_its_bound_is_reported_as_beyond_the_catalog
     empty = SimpleNamespace(model=SimpleNamespace(effects=[]))
     sel = Selection(fit=empty, baseline=empty)  # type: ignore[arg-type]
     sel.trace = [
-        Step(1, "C2", 0.05, 0.01, -20.0, True),  # z 5 at a bound: beyond the catalogue
-        Step(1, "C9", 0.02, 0.01, -20.0, True),  # z 2: not evidence of anything
-        Step(1, "C1", 0.05, 0.01, -20.0, False),  # in range: an ordinary candidate
+        Step(1, "C2", 0.05, 0.01, -20.0, True, z=5.0),  # at a bound: beyond the catalogue
+        Step(1, "C9", 0.02, 0.01, -20.0, True, z=2.0),  # z 2: not evidence of anything
+        Step(1, "C1", 0.05, 0.01, -20.0, False, z=5.0),  # in range: an ordinary candidate
     ]
     assert _beyond_bounds(sel) == [("C2", 5.0)]
 
@@ -242,29 +303,38 @@ def test_a_bright_rare_class_is_found_from_its_own_rows():
     assert step.support is not None and step.support.groups >= MIN_SUPPORT_GROUPS
 
 
+def comparison(delta: float, se: float, groups: int) -> Comparison:
+    """A held-out comparison whose directional score has the z of its gain."""
+    return Comparison(delta, se, 0.0, groups, delta, se)
+
+
 def test_a_class_confined_gain_passes_on_its_rows_only_with_enough_consistent_groups():
-    overall = Comparison(delta=0.004, se=0.002, delta_bic=0.0, groups=200)
-    consistent = Comparison(delta=0.5, se=0.05, delta_bic=0.0, groups=10)
-    erratic = Comparison(delta=0.5, se=0.15, delta_bic=0.0, groups=10)
-    few = Comparison(delta=0.5, se=0.08, delta_bic=0.0, groups=3)
-    assert not _passes(overall, False, Z_ACCEPT)
-    assert _passes(overall, False, Z_ACCEPT, consistent)
-    assert not _passes(overall, False, Z_ACCEPT, erratic)  # t = 3.3 < t(9) bar of ~4.3
-    assert not _passes(overall, False, Z_ACCEPT, few)  # t = 6.3 < t(2) bar of ~19
-    assert not _passes(overall, True, Z_ACCEPT, consistent)  # at a bound
+    overall = comparison(delta=0.004, se=0.002, groups=200)
+    consistent = comparison(delta=0.5, se=0.05, groups=10)
+    erratic = comparison(delta=0.5, se=0.15, groups=10)
+    few = comparison(delta=0.5, se=0.08, groups=3)
+    floor = MIN_GAIN_NATS
+    assert not _passes(overall, False, Z_ACCEPT, floor)
+    assert _passes(overall, False, Z_ACCEPT, floor, consistent)
+    assert not _passes(overall, False, Z_ACCEPT, floor, erratic)  # t = 3.3 < t(9) bar of ~4.3
+    assert not _passes(overall, False, Z_ACCEPT, floor, few)  # t = 6.3 < t(2) bar of ~19
+    assert not _passes(overall, True, Z_ACCEPT, floor, consistent)  # at a bound
     losing = dataclasses.replace(overall, delta=-0.001)
-    assert not _passes(losing, False, Z_ACCEPT, consistent)  # other rows got worse
+    assert not _passes(losing, False, Z_ACCEPT, floor, consistent)  # other rows got worse
+    assert not _passes(overall, False, Z_ACCEPT, 0.6, consistent)  # too small to matter
 
 
-def gains_as_fits(gain: np.ndarray, group: np.ndarray) -> tuple[object, object, object]:
-    """Stand-ins for (new fit, old fit, held-out rows) whose per-row gain is `gain`."""
-    from types import SimpleNamespace
-
-    sub = SimpleNamespace(group=group)
-    model = SimpleNamespace(size=6)
-    new = SimpleNamespace(row_nll=lambda d: np.zeros(len(gain)), model=model, loss=0.0)
-    old = SimpleNamespace(row_nll=lambda d: gain, model=model, loss=0.0)
-    return new, old, sub
+def test_an_effect_is_accepted_on_its_directional_score_and_a_gain_above_the_floor():
+    """The score's z is the test; the NLL gain must only beat the floor, whatever its z."""
+    weak_gain = Comparison(delta=0.01, se=0.005, delta_bic=0.0, groups=100, score=0.04,
+                           score_se=0.01)  # fmt: skip
+    assert weak_gain.z == pytest.approx(4.0)
+    assert _passes(weak_gain, False, Z_ACCEPT, 0.005)
+    assert not _passes(weak_gain, False, Z_ACCEPT, 0.02)  # gain below the floor
+    chance = dataclasses.replace(weak_gain, delta=0.05, score=0.02)  # large gain, z 2
+    assert not _passes(chance, False, Z_ACCEPT, 0.005)
+    assert gain_floor(1.2) == pytest.approx(0.006)  # 0.5 % of the baseline loss
+    assert gain_floor(-0.1) == MIN_GAIN_NATS  # never below the absolute floor
 
 
 def test_class_rows_count_each_group_once():
@@ -274,21 +344,19 @@ def test_class_rows_count_each_group_once():
     sizes = np.array([1, 8, 1, 11, 9, 5, 4, 24, 2])
     per_row = np.array([48.0, 43.0, 6.7, 9.1, 40.0, 41.0, 39.6, 7.9, 44.0])
     group = np.repeat(np.arange(9), sizes)
-    new, old, sub = gains_as_fits(np.repeat(per_row, sizes), group)
-    overall = Comparison(delta=0.01, se=0.005, delta_bic=0.0, groups=200)
-    by_group = compare_groups(new, old, sub)  # type: ignore[arg-type]
-    by_row = compare_on(new, old, sub, 1.0, 1.0)  # type: ignore[arg-type]
-    assert by_group.groups == 9 and np.isclose(by_group.delta, per_row.mean())
-    assert _passes(overall, False, Z_ACCEPT, by_group)
-    assert not _passes(overall, False, Z_ACCEPT, by_row)
+    gain = np.repeat(per_row, sizes)
+    overall = comparison(delta=0.01, se=0.005, groups=200)
+    grouped = by_groups(gain, group)
+    assert grouped.groups == 9 and np.isclose(grouped.delta, per_row.mean())
+    assert _passes(overall, False, Z_ACCEPT, MIN_GAIN_NATS, grouped)
+    assert not _passes(overall, False, Z_ACCEPT, MIN_GAIN_NATS, by_rows(gain, gain, group))
 
     rng = np.random.default_rng(0)
     sizes = np.r_[400, np.full(39, 10)]
     group = np.repeat(np.arange(40), sizes)
     gain = rng.normal(0.0, 0.05, sizes.sum())
     gain[group == 0] += 0.05  # one large tile that happens to gain
-    new, old, sub = gains_as_fits(gain, group)
-    assert not _passes(overall, False, Z_ACCEPT, compare_groups(new, old, sub))  # type: ignore[arg-type]
+    assert not _passes(overall, False, Z_ACCEPT, MIN_GAIN_NATS, by_groups(gain, group))
 
 
 def test_effects_are_accepted_on_full_fits_after_a_screening_pass(ring_case):
@@ -320,9 +388,9 @@ def test_of_candidates_within_one_paired_se_the_one_with_fewest_parameters_is_ac
     sub = SimpleNamespace(group=group)
     rings = candidate(64, 1.0 - 0.005 + noise, 0.095)
     law = candidate(1, 1.0 + noise + rng.normal(0.0, 0.3, group.size), 0.090)
-    assert _simplest_within_one_se([rings, law], sub, 1.0, 1.0) is law  # type: ignore[arg-type]
+    assert _simplest_within_one_se([rings, law], sub) is law  # type: ignore[arg-type]
     clear = candidate(64, 1.0 - 0.2 + noise, 0.29)
-    assert _simplest_within_one_se([clear, law], sub, 1.0, 1.0) is clear  # type: ignore[arg-type]
+    assert _simplest_within_one_se([clear, law], sub) is clear  # type: ignore[arg-type]
 
 
 def test_the_oren_nayar_incidence_law_is_lambert_at_zero_roughness_and_brightens_grazing():
