@@ -173,6 +173,11 @@ class RowTerms:
                         mix(self.ln_p_given, other.ln_p_given),
                         mix(self.ln_p_ret, other.ln_p_ret))  # fmt: skip
 
+    def nll(self, d: Design) -> npt.NDArray[np.float64]:
+        """(N,) negative log-likelihood of every row (`nll_from_terms`, no gradient)."""
+        with torch.no_grad():
+            return nll_from_terms(self, d).numpy()
+
 
 def nll_from_terms(t: RowTerms, d: Design) -> torch.Tensor:
     """(N,) negative log-likelihood of every row from its terms (`Model.row_terms`)."""
@@ -359,19 +364,15 @@ class Fit:
             return self.model.row_terms(torch.as_tensor(self.theta), d)
 
 
-def directional_gain(
-    new: Fit, old: Fit, d: Design, old_terms: RowTerms | None = None
-) -> npt.NDArray[np.float64]:
-    """(N,) rate at which each row's NLL falls as its likelihood terms move from `old`'s
-    toward `new`'s (-d nll_i / d lambda at lambda = 0), in nats per unit step.
+def directional_gain(start: RowTerms, end: RowTerms, d: Design) -> npt.NDArray[np.float64]:
+    """(N,) rate at which each row's NLL falls as its likelihood terms move from `start`
+    (the incumbent's) toward `end` (the candidate's): -d nll_i / d lambda at lambda = 0, in
+    nats per unit step.
 
     The score of the held-out test (select.py): the direction is fixed on the training rows,
-    so on held-out rows its mean is 0 when `old` is right, and it is first order in the
-    effect, where the held-out NLL gain is second order (it subtracts the new fit's own
-    noise): for an effect of size t the gain's z is about half this score's.
-    `old_terms`: `old.row_terms(d)` when already computed."""
-    start = old.row_terms(d) if old_terms is None else old_terms
-    end = new.row_terms(d)
+    so on held-out rows its mean is 0 when the incumbent is right, and it is first order in
+    the effect, where the held-out NLL gain is second order (it subtracts the new fit's own
+    noise): for an effect of size t the gain's z is about half this score's."""
     step = torch.zeros(len(d), dtype=torch.float64, requires_grad=True)
     nll_from_terms(start.toward(end, step), d).sum().backward()
     return -step.grad.numpy()  # type: ignore[union-attr]

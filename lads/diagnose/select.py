@@ -152,7 +152,8 @@ class Incumbent:
 
     @classmethod
     def of(cls, f: Fit, sub: Design) -> Incumbent:
-        return cls(f.row_nll(sub), f.row_terms(sub))
+        terms = f.row_terms(sub)
+        return cls(terms.nll(sub), terms)
 
 
 def compare_on(
@@ -178,7 +179,8 @@ def row_gains(
 ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
     """(N,) per-row NLL gain and directional score of `new` over `old` (positive = better)."""
     inc = incumbent if incumbent is not None else Incumbent.of(old, sub)
-    return inc.nll - new.row_nll(sub), directional_gain(new, old, sub, inc.terms)
+    end = new.row_terms(sub)
+    return inc.nll - end.nll(sub), directional_gain(inc.terms, end, sub)
 
 
 def gain_on(new: Fit, old: Fit, sub: Design) -> Comparison:
@@ -424,8 +426,9 @@ def forward_backward(
     baseline = fit_warm(model, d, weights, base, None, warm)
     current = baseline
     held_out = d.subset(validation)
+    incumbent = Incumbent.of(current, held_out)
     if floor is None:
-        floor = gain_floor(float(np.mean(baseline.row_nll(held_out))))
+        floor = gain_floor(float(np.mean(incumbent.nll)))
     sel = Selection(current, baseline, floor=floor)
     sel.fitted[model.key] = baseline
     remaining = list(pool)
@@ -439,7 +442,6 @@ def forward_backward(
 
     for step in range(1, k_max + 1):
         results = []
-        incumbent = Incumbent.of(current, held_out)
         listed = list(remaining)
         if screen_w is not None and len(remaining) > SHORTLIST:
             screened = []
@@ -477,6 +479,7 @@ def forward_backward(
             if s.step == step:
                 s.accepted = s.candidate == best[0].label
         current = best[1]
+        incumbent = Incumbent.of(current, held_out)
         remaining = [c for c in remaining if c.label != best[0].label]
     # Backward pass: drop any effect whose removal costs less than 1 SE (of the score).
     changed = True

@@ -105,9 +105,9 @@ def test_the_directional_score_is_the_slope_of_each_rows_nll_toward_the_new_fit(
     rows = np.arange(0, len(design), 7)
     sub = design.subset(rows)
     new, old = dg.selection.fit, dg.selection.baseline
-    score = directional_gain(new, old, sub)
-    eps = 1e-6
     start, end = old.row_terms(sub), new.row_terms(sub)
+    score = directional_gain(start, end, sub)
+    eps = 1e-6
     step = torch.full((len(sub),), eps, dtype=torch.float64)
     with torch.no_grad():
         moved = nll_from_terms(start.toward(end, step), sub).numpy()
