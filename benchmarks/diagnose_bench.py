@@ -15,8 +15,8 @@ pool the scores. The tool only ever sees the two tree folders.
     --full       all cases x 20 seeds x both bases (M2; --mode both adds M1), full scans.
                  Writes results/diagnose.{json,md}.
 
---cases/--seeds/--bases/--mode/--max-points narrow or widen either plan; --keep DIR keeps the
-generated trees and reports; --workers runs that many at a time (default 2).
+--cases/--seeds/--first-seed/--bases/--mode/--max-points narrow or widen either plan; --keep DIR
+keeps the generated trees and reports; --workers runs that many at a time (default 2).
 """
 
 from __future__ import annotations
@@ -52,14 +52,14 @@ def plan(args: argparse.Namespace) -> list[tuple[str, str, int, str]]:
     wanted = set(args.cases.split(",")) if args.cases else None
     runs = []
     if args.full:
-        seeds = range(args.seeds if args.seeds else FULL_SEEDS)
+        seeds = range(args.first_seed, args.first_seed + (args.seeds or FULL_SEEDS))
         bases = args.bases.split(",") if args.bases else ["semantickitti", "nuscenes"]
         for base in bases:
             for case in cases_for(base):
                 if wanted is None or case in wanted:
                     runs += [(case, base, s, m) for m in modes for s in seeds]
     else:
-        seeds = range(args.seeds if args.seeds else 1)
+        seeds = range(args.first_seed, args.first_seed + (args.seeds or 1))
         plan_ci = [(c, "semantickitti") for c in CASES] + [(c, "nuscenes") for c in CI_NUSCENES]
         if args.bases:
             plan_ci = [(c, b) for c, b in plan_ci if b in args.bases.split(",")]
@@ -233,6 +233,8 @@ def parse(argv: list[str] | None) -> argparse.Namespace:
     which.add_argument("--full", action="store_true", help="all cases x 20 seeds x both bases")
     p.add_argument("--cases", help="comma-separated case ids to keep, e.g. K1,K2")
     p.add_argument("--seeds", type=int, help="seeds per case (ci: 1, full: 20)")
+    p.add_argument("--first-seed", type=int, default=0,
+                   help="first seed (seeds run first-seed .. first-seed + seeds - 1)")  # fmt: skip
     p.add_argument("--bases", help="comma-separated bases (semantickitti,nuscenes)")
     p.add_argument("--mode", choices=["M1", "M2", "both"], default="M2")
     p.add_argument("--max-points", type=int, help="points per scan (ci: 40000, full: all)")

@@ -59,6 +59,8 @@ def build_report(
             },
         },  # fmt: skip
         "selection_trace": trace,
+        # The held-out NLL gain (nats/row) an accepted effect had to beat (select.gain_floor).
+        "gain_floor_nats": dg.selection.floor,
         "selection_frequency": dg.frequencies,
         # C0 alone (the `before` model) and C0 fitted jointly with the effects (`after`).
         "baseline": {

@@ -23,7 +23,7 @@ from lads.diagnose.analysis import (
     effect_family,
 )
 from lads.diagnose.design import paired_design, sim_log_variance
-from lads.diagnose.effects import azimuth_spacing_deg, candidates
+from lads.diagnose.effects import azimuth_spacing_deg, candidates, odd_rings
 from lads.diagnose.model import Fit, Model, directional_gain, fit, initial_base, nll_from_terms
 from lads.diagnose.parallel import fit_models, fit_warm, map_fits, restrict
 from lads.diagnose.select import (
@@ -155,6 +155,41 @@ def test_the_parameter_bootstrap_draws_whole_scans_before_their_tiles(ring_case)
                 assert len(np.unique(m[d.group == g])) == 1
     assert missing[False] == 0
     assert missing[True] >= 38
+
+
+def with_weak_rings(table: BeamTable, rings: list[int], ln_gain: float) -> BeamTable:
+    """The table with the real returns of `rings` multiplied by exp(ln_gain)."""
+    g = np.zeros(table.sensor.n_rings)
+    g[rings] = ln_gain
+    h = table.sensor.half_step
+    scale = np.exp(g[table.ring.astype(np.int64)])
+    i_real = np.where(table.ret_sim & np.isfinite(table.i_real),
+                      (table.i_real + h) * scale - h, table.i_real)  # fmt: skip
+    return dataclasses.replace(table, i_real=i_real.astype(np.float32))
+
+
+def test_rings_that_stand_out_from_the_others_at_the_same_range_are_picked_on_training_rows():
+    table = make_table(3, group_sd=0.25, noise=0.1)
+    weak = paired_design(with_weak_rings(table, [5, 40], -0.4))
+    train = np.flatnonzero(np.isin(weak.group, np.unique(weak.group)[::2]))
+    assert odd_rings(weak, train) == [5, 40]
+    assert odd_rings(paired_design(table), train) == []  # no ring effect: no ring passes
+    (few,) = [e for e in candidates(weak, train_rows=train) if e.label == "C4[few_rings]"]
+    assert few.size == 2
+    exported = few.export(np.array([-0.4, -0.4]))
+    assert exported["rings"] == [5, 40]
+    assert sum(exported["ln_gain_by_ring"]) == pytest.approx(0.0, abs=1e-12)  # like C4
+
+
+def test_one_weak_ring_of_64_is_claimed_as_a_ring_gain_on_that_ring():
+    """1.6 % of the rows: the full C4 would pay for 63 gains fitted to noise."""
+    table = with_weak_rings(make_table(5, group_sd=0.25, noise=0.1), [17], -0.35)
+    dg = diagnose_design(paired_design(table), np.random.default_rng(0), QUICK)
+    (ring,) = [r for r in dg.effects if r.status == "claimed"]
+    assert ring.effect.label == "C4[few_rings]"
+    gains = np.asarray(ring.params["ln_gain_by_ring"])
+    assert int(np.argmin(gains)) == 17
+    assert gains[17] - np.median(gains) == pytest.approx(-0.35, abs=0.1)
 
 
 def test_a_null_table_claims_nothing():
@@ -333,8 +368,25 @@ def test_an_effect_is_accepted_on_its_directional_score_and_a_gain_above_the_flo
     assert not _passes(weak_gain, False, Z_ACCEPT, 0.02)  # gain below the floor
     chance = dataclasses.replace(weak_gain, delta=0.05, score=0.02)  # large gain, z 2
     assert not _passes(chance, False, Z_ACCEPT, 0.005)
-    assert gain_floor(1.2) == pytest.approx(0.006)  # 0.5 % of the baseline loss
-    assert gain_floor(-0.1) == MIN_GAIN_NATS  # never below the absolute floor
+    assert gain_floor(1.2) == pytest.approx(0.006)  # 0.5 % of the baseline deviance
+    assert gain_floor(0.1) == MIN_GAIN_NATS  # never below the absolute floor
+
+
+def test_the_floor_is_a_share_of_the_deviance_whatever_the_noise_level():
+    """Half the deviance is ~0.5 z^2 a row for a well-specified fit at any sigma; the NLL
+    carries ln sigma (and a coarse encoding's interval probabilities) and would move the
+    floor with the noise level."""
+    half, nll = [], []
+    for noise in (0.05, 0.4):
+        d = paired_design(make_table(2, noise=noise, drop=lambda r: np.zeros(r.shape)))
+        rows = np.arange(len(d))
+        model = Model([], float(d.ln_range.mean()), float(d.ln_sim.mean()), False)
+        terms = fit(model, d, np.ones(len(d)), initial_base(d, rows)).row_terms(d)
+        half.append(float(terms.half_deviance(d).mean()))
+        nll.append(float(terms.nll(d).mean()))
+    assert all(0.3 < h < 0.7 for h in half)
+    assert nll[1] - nll[0] > 1.0
+    assert gain_floor(half[1]) == pytest.approx(gain_floor(half[0]), rel=0.25)
 
 
 def test_class_rows_count_each_group_once():
