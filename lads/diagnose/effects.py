@@ -378,7 +378,7 @@ def _few_ring_gains(d: Design, rings: list[int]) -> Effect | None:
     """C4 confined to `rings` (one gain each, the other rings at 0), or None without rings.
 
     One weak laser among 64 (discovery.md K6) is 1.5 % of the rows: the full C4 pays for 63
-    gains fitted to noise, and its held-out gain came out negative on every such case. The
+    gains fitted to noise, and its held-out gain came out negative on two such cases. The
     rings are chosen on the training rows only (`odd_rings`), so the held-out test of this
     candidate is as honest as any other's. Exported like C4 (every ring, sum 0)."""
     if not rings:
