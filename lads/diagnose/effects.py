@@ -405,7 +405,8 @@ def odd_rings(d: Design, train_rows: npt.NDArray[np.int64] | None) -> list[int]:
     Bonferroni bar over the rings at FEW_RINGS_LEVEL.
 
     Rings that pass are left out of the reference and the test repeated until the set is
-    stable: two weak rings in the cell means lifted every other ring by ~1 z."""
+    stable: two weak rings in the cell means lifted the other rings' z enough to pass a
+    null ring."""
     odd = np.zeros(d.n_rings, dtype=bool)
     bar = stats.norm.isf(FEW_RINGS_LEVEL / (2 * d.n_rings))
     for _ in range(ODD_RING_ROUNDS):

@@ -185,9 +185,9 @@ class RowTerms:
         ln sigma + ln sqrt(2 pi) (so 0.5 z^2 is left), a quantisation interval of width w
         the probability erf(w / (2 sqrt(2) sigma)) of a centred mu; a stored 0, a clipped
         value and a return or drop can have probability 1. The normaliser moves with the
-        noise level (at sigma ~ 0.4 it is ~0, so the NLL itself can sit near 0), and a
-        coarse encoding's intervals cost ~1.8 nats each at any fit: a share of the NLL is
-        no measure of misfit, a share of the deviance is (discovery.md §5.5 step 4)."""
+        noise level (near sigma = 0.4 it is ~0, so the NLL itself can sit near 0), and a
+        coarse encoding's intervals cost their own width's probability at any fit: a share
+        of the NLL is no measure of misfit, a share of the deviance is (§5.5 step 4)."""
         use = d.returned & d.sim_ok
         with torch.no_grad():
             sigma = torch.exp(self.ln_sigma)
@@ -338,16 +338,12 @@ class Fit:
     def _loss_function(
         self, d: Design, weights: npt.NDArray[np.float64]
     ) -> Callable[[npt.NDArray[np.float64]], float]:
-        """The training objective (weighted mean NLL plus penalties) as a function of theta."""
-        use = np.flatnonzero(weights > 0)
-        sub = d.subset(use)
-        w = torch.as_tensor(weights[use], dtype=torch.float64)
+        """`training_objective` of numpy theta, without gradients."""
+        training_loss = training_objective(self.model, d, weights)
 
         def loss(x: npt.NDArray[np.float64]) -> float:
             with torch.no_grad():
-                theta = torch.as_tensor(x, dtype=torch.float64)
-                value = (self.model.nll_rows(theta, sub) * w).sum() / w.sum()
-                return float(value + self.model.penalty(theta))
+                return float(training_loss(torch.as_tensor(x, dtype=torch.float64)))
 
         return loss
 
@@ -409,6 +405,22 @@ def initial_base(d: Design, rows: npt.NDArray[np.int64]) -> npt.NDArray[np.float
     return np.array([gain, math.log(max(spread, 0.01)), 0.0, 0.0, math.log(rate / (1 - rate))])
 
 
+def training_objective(
+    model: Model, d: Design, weights: npt.NDArray[np.float64]
+) -> Callable[[torch.Tensor], torch.Tensor]:
+    """The training loss (weighted mean NLL over the rows with weight > 0, plus penalties)
+    as a function of theta (a (P,) float64 tensor)."""
+    use = np.flatnonzero(weights > 0)
+    sub = d.subset(use)
+    w = torch.as_tensor(weights[use], dtype=torch.float64)
+    total = float(w.sum())
+
+    def loss(theta: torch.Tensor) -> torch.Tensor:
+        return (model.nll_rows(theta, sub) * w).sum() / total + model.penalty(theta)
+
+    return loss
+
+
 def fit(
     model: Model,
     d: Design,
@@ -427,14 +439,11 @@ def fit(
     """
     lower, upper = model.bounds()
     x0 = np.clip(start, lower, upper)
-    use = np.flatnonzero(weights > 0)
-    sub = d.subset(use)
-    w = torch.as_tensor(weights[use], dtype=torch.float64)
-    total = float(w.sum())
+    training_loss = training_objective(model, d, weights)
 
     def objective(x: npt.NDArray[np.float64]) -> tuple[float, npt.NDArray[np.float64]]:
         theta = torch.as_tensor(x, dtype=torch.float64).requires_grad_(True)
-        loss = (model.nll_rows(theta, sub) * w).sum() / total + model.penalty(theta)
+        loss = training_loss(theta)
         loss.backward()
         grad = theta.grad.numpy().copy()  # type: ignore[union-attr]
         value = float(loss.detach())

@@ -196,8 +196,7 @@ def by_rows(
     delta_bic: float = 0.0,
 ) -> Comparison:
     """Per-row means of the gain and the score with their cluster (ratio-estimator) SEs."""
-    _, inv = np.unique(group, return_inverse=True)
-    g_n = np.bincount(inv).astype(np.float64)
+    inv, g_n = _group_index(group)
     total, k = g_n.sum(), len(g_n)
 
     def mean_se(rows: npt.NDArray[np.float64]) -> tuple[float, float]:
@@ -223,12 +222,19 @@ def by_groups(gain: npt.NDArray[np.float64], group: npt.NDArray[np.int64]) -> Co
     spread of group sizes (1 to 24 sign rows per tile) and of the gain itself (a retro gain
     clipped at the encoding's top in some tiles, not in others) swamp a gain that is positive
     in every group, and lets one large tile carry a chance gain on a null case."""
-    _, inv = np.unique(group, return_inverse=True)
-    g_n = np.bincount(inv).astype(np.float64)
+    inv, g_n = _group_index(group)
     k = len(g_n)
     means = np.bincount(inv, weights=gain) / g_n
     se = float(np.std(means, ddof=1)) / math.sqrt(k) if k > 1 else math.inf
     return Comparison(float(means.mean()), se, 0.0, k)
+
+
+def _group_index(
+    group: npt.NDArray[np.int64],
+) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.float64]]:
+    """(N,) index of each row's group among the distinct groups, and each group's row count."""
+    _, inv = np.unique(group, return_inverse=True)
+    return inv, np.bincount(inv).astype(np.float64)
 
 
 def design_effect_scale(d: Design, rows: npt.NDArray[np.int64]) -> float:
@@ -336,8 +342,8 @@ def gain_floor(baseline_half_deviance: float) -> float:
     the ones too small to matter out, such as a class whose few objects happen to be
     brighter than its mean in this sample. A share of the NLL itself made the floor depend
     on the noise level through the Gaussian normaliser, and counted each quantisation
-    interval's probability as misfit (0.0057 on a KITTI case where the deviance gives
-    0.0026): it kept out a weak ring (K6) at z 5.6."""
+    interval's probability as misfit: on KITTI cases it was about twice the deviance's
+    share and kept out a weak ring (K6) that the score had found."""
     return max(MIN_GAIN_NATS, BASELINE_SHARE * baseline_half_deviance)
 
 
@@ -452,9 +458,9 @@ def forward_backward(
             fits = fit_models([current.model.with_effect(c) for c in remaining], d, screen_w,
                               base, current, jobs, warm)  # fmt: skip
             # Against the incumbent refitted on the same screening rows: against the one fitted
-            # on all rows, the base parameters' own sampling noise (a return rate of 0.981 for
-            # 0.978) moved every held-out group alike and gave every candidate of a null case
-            # the same gain, at z ~ 8.
+            # on all rows, the base parameters' own sampling noise (the return rate) moved
+            # every held-out group alike and gave every candidate of a null case the same
+            # gain, far beyond the z bar.
             screen_ref = fit(current.model, d, screen_w, current.theta)
             screen_inc = Incumbent.of(screen_ref, held_out)
             for cand, f in zip(remaining, fits, strict=True):
