@@ -1,11 +1,12 @@
 """Reduce a simulated and a real tree to beam tables (discovery.md §5.1).
 
 Every feature is computed per scan on each tree's own point cloud (vectorised numpy, one
-range image per cloud). Paired mode associates each simulated return with the nearest
-unclaimed real return within `max_pair_distance_m`: a simulated beam without a partner was
-dropped in reality, a real return without one is extra. Unpaired mode keeps one table per
-tree. Returns nearer than the sensor profile's `min_range_m` are dropped in both modes, in
-paired mode together with their partners (`lads.diagnose.minrange`).
+range image per cloud for the normals, edge distances along the rings: `edges.py`). Paired
+mode associates each simulated return with the nearest unclaimed real return within
+`max_pair_distance_m`: a simulated beam without a partner was dropped in reality, a real
+return without one is extra. Unpaired mode keeps one table per tree. Returns nearer than
+the sensor profile's `min_range_m` are dropped in both modes, in paired mode together with
+their partners (`lads.diagnose.minrange`).
 
 Geometry features of a row come from its simulated point, or from its real point for
 real-only rows. When only the real scan is labelled, paired rows take their class (and
@@ -22,9 +23,9 @@ from typing import Any
 
 import numpy as np
 import numpy.typing as npt
-from scipy.ndimage import distance_transform_edt
 from tqdm.auto import tqdm
 
+from lads.diagnose.edges import edge_distance
 from lads.diagnose.ground_normals import local_ground_cos
 from lads.diagnose.minrange import beyond_min_range, pairs_beyond_min_range
 from lads.diagnose.pairing import pair_points
@@ -33,7 +34,7 @@ from lads.diagnose.trees import Scan, Tree, TreePair
 from lads.errors import DiagnoseError, InputDataError
 from lads.physics.materials import class_materials
 from lads.physics.modalities import IncidenceSource, incidence
-from lads.physics.projection import RangeImage, project
+from lads.physics.projection import project
 from lads.sensors.measure import rings_from_scan_order
 from lads.sensors.profile import SensorProfile
 
@@ -44,11 +45,6 @@ GROUND_CLASSES: dict[str, tuple[int, ...]] = {
     "wads": (40, 44, 48, 49, 60, 72),
     "nuscenes": (24, 25, 26, 27),
 }
-EDGE_JUMP_M = 1.0
-# More missing returns than this many median spacings between two returns of a ring is a
-# depth edge (no return: sky, beyond range, a black or mirror-like surface). On a scan
-# thinned at random to a third, 4 spacings is exceeded between ~4 % of neighbours.
-EDGE_GAP_SPACINGS = 4.0
 GROUND_RADIUS_M = 30.0  # beyond this the road curves and the ground is sparsely sampled
 GROUND_SEED_PERCENTILE = 20.0
 # Refits keep points ever closer to the plane: the first band lets a tilted seed find the
@@ -84,7 +80,7 @@ class CloudFeatures:
         ring: int16 laser channel. azimuth_deg, elevation_deg, range_m: float32.
         cos_incidence: float32 in [0, 1]. normal_ok: bool, normal not a frame-median fallback.
         class_id: int32, -1 unlabelled. is_ground: bool. height_m: float32 above the ground.
-        edge_beams: float32 range-image pixels to the nearest range jump, capped.
+        edge_beams: float32 beams (azimuth steps) to the nearest depth edge of the ring, capped.
     """
 
     group: npt.NDArray[np.int64]
@@ -232,7 +228,7 @@ def cloud_features(
         class_id=class_id,
         is_ground=is_ground,
         height_m=height.astype(np.float32),
-        edge_beams=edge_distance(image)[image.row, image.col],
+        edge_beams=edge_distance(xyz, ring, cap=EDGE_CAP_BEAMS),
     )
 
 
@@ -280,65 +276,6 @@ def plane_height(
     """(N,) float64 signed distance in m of each point above the plane z = a x + b y + c."""
     a, b, _ = plane
     return (xyz[:, 2] - _plane_z(xyz, plane)) / math.sqrt(1.0 + a * a + b * b)
-
-
-def edge_distance(
-    image: RangeImage, *, jump_m: float = EDGE_JUMP_M, cap: float = EDGE_CAP_BEAMS
-) -> npt.NDArray[np.float32]:
-    """(H, W) float32 distance in beams (pixels) from each pixel to the nearest depth edge,
-    capped at `cap`.
-
-    Along a ring, two consecutive returns (however many empty pixels lie between them) meet
-    at an edge when their ranges differ by more than `jump_m`, or when more than
-    EDGE_GAP_SPACINGS times the ring's median spacing of returns is missing between them (a
-    beam that half-hit an object and half went to the sky is a depth edge too). Distances
-    run along the ring only, in azimuth samples: rings lie 2-3 azimuth samples apart, and
-    on a continuous surface at a grazing angle (the ground beyond ~15 m) neighbouring rings
-    differ by more than 1 m in range, so vertical "jumps" put a third of a KITTI scan at
-    distance 0 from an edge that is not there. A range jump's edge sits midway
-    between the two returns, a missing run's half a spacing beyond each bordering return;
-    a return's distance is counted from the edge minus half a beam: both
-    returns of an adjacent pair are at 0, as in a full scan; on a thinned scan, where the
-    true edge is somewhere in the gap, the midpoint is the unbiased guess (with edges at
-    the returns themselves, every mixed pixel of a thinned scan looked like e = 0, and the
-    fitted e0 hit its lower bound).
-    """
-    h, w = image.index.shape
-    occupied = image.index >= 0
-    rng = image.range_m
-    # A grid at half-beam spacing holds the midpoints exactly.
-    edge = np.zeros((h, 2 * w), dtype=bool)
-    rows, cols = np.nonzero(occupied)  # row-major: each ring's returns in azimuth order
-    if rows.size:
-        starts = np.flatnonzero(np.r_[True, rows[1:] != rows[:-1]])
-        first = np.repeat(starts, np.diff(np.r_[starts, rows.size]))
-        nxt = np.arange(1, rows.size + 1)
-        last = np.r_[rows[1:] != rows[:-1], True]
-        nxt[last] = first[last]  # the ring's last return pairs with its first (wrap)
-        gap = np.mod(cols[nxt] - cols, w)
-        gap[gap == 0] = w  # a ring with a single return
-        counts = np.bincount(rows, minlength=h)
-        med = np.zeros(h)
-        for start, ring_gaps in zip(starts, np.split(gap, starts[1:]), strict=True):
-            if ring_gaps.size >= 3:  # each ring's returns are one contiguous run
-                med[rows[start]] = np.median(ring_gaps)
-        spacing = np.maximum(med[rows], 1.0)
-        missing = (counts[rows] >= 3) & (gap > EDGE_GAP_SPACINGS * spacing)
-        jump = (np.abs(rng[rows, cols] - rng[rows, cols[nxt]]) > jump_m) & ~missing
-        edge[rows[jump], np.mod(2 * cols[jump] + gap[jump], 2 * w)] = True
-        # Beside missing returns each bordering return is itself the mixed pixel: the edges
-        # sit half a spacing beyond either one.
-        step = np.round(spacing[missing]).astype(np.int64)
-        edge[rows[missing], np.mod(2 * cols[missing] + step, 2 * w)] = True
-        edge[rows[missing], np.mod(2 * cols[nxt][missing] - step, 2 * w)] = True
-    if not edge.any():
-        return np.full((h, w), cap, dtype=np.float32)
-    pad = 2 * (int(math.ceil(cap)) + 1)  # wrap the azimuth so edges across column 0 count
-    wrapped = np.concatenate([edge[:, -pad:], edge, edge[:, :pad]], axis=1)
-    # Along the ring only (a prohibitive row step): see the docstring.
-    half = distance_transform_edt(~wrapped, sampling=(1e6, 1.0))[:, pad:-pad][:, ::2]
-    out: npt.NDArray[np.float32] = np.clip(half / 2.0 - 0.5, 0.0, cap).astype(np.float32)
-    return out
 
 
 def tile_ids(xyz: npt.NDArray[np.float64]) -> npt.NDArray[np.int64]:

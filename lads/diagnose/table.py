@@ -77,8 +77,8 @@ class BeamTable:
         is_ground: (N,) bool ground classes, or (unlabelled) within 0.25 m of the fitted
             ground plane with an upward normal.
         height_m: (N,) float32 height above the fitted ground plane in m.
-        edge_beams: (N,) float32 distance in range-image pixels (beams) to the nearest range
-            jump > 1 m; capped at EDGE_CAP_BEAMS.
+        edge_beams: (N,) float32 distance in beams (azimuth steps along the ring) to the
+            nearest depth edge (`edges.edge_distance`); capped at EDGE_CAP_BEAMS.
         i_sim: (N,) float32 simulated intensity in the stored units; NaN where not returned.
         i_real: (N,) float32 real intensity in the stored units; NaN where not returned.
         ret_sim: (N,) bool the simulation returned this beam.

@@ -17,7 +17,6 @@ import pytest
 from lads.diagnose.beams import (
     SCAN_GROUP_STRIDE,
     cloud_features,
-    edge_distance,
     paired_table,
     unpaired_tables,
 )
@@ -26,7 +25,6 @@ from lads.diagnose.pairing import pair_points
 from lads.diagnose.table import EDGE_CAP_BEAMS, GROUP_TILE_M, ROW_FIELDS, BeamTable
 from lads.diagnose.trees import Scan, open_trees
 from lads.errors import ConfigError, DiagnoseError
-from lads.physics.projection import RangeImage
 from lads.sensors.profile import load_profile
 
 HDL64 = load_profile("hdl64e")
@@ -521,31 +519,3 @@ def test_real_nuscenes_dataroot_is_read_with_its_tables(shared_data, tmp_path):
     assert (table.range_m >= 1.0).all()
     expected = np.bincount(points[beyond, 4].astype(np.int64), minlength=32)
     assert np.bincount(table.ring[full], minlength=32).tolist() == expected.tolist()
-
-
-def _ring_image(ranges: np.ndarray) -> RangeImage:
-    """A one-ring range image; 0 marks an empty pixel."""
-    r = np.asarray(ranges, dtype=np.float32)[None, :]
-    index = np.where(r > 0, np.arange(r.size)[None, :], -1)
-    return RangeImage(index=index, range_m=r, xyz=np.zeros(r.shape + (3,), np.float32),
-                      row=np.zeros(0, np.int64), col=np.zeros(0, np.int64))  # fmt: skip
-
-
-def test_edge_distance_counts_beams_from_the_jump_on_full_and_thinned_rings():
-    ranges = np.r_[np.full(60, 10.0), np.full(60, 20.0)]  # jumps at 59|60 and 119|0
-    full = edge_distance(_ring_image(ranges))[0]
-    assert full[59] == full[60] == 0.0 and full[57] == 2.0 and full[63] == 3.0
-    # Thinned to every third beam, the edge lies somewhere in the gap 57..60: the returns
-    # beside it are one beam from its midpoint (not 0), and farther ones keep full-scan units.
-    thinned = np.where(np.arange(120) % 3 == 0, ranges, 0.0)
-    d = edge_distance(_ring_image(thinned))[0]
-    assert d[57] == d[60] == 1.0 and d[54] == 4.0 and d[66] == 7.0
-
-
-def test_a_long_run_of_missing_returns_is_an_edge_but_a_single_missing_beam_is_not():
-    ranges = np.full(200, 15.0)
-    ranges[50] = 0.0  # one dropped beam inside a surface
-    ranges[120:170] = 0.0  # sky: no returns for 50 beams
-    d = edge_distance(_ring_image(ranges))[0]
-    assert d[119] == d[170] == 0.0 and d[117] == 2.0
-    assert d[49] == d[51] == EDGE_CAP_BEAMS
