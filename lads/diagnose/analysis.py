@@ -452,6 +452,8 @@ def _noise_model(
         "range_slope": float(th[2]),
         "level_slope": float(th[3]),
         "return_probability": float(1.0 / (1.0 + math.exp(-th[4]))),
+        # Real values stored at a clip below the encoding's maximum are censored (design.py).
+        "real_clip_level": d.real_clip,
     }
     if boot.shape[0] >= 5:
         for i, name in ((2, "range_slope"), (3, "level_slope")):

@@ -25,6 +25,13 @@ LOW_STEPS = 10  # below this many quantisation steps a stored value is treated a
 ZERO_FIT_STEPS = 2  # the simulation's law is fitted on values stored at least this many steps
 ZERO_FIT_MIN_ROWS = 200
 ZERO_QUANTILES = 16
+# A clip below the encoding's maximum (C9's i_max: firmware saturation, a gain stage) shows
+# as an atom at the top of the real values: the largest stored value holding CLIP_RATIO
+# times the rows of the step below it and CLIP_MIN_SHARE of all returns. Noise spreads a
+# smooth tail, whose top values hold fewer rows than the ones below them.
+CLIP_RATIO = 5.0
+CLIP_MIN_SHARE = 0.002
+CLIP_MIN_ROWS = 20
 
 
 @dataclass(frozen=True)
@@ -57,6 +64,8 @@ class Design:
         half_step, full_scale, max_value, step: the encoding in stored units.
         n_rings, n_scans: sizes of the categorical features.
         paired: False for unpaired pseudo-pairs (no dropout information).
+        real_clip: the level (stored units) the real values are clipped at below the
+            encoding's maximum (`clip_level`), or None; rows stored there are censor 3.
     """
 
     y: torch.Tensor
@@ -91,6 +100,7 @@ class Design:
     n_rings: int
     n_scans: int
     paired: bool
+    real_clip: float | None = None
 
     def __len__(self) -> int:
         return int(self.y.shape[0])
@@ -134,6 +144,26 @@ def paired_design(table: BeamTable) -> Design:
     sim_mean[zero] = _zero_power(t, ln_sim, zero, step, h)
     return _design(t, rows, i_real, t.ret_real.copy(), ln_sim, True, sim_var, ~zero,
                    sim_mean - ln_sim)  # fmt: skip
+
+
+def clip_level(i_real: npt.ArrayLike, step: float, max_value: float) -> float | None:
+    """The stored value the real intensities are clipped at below `max_value`, or None.
+
+    Args:
+        i_real: (N,) real intensities of the returned beams, stored units.
+        step, max_value: the encoding's quantisation step and maximum, stored units.
+    """
+    values = np.asarray(i_real, dtype=np.float64)
+    if values.size == 0:
+        return None
+    top = float(values.max())
+    if top > max_value - 0.5 * step or top < LOW_STEPS * step:
+        return None
+    at_top = int(np.count_nonzero(values > top - 0.5 * step))
+    below = int(np.count_nonzero(np.abs(values - (top - step)) < 0.5 * step))
+    if at_top < max(CLIP_RATIO * below, CLIP_MIN_SHARE * values.size, CLIP_MIN_ROWS):
+        return None
+    return top
 
 
 def _zero_power(
@@ -246,6 +276,9 @@ def _design(
     sim_shift: npt.NDArray[np.float64],
 ) -> Design:
     h, step, top = t.sensor.half_step, t.sensor.step, t.sensor.max_value
+    clip = clip_level(i_real[returned], step, top)
+    if clip is not None:
+        top = clip
     y = np.where(returned, np.log(i_real + h), 0.0)
     censor = np.zeros(len(i_real), dtype=np.int64)
     censor[returned & (i_real < LOW_STEPS * step)] = 1
@@ -301,4 +334,5 @@ def _design(
         n_rings=t.sensor.n_rings,
         n_scans=n_scans,
         paired=paired,
+        real_clip=clip,
     )

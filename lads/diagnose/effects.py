@@ -345,8 +345,21 @@ def _encoding(d: Design) -> Effect:
         powered = torch.exp(th[0] * (torch.log(intensity + 1e-12) - ln_fs) + ln_fs)
         return torch.log((powered + th[1]).clamp_min(0.0) + dd.half_step)
 
-    return _entry("C9", ("gamma", "offset"), [(0.4, 1.5), (-off, off)], [[1.0, 0.0]],
-                  transfer=transfer)  # fmt: skip
+    clip = d.real_clip
+
+    def export(th: npt.NDArray[np.float64]) -> dict[str, Any]:
+        out = {"gamma": float(th[0]), "offset": float(th[1])}
+        if clip is not None:
+            # The clip is read off the data (design.clip_level), not fitted: its rows are
+            # censored in every model, so they cannot bias gamma.
+            out["i_max"] = clip
+        return out
+
+    eff = _entry("C9", ("gamma", "offset"), [(0.4, 1.5), (-off, off)], [[1.0, 0.0]],
+                 transfer=transfer, exporter=export)  # fmt: skip
+    if clip is not None:
+        eff.extra["ci_floor"] = {"i_max": 0.5 * d.step}
+    return eff
 
 
 def _blockage(d: Design, train_rows: npt.NDArray[np.int64] | None) -> Effect:
