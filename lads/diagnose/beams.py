@@ -61,12 +61,13 @@ _DTYPES: dict[str, type] = {
     "scan": np.int32, "group": np.int64, "ring": np.int16, "azimuth_deg": np.float32,
     "elevation_deg": np.float32, "range_m": np.float32, "cos_incidence": np.float32,
     "normal_ok": np.bool_, "class_id": np.int32, "is_ground": np.bool_, "height_m": np.float32,
-    "edge_beams": np.float32, "i_sim": np.float32, "i_real": np.float32, "ret_sim": np.bool_,
-    "ret_real": np.bool_, "sim_index": np.int64, "real_index": np.int64,
+    "edge_beams": np.float32, "edge_span_beams": np.float32, "i_sim": np.float32,
+    "i_real": np.float32, "ret_sim": np.bool_, "ret_real": np.bool_, "sim_index": np.int64,
+    "real_index": np.int64,
 }  # fmt: skip
 _FEATURES = (
     "group", "ring", "azimuth_deg", "elevation_deg", "range_m", "cos_incidence", "normal_ok",
-    "class_id", "is_ground", "height_m", "edge_beams",
+    "class_id", "is_ground", "height_m", "edge_beams", "edge_span_beams",
 )  # fmt: skip
 Rows = dict[str, npt.NDArray[Any]]
 
@@ -81,6 +82,7 @@ class CloudFeatures:
         cos_incidence: float32 in [0, 1]. normal_ok: bool, normal not a frame-median fallback.
         class_id: int32, -1 unlabelled. is_ground: bool. height_m: float32 above the ground.
         edge_beams: float32 beams (azimuth steps) to the nearest depth edge of the ring, capped.
+        edge_span_beams: float32 width in beams of the span that edge may lie in.
     """
 
     group: npt.NDArray[np.int64]
@@ -94,6 +96,7 @@ class CloudFeatures:
     is_ground: npt.NDArray[np.bool_]
     height_m: npt.NDArray[np.float32]
     edge_beams: npt.NDArray[np.float32]
+    edge_span_beams: npt.NDArray[np.float32]
 
     def rows(self, idx: npt.NDArray[np.int64]) -> Rows:
         """The features of points `idx` as row arrays (copies)."""
@@ -200,6 +203,7 @@ def cloud_features(
     xyz = scan.xyz
     ring = scan.ring.astype(np.int64) if scan.ring is not None else _rings(xyz, profile)
     image = project(xyz, profile, channel=ring)
+    edge_beams, edge_span = edge_distance(xyz, ring, cap=EDGE_CAP_BEAMS)
     inc = incidence(xyz, profile, image=image)
     horizontal_m = np.hypot(xyz[:, 0], xyz[:, 1])
     azimuth = np.degrees(np.arctan2(xyz[:, 1], xyz[:, 0])).astype(np.float32) % np.float32(360)
@@ -228,7 +232,8 @@ def cloud_features(
         class_id=class_id,
         is_ground=is_ground,
         height_m=height.astype(np.float32),
-        edge_beams=edge_distance(xyz, ring, cap=EDGE_CAP_BEAMS),
+        edge_beams=edge_beams,
+        edge_span_beams=edge_span,
     )
 
 

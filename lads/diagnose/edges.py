@@ -62,8 +62,9 @@ def edge_distance(
     cap: float,
     step_rad: float | None = None,
     jump_m: float = EDGE_JUMP_M,
-) -> npt.NDArray[np.float32]:
-    """(N,) float32 distance in beams from each return to the nearest depth edge of its ring.
+) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]:
+    """(N,) float32 distance in beams from each return to the nearest depth edge of its ring,
+    and (N,) float32 the width in beams of the span that edge can lie in.
 
     Along a ring, two consecutive returns meet at an edge when their ranges differ by more
     than `jump_m`, or when more than EDGE_GAP_SPACINGS times the ring's median spacing of
@@ -73,7 +74,10 @@ def edge_distance(
     counted from the edge minus half a beam, so both returns of an adjacent pair are at 0,
     as in a full scan. On a thinned scan, where the true edge is somewhere in the gap, the
     midpoint is the unbiased guess (with edges at the returns themselves, every mixed pixel
-    of a thinned scan looked like e = 0, and the fitted e0 hit its lower bound).
+    of a thinned scan looked like e = 0, and the fitted e0 hit its lower bound). The span
+    says how far off that guess can be: a jump between returns g steps apart lies anywhere
+    in g - 1 steps, so the true distance is uniform on distance +- span / 2 (clipped at 0);
+    on a full scan the span is ~0.
 
     Args:
         xyz: (N, 3) coordinates in m, sensor at the origin.
@@ -85,8 +89,9 @@ def edge_distance(
     xyz = np.asarray(xyz, dtype=np.float64)
     n = len(xyz)
     out = np.full(n, cap, dtype=np.float32)
+    span_out = np.zeros(n, dtype=np.float32)
     if n == 0:
-        return out
+        return out, span_out
     azimuth = np.arctan2(xyz[:, 1], xyz[:, 0])
     order, ring_sorted = _ring_order(azimuth, ring)
     step = azimuth_step_rad(azimuth, ring) if step_rad is None else float(step_rad)
@@ -109,16 +114,21 @@ def edge_distance(
         pos[missing] + 0.5 * spacing[missing],
         pos[missing] + gap[missing] - 0.5 * spacing[missing],
     ])  # fmt: skip
+    width = np.maximum(np.concatenate([gap[jump], spacing[missing], spacing[missing]]) - 1.0, 0.0)
     if edges.size == 0:
-        return out
-    edges = np.sort(np.concatenate([edges - period, edges, edges + period]))
-    right = np.searchsorted(edges, pos)
-    near = np.minimum(
-        np.abs(edges[np.minimum(right, edges.size - 1)] - pos),
-        np.abs(pos - edges[np.maximum(right - 1, 0)]),
-    )
-    out[order] = np.clip(near - 0.5, 0.0, cap).astype(np.float32)
-    return out
+        return out, span_out
+    edges = np.concatenate([edges - period, edges, edges + period])
+    width = np.tile(width, 3)
+    by_pos = np.argsort(edges, kind="stable")
+    edges, width = edges[by_pos], width[by_pos]
+    right = np.minimum(np.searchsorted(edges, pos), edges.size - 1)
+    left = np.maximum(right - 1, 0)
+    take_right = np.abs(edges[right] - pos) < np.abs(pos - edges[left])
+    nearest = np.where(take_right, right, left)
+    dist = np.clip(np.abs(edges[nearest] - pos) - 0.5, 0.0, cap)
+    out[order] = dist.astype(np.float32)
+    span_out[order] = np.where(dist < cap, width[nearest], 0.0).astype(np.float32)
+    return out, span_out
 
 
 def _ring_order(

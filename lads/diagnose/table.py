@@ -79,6 +79,8 @@ class BeamTable:
         height_m: (N,) float32 height above the fitted ground plane in m.
         edge_beams: (N,) float32 distance in beams (azimuth steps along the ring) to the
             nearest depth edge (`edges.edge_distance`); capped at EDGE_CAP_BEAMS.
+        edge_span_beams: (N,) float32 width in beams of the span that edge may lie in (a
+            jump between returns g steps apart: g - 1; ~0 on a full scan, 0 when capped).
         i_sim: (N,) float32 simulated intensity in the stored units; NaN where not returned.
         i_real: (N,) float32 real intensity in the stored units; NaN where not returned.
         ret_sim: (N,) bool the simulation returned this beam.
@@ -102,6 +104,7 @@ class BeamTable:
     is_ground: npt.NDArray[np.bool_]
     height_m: npt.NDArray[np.float32]
     edge_beams: npt.NDArray[np.float32]
+    edge_span_beams: npt.NDArray[np.float32]
     i_sim: npt.NDArray[np.float32]
     i_real: npt.NDArray[np.float32]
     ret_sim: npt.NDArray[np.bool_]
@@ -122,8 +125,8 @@ class BeamTable:
 
 ROW_FIELDS: tuple[str, ...] = (
     "scan", "group", "ring", "azimuth_deg", "elevation_deg", "range_m", "cos_incidence",
-    "normal_ok", "class_id", "is_ground", "height_m", "edge_beams", "i_sim", "i_real",
-    "ret_sim", "ret_real", "sim_index", "real_index",
+    "normal_ok", "class_id", "is_ground", "height_m", "edge_beams", "edge_span_beams", "i_sim",
+    "i_real", "ret_sim", "ret_real", "sim_index", "real_index",
 )  # fmt: skip
 EDGE_CAP_BEAMS = 10.0
 GROUP_TILE_M = 10.0

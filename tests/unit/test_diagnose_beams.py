@@ -38,8 +38,9 @@ DTYPES = {
     "scan": np.int32, "group": np.int64, "ring": np.int16, "azimuth_deg": np.float32,
     "elevation_deg": np.float32, "range_m": np.float32, "cos_incidence": np.float32,
     "normal_ok": np.bool_, "class_id": np.int32, "is_ground": np.bool_, "height_m": np.float32,
-    "edge_beams": np.float32, "i_sim": np.float32, "i_real": np.float32, "ret_sim": np.bool_,
-    "ret_real": np.bool_, "sim_index": np.int64, "real_index": np.int64,
+    "edge_beams": np.float32, "edge_span_beams": np.float32, "i_sim": np.float32,
+    "i_real": np.float32, "ret_sim": np.bool_, "ret_real": np.bool_, "sim_index": np.int64,
+    "real_index": np.int64,
 }  # fmt: skip
 
 

@@ -68,3 +68,23 @@ def test_a_stored_zero_is_read_as_the_sub_step_power_its_geometry_predicts():
     assert zero.sum() > 1000
     assert np.all((power >= 0.0) & (power <= 0.5 * step + 1e-12))
     assert np.corrcoef(np.log(r), power)[0, 1] < -0.8
+
+
+def test_the_power_behind_values_stored_near_zero_is_imputed_without_bias():
+    # A simulation whose law ln I = c - 2 ln R + N(0, 0.4) runs well below the first steps:
+    # fitted on the values stored clear of them alone, the law sees only the far beams that
+    # came out bright, and the stored 0s were imputed 0.16 too bright on average.
+    table = make_table(13, n_scans=4)
+    h, step = table.sensor.half_step, table.sensor.step
+    rng = np.random.default_rng(13)
+    r = table.range_m.astype(float)
+    power = np.exp(np.log(4.0) - 2.0 * np.log(r) + rng.normal(0.0, 0.4, len(table)))
+    i_sim = np.where(table.ret_sim, np.minimum(np.round(power / step) * step, 0.99), np.nan)
+    design = paired_design(dataclasses.replace(table, i_sim=i_sim.astype(np.float32)))
+    imputed = (design.ln_sim + design.sim_shift).numpy()
+    truth = np.log(power[design.rows] + h)
+    stored = i_sim[design.rows]
+    for k in (0, 1, 2):
+        rows = np.isclose(stored, k * step)
+        assert rows.sum() > 500
+        assert imputed[rows].mean() == pytest.approx(truth[rows].mean(), abs=0.06)

@@ -106,6 +106,7 @@ def make_table(
         is_ground=ground,
         height_m=np.where(ground, 0.0, rng.uniform(0, 3, n)).astype(f32),
         edge_beams=np.minimum(rng.geometric(0.3, n) - 1, 10).astype(f32),
+        edge_span_beams=np.zeros(n, f32),
         i_sim=i_sim.astype(f32),
         i_real=i_real.astype(f32),
         ret_sim=ret_sim,
