@@ -26,7 +26,7 @@ EDGE_JUMP_M = 1.0
 EDGE_GAP_SPACINGS = 4.0
 # The azimuth step is the commonest gap between neighbouring returns: on a scan thinned at
 # random the gaps are whole numbers of steps and one step is still the commonest (the
-# lowest quantiles are no guide: ~13 % of the gaps of a KITTI ring are half a step). Mode
+# lowest quantiles are no guide: many gaps of a KITTI ring are half a step). Mode
 # on log-spaced bins of STEP_BIN_LN wide, then the median of the gaps within STEP_BAND_LN.
 STEP_BIN_LN = 0.02
 STEP_BAND_LN = 0.15

@@ -93,7 +93,7 @@ def test_the_azimuth_step_is_found_on_full_thinned_and_half_step_jittered_rings(
     assert math.isclose(azimuth_step_rad(az, ring), step, rel_tol=0.01)
     keep = rng.random(az.size) < 1.0 / 3.0
     assert math.isclose(azimuth_step_rad(az[keep], ring[keep]), step, rel_tol=0.01)
-    # A KITTI ring holds ~13 % gaps of half a step: the step is still the commonest gap.
+    # KITTI rings hold many gaps of half a step: the step is still the commonest gap.
     extra = rng.random(az.size) < 0.13
     az2, ring2 = np.r_[az, az[extra] + 0.5 * step], np.r_[ring, ring[extra]]
     assert math.isclose(azimuth_step_rad(az2, ring2), step, rel_tol=0.01)
