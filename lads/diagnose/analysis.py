@@ -16,7 +16,6 @@ from scipy.stats import wasserstein_distance
 from lads.diagnose.catalogue import CATALOGUE
 from lads.diagnose.design import Design
 from lads.diagnose.effects import Effect, candidates
-from lads.diagnose.local_noise import local_noise
 from lads.diagnose.model import BASE_NAMES, Fit, Model, fit, fit_best, initial_base
 from lads.diagnose.parallel import fit_models, map_fits
 from lads.diagnose.select import (
@@ -41,11 +40,6 @@ from lads.diagnose.select import (
 LONG_RANGE_BAND_M = (30.0, 120.0)
 LONG_RANGE_MIN_SHARE = 0.05  # C5 is named over C1 only with >= 5 % of rows at 30-120 m
 NOISE_MIN_SLOPE = 0.1  # ln sigma per ln R (or ln I): sigma changes by < 7 % per doubling
-# The point noise's slope from neighbour pairs (local_noise.py) reached 0.11 on null cases
-# (K18 runs of `benchmarks.diagnose_bench --keep`, report.json noise_model.point_noise):
-# far neighbours lie further apart and see more of the surface's own change. A slope must
-# be over twice that: sigma_pt changing by > 19 % per doubling of range.
-LOCAL_MIN_SLOPE = 0.25
 GROUND_IDENTITIES = ("C1", "C3", "C4")
 GROUND_ONLY_SHARE = 0.05  # off-ground share of intensity rows below which they are one term
 Z_TEST = 3.0  # test-group gain (cluster SEs) that makes unstable effects "ambiguous", not null
@@ -476,19 +470,7 @@ def _noise_model(
     out["heldout_gain_nats"] = {"delta": c.delta, "se": c.se}
     big = max(abs(th[2]), abs(th[3])) > NOISE_MIN_SLOPE
     out["heldout_gain_nats"]["z"] = c.z
-    hetero = big and c.z > Z_ACCEPT
-    # The same question asked of the point noise alone, on held-out neighbour pairs
-    # (local_noise.py): surface-level spread no longer dilutes it.
-    local = local_noise(d, final.predictions(d)[0], held_out, final.model.ln_range_ref)
-    if local is not None:
-        out["point_noise"] = {
-            "form": "ln sigma_pt = ln_sigma + range_slope (ln R - m_R), neighbour differences",
-            "sigma_ln_i_at_m_r": math.exp(local.ln_sigma), "range_slope": local.range_slope,
-            "range_slope_se": local.range_slope_se, "z": local.z, "pairs": local.pairs,
-            "groups": local.groups,
-        }  # fmt: skip
-        hetero = hetero or (abs(local.range_slope) > LOCAL_MIN_SLOPE and abs(local.z) > Z_ACCEPT)
-    out["kind"] = "heteroscedastic" if hetero else "homoscedastic"
+    out["kind"] = "heteroscedastic" if big and c.z > Z_ACCEPT else "homoscedastic"
     return out
 
 
