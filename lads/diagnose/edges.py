@@ -45,9 +45,15 @@ def azimuth_step_rad(azimuth_rad: npt.ArrayLike, ring: npt.ArrayLike) -> float:
     """
     order, ring_sorted = _ring_order(azimuth_rad, ring)
     gap, _, _, count = _ring_gaps(ring_sorted, np.asarray(azimuth_rad, np.float64)[order])
+    return _step_of_gaps(gap, count)
+
+
+def _step_of_gaps(gap: npt.NDArray[np.float64], count: npt.NDArray[np.int64]) -> float:
+    """`azimuth_step_rad` from the gaps `_ring_gaps` found (and their rings' sizes)."""
+    n = gap.size
     gap = gap[(count >= 3) & (gap > 0)]
     if gap.size < MIN_STEP_GAPS:
-        return 2.0 * math.pi / max(int(np.size(azimuth_rad)), 1)
+        return 2.0 * math.pi / max(n, 1)
     ln_gap = np.log(gap)
     bins = np.arange(ln_gap.min(), ln_gap.max() + 2 * STEP_BIN_LN, STEP_BIN_LN)
     counts, edges = np.histogram(ln_gap, bins=bins)
@@ -94,8 +100,8 @@ def edge_distance(
         return out, span_out
     azimuth = np.arctan2(xyz[:, 1], xyz[:, 0])
     order, ring_sorted = _ring_order(azimuth, ring)
-    step = azimuth_step_rad(azimuth, ring) if step_rad is None else float(step_rad)
     gap_rad, nxt, start, count = _ring_gaps(ring_sorted, azimuth[order])
+    step = _step_of_gaps(gap_rad, count) if step_rad is None else float(step_rad)
     range_m = np.linalg.norm(xyz, axis=1)[order]
     gap = gap_rad / step
     spacing = np.ones(n)
