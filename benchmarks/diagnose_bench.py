@@ -106,10 +106,11 @@ def run_one(
     max_points: int | None,
     timeout: float,
     jobs: int = 2,
+    copies: int | None = None,
 ) -> dict[str, Any]:
     """Generate, diagnose and score one run inside `work`."""
     start = time.perf_counter()
-    generate_case(case, base, seed, work, mode=mode, max_points=max_points)
+    generate_case(case, base, seed, work, mode=mode, max_points=max_points, copies=copies)
     gen_s = time.perf_counter() - start
     truth = json.loads((work / "truth.json").read_text())
     out, corr = work / "out", work / "corrected"
@@ -238,6 +239,11 @@ def parse(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--bases", help="comma-separated bases (semantickitti,nuscenes)")
     p.add_argument("--mode", choices=["M1", "M2", "both"], default="M2")
     p.add_argument("--max-points", type=int, help="points per scan (ci: 40000, full: all)")
+    p.add_argument(
+        "--copies",
+        type=int,
+        help="scans per real frame, the original included (default: the generator's)",
+    )
     p.add_argument("--timeout", type=float, default=TOOL_TIMEOUT_S, help="seconds per tool run")
     p.add_argument("--workers", type=int, default=2,
                    help="runs at a time; each tool run gets cores // workers processes (its "
@@ -252,6 +258,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parse(argv)
     subset = "full" if args.full else "ci"
     max_points = args.max_points if args.max_points else (None if args.full else CI_MAX_POINTS)
+    if args.max_points == 0:
+        max_points = None  # --max-points 0: whole scans
     name = args.name or ("diagnose" if args.full else "diagnose_ci")
     runs = plan(args)
     scores = []
@@ -268,7 +276,7 @@ def main(argv: list[str] | None = None) -> int:
         tmp = Path(tempfile.mkdtemp(prefix=f"diag_{case}_{base[:4]}_{mode}_{seed}_"))
         try:
             score = run_one(case, base, seed, mode, tmp, max_points=max_points,
-                            timeout=args.timeout, jobs=jobs)  # fmt: skip
+                            timeout=args.timeout, jobs=jobs, copies=args.copies)  # fmt: skip
             if args.keep:
                 dest = args.keep / f"{case}_{base}_{mode}_s{seed}"
                 if dest.exists():

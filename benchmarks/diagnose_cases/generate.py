@@ -1003,6 +1003,7 @@ def generate_case(
     mode: str = "M2",
     max_points: int | None = None,
     noise_scale: float = 1.0,
+    copies: int | None = None,
 ) -> None:
     """Write out_dir/{sim,real,oracle}/ and out_dir/truth.json for one case (see module doc).
 
@@ -1016,6 +1017,7 @@ def generate_case(
         noise_scale: multiplies the drawn noise and object spread when B is built (1 in the
             benchmark; 0 gives a noiseless B for tests). Parameters and the effect-size band
             use the drawn sigmas, so they do not depend on it.
+        copies: scans per real frame, the original included (default COPIES[base]).
 
     Raises:
         ValueError: unknown case, base or mode, or a class case on an unlabelled base.
@@ -1029,6 +1031,9 @@ def generate_case(
         raise ValueError(f"case {case} needs class labels; base {base} is unlabelled")
     if max_points is not None and max_points < 100:
         raise ValueError(f"max_points = {max_points}; expected >= 100 or None")
+    copies = COPIES[base] if copies is None else copies
+    if copies < 1:
+        raise ValueError(f"copies = {copies}; expected >= 1")
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     frames = load_base(base)
@@ -1040,7 +1045,7 @@ def generate_case(
         case == "K14",
         max_points,
         _rng(*key, max_points, "subsample"),
-        COPIES[base],
+        copies,
     )
     g = _geom(base, frames, scans)
     enc, h = g.enc, g.h
@@ -1178,6 +1183,7 @@ def generate_case(
         "mode": mode,
         "seed": seed,
         "max_points": max_points,
+        "copies": copies,
         "noise_scale": noise_scale,
         "effects": effects,
         "noise": noise,

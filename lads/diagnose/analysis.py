@@ -10,14 +10,13 @@ from typing import Any
 
 import numpy as np
 import numpy.typing as npt
-import torch
 from scipy.stats import wasserstein_distance
 
 from lads.diagnose.catalogue import CATALOGUE
 from lads.diagnose.design import Design
 from lads.diagnose.effects import Effect, candidates
 from lads.diagnose.model import BASE_NAMES, Fit, Model, fit, fit_best, initial_base
-from lads.diagnose.parallel import fit_models, map_fits
+from lads.diagnose.parallel import fit_models, map_fits, one_thread
 from lads.diagnose.select import (
     CLAIM_FREQUENCY,
     MIN_GAIN_NATS,
@@ -52,6 +51,8 @@ class Settings:
     Attributes:
         fit_rows: training rows per fit (a uniform subsample; groups all stay represented).
         resamples: group-bootstrap reruns of the selection (stability, §5.5 step 7).
+        resample_rows: validation rows the resamples score on (every k-th; all of them
+            when fewer). The main selection scores on all.
         bootstrap: group-bootstrap refits of the final model (95 % percentile CIs).
         k_max: most effects selected.
         jobs: processes for the resamples and bootstrap refits (results do not depend on it).
@@ -62,6 +63,7 @@ class Settings:
 
     fit_rows: int = 20000
     resamples: int = 10
+    resample_rows: int = 120_000
     bootstrap: int = 40
     k_max: int = 4
     jobs: int = 2
@@ -99,7 +101,13 @@ class Diagnosis:
 
 
 def diagnose_design(d: Design, rng: np.random.Generator, settings: Settings) -> Diagnosis:
-    """Select, stabilise, quantify and evaluate the effects that explain `d`."""
+    """Select, stabilise, quantify and evaluate the effects that explain `d` (on one
+    thread: `parallel.one_thread`)."""
+    with one_thread():
+        return _diagnose_design(d, rng, settings)
+
+
+def _diagnose_design(d: Design, rng: np.random.Generator, settings: Settings) -> Diagnosis:
     split = split_groups(d, rng)
     weights = fit_weights(len(d), split.train, settings.fit_rows, rng)
     pool = candidates(d, train_rows=split.train)
@@ -120,7 +128,14 @@ def diagnose_design(d: Design, rng: np.random.Generator, settings: Settings) -> 
     counts = dict.fromkeys((e.label for e in pool), 0)
     ws = bootstrap_weights(d, split.train, settings.fit_rows, settings.resamples, rng)
     warm = {k: f for k, f in selection.starts().items() if all(lb in names for lb in k)}
-    chosen_sets = map_fits(_resample_labels, d, ws, split.validation, settings.jobs,
+    # Scoring, not fitting, is what grows with the scans: a full-scan diagnosis holds ~400k
+    # validation rows against 20000 fitted ones, and each resample scores every contender on
+    # them. Every k-th row keeps every group and surface; the resamples ask whether the
+    # same effects win, which the main selection has already tested on all rows.
+    scoring = split.validation
+    if len(scoring) > settings.resample_rows:
+        scoring = scoring[np.linspace(0, len(scoring) - 1, settings.resample_rows).astype(np.int64)]
+    chosen_sets = map_fits(_resample_labels, d, ws, scoring, settings.jobs,
                            contenders, k_resample, reference_levels(d), warm)  # fmt: skip
     # Parametrisations of one effect (C3 as cos^p or as Oren-Nayar roughness) are one answer
     # to "is this effect there": a resample that picks the other form still selects it. Counted
@@ -274,11 +289,11 @@ def _resample_labels(
     floor is the absolute one: the contenders have beaten the main selection's, and a
     resample's noisier fit of 64 ring gains pays more for its own noise in the gain, which
     then fell below the relative floor in 6 of 10 resamples of an effect at 9 score SEs."""
-    torch.set_num_threads(1)
-    return [forward_backward(d, contenders, w, validation, k_max=k_max, refs=refs,
-                             z_accept=Z_RESAMPLE, warm=warm, screen_rows=None,
-                             floor=MIN_GAIN_NATS).labels
-            for w in ws]  # fmt: skip
+    with one_thread():
+        return [forward_backward(d, contenders, w, validation, k_max=k_max, refs=refs,
+                                 z_accept=Z_RESAMPLE, warm=warm, screen_rows=None,
+                                 floor=MIN_GAIN_NATS).labels
+                for w in ws]  # fmt: skip
 
 
 def _ci(

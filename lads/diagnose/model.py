@@ -28,7 +28,7 @@ import numpy.typing as npt
 import scipy.optimize
 import torch
 
-from lads.diagnose.design import Design
+from lads.diagnose.design import CensoredRows, Design
 from lads.diagnose.effects import Effect
 
 BASE_NAMES: tuple[str, ...] = (
@@ -41,6 +41,10 @@ _BASE_UPPER = np.array([12.0, 3.0, 3.0, 3.0, 12.0])
 _HALF_LN_2PI = 0.5 * math.log(2.0 * math.pi)
 MAX_ITER = 150
 FTOL = 1e-7  # relative loss change to stop at (scipy default 2.2e-9): 1e-7 of ~1 nat per row
+# L-BFGS memory (scipy default 10). 64 ring gains or 20 class scales each touch a few % of
+# the rows, so the curvature spans orders of magnitude, and with 10 pairs such fits often
+# ran into MAX_ITER. With 30 they stop in fewer evaluations at the same optimum.
+MAXCOR = 30
 # is 1e-7 nats, four orders below the smallest gain an effect is accepted for (select.py
 # MIN_GAIN_NATS), and it halves the iterations of the slow per-ring fits
 BOUND_TOLERANCE = 0.01  # a parameter within 1 % of its range from a bound is "at the bound"
@@ -205,12 +209,9 @@ def nll_from_terms(t: RowTerms, d: Design) -> torch.Tensor:
     sigma = torch.exp(t.ln_sigma)
     z = (d.y - t.mu) / sigma
     gauss = 0.5 * z**2 + t.ln_sigma + _HALF_LN_2PI
-    cens = torch.nonzero(d.censor > 0).squeeze(1)
-    if cens.numel():
-        gauss = gauss.index_put(
-            (cens,), _interval_nll(d.censor[cens], d.y_lo[cens], d.y_hi[cens], t.mu[cens],
-                                   sigma[cens])
-        )  # fmt: skip
+    c = d.censored
+    if c.rows.numel():
+        gauss = gauss.index_put((c.rows,), _interval_nll(c, t.mu[c.rows], sigma[c.rows]))
     # A simulated 0 says nothing about the intensity (Design.sim_ok): the return only.
     gauss = torch.where(d.sim_ok, gauss, torch.zeros_like(gauss))
     if t.ln_p_given is None or t.ln_p_ret is None:
@@ -246,25 +247,19 @@ def _log_detect(
             torch.special.log_ndtr((latent - threshold[0]) / conditional))  # fmt: skip
 
 
-def _interval_nll(
-    censor: torch.Tensor,
-    y_lo: torch.Tensor,
-    y_hi: torch.Tensor,
-    mu: torch.Tensor,
-    sigma: torch.Tensor,
-) -> torch.Tensor:
-    """-ln P(y in its quantisation interval) (censor 1), below y_hi (2) or above y_lo (3)."""
-    z_lo = (y_lo - mu) / sigma
-    z_hi = (y_hi - mu) / sigma
+def _interval_nll(c: CensoredRows, mu: torch.Tensor, sigma: torch.Tensor) -> torch.Tensor:
+    """-ln P(y in its quantisation interval) (censor 1), below y_hi (2) or above y_lo (3),
+    of the rows `c`; `mu`, `sigma` (C,) theirs."""
+    censor, two = c.censor, c.two
+    z_lo = (c.y_lo - mu) / sigma
+    z_hi = (c.y_hi - mu) / sigma
     # One-sided rows need one log-CDF, interval rows two: the log-CDF is the costliest op of
     # a fit, so each kind gets only its own (the same values as computing all and masking).
     # A one-sided row is an interval with a = -inf (below y_hi) or b = +inf (above y_lo).
-    one_sided = censor >= 2
-    upper = (z_lo > 0) & ~one_sided
+    upper = (z_lo > 0) & ~c.one_sided
     # Phi(b) - Phi(a) loses all digits when both are near 1: use the mirrored tail there.
     b = torch.where(censor == 3, -z_lo, torch.where(upper, -z_lo, z_hi))
     log_b = torch.special.log_ndtr(b)
-    two = torch.nonzero(~one_sided).squeeze(1)
     if two.numel() == 0:
         return -log_b
     a = torch.where(upper, -z_hi, z_lo)[two]
@@ -455,8 +450,9 @@ def fit(
         (None if not math.isfinite(lo) else lo, None if not math.isfinite(hi) else hi)
         for lo, hi in zip(lower, upper, strict=True)
     ]
+    options = {"maxiter": max_iter, "ftol": FTOL, "maxcor": MAXCOR}
     res = scipy.optimize.minimize(objective, x0, jac=True, method="L-BFGS-B", bounds=bounds,
-                                  options={"maxiter": max_iter, "ftol": FTOL})  # fmt: skip
+                                  options=options)  # fmt: skip
     value, _ = objective(res.x)
     return Fit(model, res.x, value, bool(res.success))
 

@@ -10,17 +10,32 @@ bit-identical for any `jobs`.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+import contextlib
+from collections.abc import Callable, Iterator, Sequence
 from typing import Any, TypeVar
 
 import numpy as np
 import numpy.typing as npt
 import torch
+from threadpoolctl import threadpool_limits
 
 from lads.diagnose.design import Design
 from lads.diagnose.model import BASE_NAMES, Fit, Model, fit, fit_best
 
 T = TypeVar("T")
+
+
+@contextlib.contextmanager
+def one_thread() -> Iterator[None]:
+    """torch and BLAS on one thread, in the parent and in every worker.
+
+    A fit's arrays are small, so more threads only spin; and a threaded BLAS sums in an
+    order that depends on its thread count, which differs between the parent and loky's
+    workers (they get cores // jobs): L-BFGS-B's memory products then round differently
+    and the results would depend on `jobs`."""
+    torch.set_num_threads(1)
+    with threadpool_limits(limits=1):
+        yield
 
 
 def restrict(
@@ -59,7 +74,8 @@ def map_fits(
         part, ws, extra = restrict(d, [weights[i] for i in chunk], extra_rows)
         parts.append((part, ws, extra))
     if jobs <= 1 or len(parts) <= 1:
-        results = [task(p, ws, ex, *args) for p, ws, ex in parts]
+        with one_thread():
+            results = [task(p, ws, ex, *args) for p, ws, ex in parts]
     else:
         from joblib import Parallel, delayed
 
@@ -97,8 +113,8 @@ def _fit_one(
     base: npt.NDArray[np.float64],
     previous: Fit | None,
 ) -> tuple[npt.NDArray[np.float64], float, bool]:
-    torch.set_num_threads(1)
-    f = fit_best(model, part, w, base, previous)
+    with one_thread():
+        f = fit_best(model, part, w, base, previous)
     return f.theta, f.loss, f.converged
 
 
@@ -117,7 +133,8 @@ def fit_models(
     sum runs in the same order as a serial fit and the results are bit-identical. `warm`
     is for the serial resamples (it is not sent to workers)."""
     if jobs <= 1 or len(models) <= 1 or warm is not None:
-        return [fit_warm(m, d, weights, base, previous, warm) for m in models]
+        with one_thread():
+            return [fit_warm(m, d, weights, base, previous, warm) for m in models]
     from joblib import Parallel, delayed
 
     keep = np.flatnonzero(weights > 0)

@@ -13,13 +13,12 @@ from typing import Any
 
 import numpy as np
 import numpy.typing as npt
-import torch
 from scipy import stats
 
-from lads.diagnose.design import Design
+from lads.diagnose.design import Design, group_index
 from lads.diagnose.effects import Effect
 from lads.diagnose.model import Fit, Model, RowTerms, directional_gain, fit, initial_base
-from lads.diagnose.parallel import fit_models, fit_warm, map_fits
+from lads.diagnose.parallel import fit_models, fit_warm, map_fits, one_thread
 
 K_MAX = 4
 MIN_GAIN_NATS = 0.002  # per row: below this an effect is not worth naming
@@ -171,7 +170,9 @@ def compare_on(
     n_eff = max(n_fit * n_eff_scale, 2.0)
     dk = new.model.size - old.model.size
     delta_bic = 2.0 * (new.loss - old.loss) * n_eff + dk * math.log(n_eff)
-    return by_rows(*row_gains(new, old, sub, incumbent), sub.group, float(delta_bic))
+    return by_rows(
+        *row_gains(new, old, sub, incumbent), sub.group, float(delta_bic), index=sub.group_index
+    )
 
 
 def row_gains(
@@ -186,7 +187,7 @@ def row_gains(
 def gain_on(new: Fit, old: Fit, sub: Design) -> Comparison:
     """The held-out NLL gain alone (no score): for models that are not nested, where only
     "which predicts better" is asked (the one-SE rule, ambiguity sets)."""
-    return by_rows(old.row_nll(sub) - new.row_nll(sub), None, sub.group)
+    return by_rows(old.row_nll(sub) - new.row_nll(sub), None, sub.group, index=sub.group_index)
 
 
 def by_rows(
@@ -194,9 +195,12 @@ def by_rows(
     score: npt.NDArray[np.float64] | None,
     group: npt.NDArray[np.int64],
     delta_bic: float = 0.0,
+    *,
+    index: tuple[npt.NDArray[np.int64], npt.NDArray[np.float64]] | None = None,
 ) -> Comparison:
-    """Per-row means of the gain and the score with their cluster (ratio-estimator) SEs."""
-    inv, g_n = _group_index(group)
+    """Per-row means of the gain and the score with their cluster (ratio-estimator) SEs;
+    `index`: `group_index(group)` when already known (`Design.group_index`)."""
+    inv, g_n = index if index is not None else group_index(group)
     total, k = g_n.sum(), len(g_n)
 
     def mean_se(rows: npt.NDArray[np.float64]) -> tuple[float, float]:
@@ -211,30 +215,28 @@ def by_rows(
 
 def compare_groups(new: Fit, old: Fit, sub: Design) -> Comparison:
     """`by_groups` of `new` over `old` on the held-out rows `sub` of a class."""
-    return by_groups(old.row_nll(sub) - new.row_nll(sub), sub.group)
+    return by_groups(old.row_nll(sub) - new.row_nll(sub), sub.group, index=sub.group_index)
 
 
-def by_groups(gain: npt.NDArray[np.float64], group: npt.NDArray[np.int64]) -> Comparison:
+def by_groups(
+    gain: npt.NDArray[np.float64],
+    group: npt.NDArray[np.int64],
+    *,
+    index: tuple[npt.NDArray[np.int64], npt.NDArray[np.float64]] | None = None,
+) -> Comparison:
     """Mean over groups of each group's mean per-row gain, with its SE over groups.
 
     The test of a class-confined effect on its own rows. Every group (an independent surface,
     discovery.md §2 item 4) counts once: the row-weighted ratio of `by_rows` lets the
     spread of group sizes (1 to 24 sign rows per tile) and of the gain itself (a retro gain
     clipped at the encoding's top in some tiles, not in others) swamp a gain that is positive
-    in every group, and lets one large tile carry a chance gain on a null case."""
-    inv, g_n = _group_index(group)
+    in every group, and lets one large tile carry a chance gain on a null case. `index` as
+    in `by_rows`."""
+    inv, g_n = index if index is not None else group_index(group)
     k = len(g_n)
     means = np.bincount(inv, weights=gain) / g_n
     se = float(np.std(means, ddof=1)) / math.sqrt(k) if k > 1 else math.inf
     return Comparison(float(means.mean()), se, 0.0, k)
-
-
-def _group_index(
-    group: npt.NDArray[np.int64],
-) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.float64]]:
-    """(N,) index of each row's group among the distinct groups, and each group's row count."""
-    _, inv = np.unique(group, return_inverse=True)
-    return inv, np.bincount(inv).astype(np.float64)
 
 
 def design_effect_scale(d: Design, rows: npt.NDArray[np.int64]) -> float:
@@ -569,8 +571,8 @@ def bootstrap_weights(
 def _refits(
     d: Design, ws: list[npt.NDArray[np.float64]], _extra: Any, final: Fit
 ) -> list[npt.NDArray[np.float64]]:
-    torch.set_num_threads(1)
-    return [fit(final.model, d, w, final.theta, max_iter=100).theta for w in ws]
+    with one_thread():
+        return [fit(final.model, d, w, final.theta, max_iter=100).theta for w in ws]
 
 
 def bootstrap_params(

@@ -22,7 +22,7 @@ from lads.diagnose.analysis import (
     diagnose_design,
     effect_family,
 )
-from lads.diagnose.design import paired_design, sim_log_variance
+from lads.diagnose.design import group_index, paired_design, sim_log_variance
 from lads.diagnose.effects import azimuth_spacing_deg, candidates, odd_rings
 from lads.diagnose.model import Fit, Model, directional_gain, fit, initial_base, nll_from_terms
 from lads.diagnose.parallel import fit_models, fit_warm, map_fits, restrict
@@ -437,7 +437,7 @@ def test_of_candidates_within_one_paired_se_the_one_with_fewest_parameters_is_ac
         eff = SimpleNamespace(size=size)
         return (eff, fit, Comparison(delta, 0.01, 0.0, 100), False, None)
 
-    sub = SimpleNamespace(group=group)
+    sub = SimpleNamespace(group=group, group_index=group_index(group))
     rings = candidate(64, 1.0 - 0.005 + noise, 0.095)
     law = candidate(1, 1.0 + noise + rng.normal(0.0, 0.3, group.size), 0.090)
     assert _simplest_within_one_se([rings, law], sub) is law  # type: ignore[arg-type]
