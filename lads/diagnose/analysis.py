@@ -57,11 +57,13 @@ class Settings:
         k_max: most effects selected.
         jobs: processes for the resamples and bootstrap refits (results do not depend on it).
 
-    20000 rows: with 6000, 64 per-ring gains were fitted from a few surfaces per ring and the
+    15000 rows: with 6000, 64 per-ring gains were fitted from a few surfaces per ring and the
     selection flipped between resamples (K5 chosen in 6 of 10); with 20000, in 10 of 10.
+    15000 claimed the same effects as 20000 in every run of the CI subset (whole scans) in
+    8 % less time (benchmarks/results/diagnose_ci.md has the 15000 run).
     """
 
-    fit_rows: int = 20000
+    fit_rows: int = 15000
     resamples: int = 10
     resample_rows: int = 120_000
     bootstrap: int = 40
