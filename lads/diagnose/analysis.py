@@ -59,8 +59,8 @@ class Settings:
 
     15000 rows: with 6000, 64 per-ring gains were fitted from a few surfaces per ring and the
     selection flipped between resamples (K5 chosen in 6 of 10); with 20000, in 10 of 10.
-    15000 claimed the same effects as 20000 in every run of the CI subset (whole scans) in
-    8 % less time (benchmarks/results/diagnose_ci.md has the 15000 run).
+    15000 claimed the same effects as 20000 in all 23 runs of the whole-scan CI subset in
+    8 % less time (a scratch comparison of two `make bench-diagnose-ci` runs).
     """
 
     fit_rows: int = 15000
@@ -131,7 +131,7 @@ def _diagnose_design(d: Design, rng: np.random.Generator, settings: Settings) ->
     ws = bootstrap_weights(d, split.train, settings.fit_rows, settings.resamples, rng)
     warm = {k: f for k, f in selection.starts().items() if all(lb in names for lb in k)}
     # Scoring, not fitting, is what grows with the scans: a full-scan diagnosis holds ~400k
-    # validation rows against 20000 fitted ones, and each resample scores every contender on
+    # validation rows against 15000 fitted ones, and each resample scores every contender on
     # them. Every k-th row keeps every group and surface; the resamples ask whether the
     # same effects win, which the main selection has already tested on all rows.
     scoring = split.validation
