@@ -13,7 +13,7 @@ import numpy.typing as npt
 from scipy.stats import wasserstein_distance
 
 from lads.diagnose.catalogue import CATALOGUE
-from lads.diagnose.design import Design
+from lads.diagnose.design import Design, evenly_spaced
 from lads.diagnose.effects import Effect, candidates
 from lads.diagnose.model import BASE_NAMES, Fit, Model, fit, fit_best, initial_base
 from lads.diagnose.parallel import fit_models, map_fits, one_thread
@@ -134,9 +134,7 @@ def _diagnose_design(d: Design, rng: np.random.Generator, settings: Settings) ->
     # validation rows against 15000 fitted ones, and each resample scores every contender on
     # them. Every k-th row keeps every group and surface; the resamples ask whether the
     # same effects win, which the main selection has already tested on all rows.
-    scoring = split.validation
-    if len(scoring) > settings.resample_rows:
-        scoring = scoring[np.linspace(0, len(scoring) - 1, settings.resample_rows).astype(np.int64)]
+    scoring = split.validation[evenly_spaced(len(split.validation), settings.resample_rows)]
     chosen_sets = map_fits(_resample_labels, d, ws, scoring, settings.jobs,
                            contenders, k_resample, reference_levels(d), warm)  # fmt: skip
     # Parametrisations of one effect (C3 as cos^p or as Oren-Nayar roughness) are one answer

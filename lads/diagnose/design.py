@@ -166,6 +166,12 @@ class Design:
         return Design(**kwargs)
 
 
+def evenly_spaced(n: int, cap: int) -> npt.NDArray[np.int64]:
+    """Indices of at most `cap` of `n` rows, evenly spaced in order (all of them when n <= cap):
+    a sample that keeps every scan and tile in proportion."""
+    return np.linspace(0, n - 1, min(n, cap)).astype(np.int64)
+
+
 def group_index(
     group: npt.NDArray[np.int64],
 ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.float64]]:
@@ -261,7 +267,7 @@ def _tobit(
     """(coef, sigma) of y = x coef + N(0, sigma^2) with y known only to be < cut where
     `censored`: maximum likelihood from the least-squares start (scipy L-BFGS-B, torch
     gradients). At most TOBIT_MAX_ROWS evenly spaced rows are used."""
-    take = np.linspace(0, len(y) - 1, min(len(y), TOBIT_MAX_ROWS)).astype(np.int64)
+    take = evenly_spaced(len(y), TOBIT_MAX_ROWS)
     x, y, censored = x[take], y[take], censored[take]
     start = np.linalg.lstsq(x[~censored], y[~censored], rcond=None)[0]
     spread0 = max(float(np.std(y[~censored] - x[~censored] @ start)), 1e-3)
