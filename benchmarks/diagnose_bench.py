@@ -194,6 +194,8 @@ def markdown(payload: dict[str, Any]) -> str:
         lines.append(f"| {name} | {_fmt(t['value'])} | {text} | {_fmt(t['met'])} |")
     lines += [
         "",
+        f"Pairs matched exactly (no ambiguity credit): "
+        f"{_fmt(s.get('identification_pairs_exact'))}; "
         f"K14 ambiguity credit: {_fmt(s['identification_k14'])}; K19 noise model "
         f"named: {_fmt(s['k19_noise_model_rate'])}; precision {_fmt(s['precision'])}, "
         f"recall {_fmt(s['recall'])}.",

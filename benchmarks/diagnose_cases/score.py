@@ -8,12 +8,17 @@ Rules
 -----
 * Effect sets: the IDs of report effects with status "claimed" (a missing status counts as
   claimed) against the truth's IDs; C0 (global gain) is ignored on both sides.
-* Identification: 1 for an exact match. Otherwise 1/2 when some ambiguity set of the report
-  (an `ambiguity_sets` entry, or an `alternatives` entry read as ids + instead_of) contains
-  every true ID and every claimed ID. K14 (truth `accept_ambiguity`): 1 when such a set of two
-  or more IDs lies within the accepted sets' union ({C1, C3, C4}); the exact claim {C3} alone
-  then earns 1/2 (a guess the ground-only data cannot support). Null cases (no true effect):
-  1 when nothing is claimed.
+* Identification: 1 for an exact match. Otherwise 1/2 when the truth is one of the
+  explanations the report leaves open: every ID on which truth and claim differ lies in one
+  ambiguity set of the report (an `ambiguity_sets` entry, or an `alternatives` entry read
+  as ids + instead_of). For one effect that is a set holding the true and the claimed ID;
+  for a pair, a claim {C2, C5} with the set {C1, C5} leaves {C2, C1} open, so the truth
+  {C1, C2} earns 1/2, while a claim {C2, C5} with the set {C1, C2} or {C5, C9} does not.
+  `exact` (and the summary's identification_pairs_exact) counts exact matches only.
+  K14 (truth `accept_ambiguity`): 1 when such a set of two or more IDs lies within the
+  accepted sets' union ({C1, C3, C4}); the exact claim {C3} alone then earns 1/2 (a guess
+  the ground-only data cannot support). Null cases (no true effect): 1 when nothing is
+  claimed.
 * False discovery (null cases): any claimed effect other than C0. K19 also scores
   noise_model.kind == "heteroscedastic".
 * Parameter error: for each true effect that the report names (claimed, else possible), each
@@ -112,7 +117,8 @@ def identification(truth: dict[str, Any], report: dict[str, Any]) -> float:
         return 0.0
     if claimed == true:
         return 1.0
-    if true and any(true <= s and claimed <= s for s in sets):
+    differ = true ^ claimed
+    if true and any(differ <= s for s in sets):
         return 0.5
     return 0.0
 
@@ -458,6 +464,7 @@ def summarise(scores: list[dict[str, Any]]) -> dict[str, Any]:
         "failed": sum(s.get("error") is not None for s in scores),
         "identification_single": _mean([s["identification"] for s in group("single")]),
         "identification_pairs": _mean([s["identification"] for s in group("pairs")]),
+        "identification_pairs_exact": _mean([float(s.get("exact", False)) for s in group("pairs")]),
         "identification_k14": _mean([s["identification"] for s in group("ambiguity")]),
         "null_false_discovery_rate": _mean([float(s["false_discovery"]) for s in nulls_done]),
         "k19_noise_model_rate": _mean([float(s["noise_kind_ok"]) for s in k19]),

@@ -17,6 +17,7 @@ from lads.diagnose.design import Design, evenly_spaced
 from lads.diagnose.effects import Effect, candidates
 from lads.diagnose.model import BASE_NAMES, Fit, Model, fit, fit_best, initial_base
 from lads.diagnose.parallel import fit_models, map_fits, one_thread
+from lads.diagnose.point_noise import point_noise
 from lads.diagnose.select import (
     CLAIM_FREQUENCY,
     MIN_GAIN_NATS,
@@ -39,6 +40,11 @@ from lads.diagnose.select import (
 LONG_RANGE_BAND_M = (30.0, 120.0)
 LONG_RANGE_MIN_SHARE = 0.05  # C5 is named over C1 only with >= 5 % of rows at 30-120 m
 NOISE_MIN_SLOPE = 0.1  # ln sigma per ln R (or ln I): sigma changes by < 7 % per doubling
+# The neighbour-difference slopes (point_noise.py) that matter: shot noise has 1 per ln R
+# (-0.5 per ln I); on the CI subset's cases with homoscedastic noise the estimator read
+# 0.05-0.13 (pairs that straddle two surfaces, the rounding model), 0.37 on K14's
+# piecewise-planar ground (scratch run of `make bench-diagnose-ci`).
+POINT_NOISE_MIN_SLOPE = 0.25
 GROUND_IDENTITIES = ("C1", "C3", "C4")
 GROUND_ONLY_SHARE = 0.05  # off-ground share of intensity rows below which they are one term
 Z_TEST = 3.0  # test-group gain (cluster SEs) that makes unstable effects "ambiguous", not null
@@ -52,7 +58,12 @@ class Settings:
         fit_rows: training rows per fit (a uniform subsample; groups all stay represented).
         resamples: group-bootstrap reruns of the selection (stability, §5.5 step 7).
         resample_rows: validation rows the resamples score on (every k-th; all of them
-            when fewer). The main selection scores on all.
+            when fewer).
+        selection_rows: validation rows the main selection scores on (every k-th). Its
+            SEs are cluster SEs: rows of one 10 m tile share their surfaces, so the
+            second 200k of ~400k held-out rows of a whole-scan case added little but time.
+            In two whole-scan CI-subset runs (scratch, all rows vs 200k) every run claimed
+            the same effects, and the subset took 293 s instead of 319 s.
         bootstrap: group-bootstrap refits of the final model (95 % percentile CIs).
         k_max: most effects selected.
         jobs: processes for the resamples and bootstrap refits (results do not depend on it).
@@ -66,6 +77,7 @@ class Settings:
     fit_rows: int = 15000
     resamples: int = 10
     resample_rows: int = 120_000
+    selection_rows: int = 200_000
     bootstrap: int = 40
     k_max: int = 4
     jobs: int = 2
@@ -113,8 +125,9 @@ def _diagnose_design(d: Design, rng: np.random.Generator, settings: Settings) ->
     split = split_groups(d, rng)
     weights = fit_weights(len(d), split.train, settings.fit_rows, rng)
     pool = candidates(d, train_rows=split.train)
+    selecting = split.validation[evenly_spaced(len(split.validation), settings.selection_rows)]
     selection = forward_backward(
-        d, pool, weights, split.validation, k_max=settings.k_max, jobs=settings.jobs
+        d, pool, weights, selecting, k_max=settings.k_max, jobs=settings.jobs
     )
 
     # Stability: rerun the selection on group-bootstrap resamples of the training groups,
@@ -313,13 +326,25 @@ def _ci(
             if arr.size == 0:
                 out[name] = None
                 continue
-            lo, hi = np.percentile(arr, [2.5, 97.5], axis=0)
+            lo, hi = interval95(arr)
             out[name] = [[float(a), float(b)] for a, b in zip(lo, hi, strict=True)]
         else:
-            lo, hi = np.percentile(np.asarray(vals, dtype=np.float64), [2.5, 97.5])
+            lo, hi = interval95(np.asarray(vals, dtype=np.float64))
             pad = floor.get(name, 0.0)
             out[name] = [float(min(lo, value - pad)), float(max(hi, value + pad))]
     return out
+
+
+def interval95(samples: npt.NDArray[np.float64]) -> tuple[Any, Any]:
+    """The 2.5 and 97.5 % points of (B, ...) bootstrap `samples` along axis 0, read at
+    order-statistic positions q (B + 1) (Hyndman & Fan type 6).
+
+    A further draw from the same distribution falls between the k-th smallest and k-th
+    largest of B draws with probability (B + 1 - 2k) / (B + 1). numpy's default positions
+    q (B - 1) + 1 put the bounds near the 2nd order statistics at B = 40: an interval that
+    covers 90 %, not 95 %, however good the bootstrap. Type 6 puts them at k = 1.025."""
+    lo, hi = np.percentile(samples, [2.5, 97.5], axis=0, method="weibull")
+    return lo, hi
 
 
 def _sample_arrays(params: dict[str, Any], samples: Any) -> dict[str, npt.NDArray[np.float64]]:
@@ -472,7 +497,7 @@ def _noise_model(
     }
     if boot.shape[0] >= 5:
         for i, name in ((2, "range_slope"), (3, "level_slope")):
-            lo, hi = np.percentile(boot[:, i], [2.5, 97.5])
+            lo, hi = interval95(boot[:, i])
             out[f"{name}_ci95"] = [float(lo), float(hi)]
     het = sel.fit
     flat = Model(list(het.model.effects), het.model.ln_range_ref, het.model.ln_sim_ref,
@@ -485,7 +510,16 @@ def _noise_model(
     out["heldout_gain_nats"] = {"delta": c.delta, "se": c.se}
     big = max(abs(th[2]), abs(th[3])) > NOISE_MIN_SLOPE
     out["heldout_gain_nats"]["z"] = c.z
-    out["kind"] = "heteroscedastic" if big and c.z > Z_ACCEPT else "homoscedastic"
+    total = "heteroscedastic" if big and c.z > Z_ACCEPT else "homoscedastic"
+    mu = final.predictions(d)[0]
+    fit_rows = np.concatenate([split.train, split.validation])
+    refs = (final.model.ln_range_ref, final.model.ln_sim_ref)
+    out["point_noise"] = point_noise(d, mu, fit_rows, split.test, *refs, POINT_NOISE_MIN_SLOPE,
+                                     Z_ACCEPT)  # fmt: skip
+    # Either test may see it: the total sigma a noise that every surface's own reflectance
+    # does not swamp, the neighbour differences one that it does (point_noise.py).
+    hetero = total == "heteroscedastic" or out["point_noise"]["kind"] == "heteroscedastic"
+    out["kind"] = "heteroscedastic" if hetero else "homoscedastic"
     return out
 
 

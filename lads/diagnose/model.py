@@ -408,7 +408,7 @@ def training_objective(
     """The training loss (weighted mean NLL over the rows with weight > 0, plus penalties)
     as a function of theta (a (P,) float64 tensor)."""
     use = np.flatnonzero(weights > 0)
-    sub = d.subset(use)
+    sub = d.rows_subset(use)
     w = torch.as_tensor(weights[use], dtype=torch.float64)
     total = float(w.sum())
 

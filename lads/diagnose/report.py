@@ -142,7 +142,18 @@ def markdown(doc: dict[str, Any]) -> str:
     lines += ["", "## Noise model", "",
               f"- {nm['kind']}: sigma(ln I) = {nm['sigma_ln_i']:.3f}, range slope "
               f"{nm['range_slope']:+.3f}, level slope {nm['level_slope']:+.3f}; return "
-              f"probability {nm['return_probability']:.3f}"]  # fmt: skip
+              f"probability {nm['return_probability']:.3f} (all residual spread: point "
+              "noise and each surface's own reflectance)"]  # fmt: skip
+    pn = nm.get("point_noise") or {}
+    if "range_slope" in pn:
+        z = pn["heldout_gain_nats"]["z"]
+        lines.append(f"- point noise ({pn['pairs']} neighbour pairs, differences within one "
+                     f"surface): {pn['kind']}, sigma(ln I) ~ {pn['sigma_ln_i_if_gaussian']:.3f}"
+                     f", range slope {pn['range_slope']:+.3f} {_interval(pn['range_slope_ci95'])}"
+                     f", level slope {pn['level_slope']:+.3f} "
+                     f"{_interval(pn['level_slope_ci95'])}; held-out z {z:.1f}")  # fmt: skip
+    elif pn:
+        lines.append(f"- point noise: {pn['kind']} ({pn.get('reason', '')})")
     h = doc["heldout"]
     lines += ["", f"## Held-out test groups ({h['groups']} groups, {h['rows']} beams)", "",
               "| model | RMSE ln I | MAE ln I | R² ln I | dropout Brier | dropout log-loss |",
@@ -166,3 +177,7 @@ def markdown(doc: dict[str, Any]) -> str:
     if doc.get("figures"):
         lines += ["", "## Figures", ""] + [f"![{f}]({f})" for f in doc["figures"]]
     return "\n".join(lines) + "\n"
+
+
+def _interval(ci: list[float]) -> str:
+    return f"[{ci[0]:+.3f}, {ci[1]:+.3f}]"

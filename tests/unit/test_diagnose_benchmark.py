@@ -319,6 +319,31 @@ def test_identification_exact_wrong_ambiguous_and_k14():
     assert identification(TRUTH_K14, {"effects": [_effect("C1", {"delta_n": -1.0})]}) == 0.0
 
 
+K13_EFFECTS = [
+    {"id": "C1", "key": "range_exponent", "params": {"delta_n": 0.4}},
+    {"id": "C2", "key": "near_range_overlap", "params": {"r0_m": 8.0}},
+]
+TRUTH_K13 = {**TRUTH_K2, "case": "K13", "effects": K13_EFFECTS}
+
+
+def test_a_pair_earns_half_credit_only_when_the_ambiguity_swaps_the_wrong_effect_for_the_true():
+    c2 = _effect("C2", {"r0_m": 8.0})
+    c5 = _effect("C5", {"alpha_per_m": 0.01})
+
+    def claim(*sets: list[str]) -> dict:
+        return {"effects": [c2, c5], "ambiguity_sets": [{"ids": s} for s in sets]}
+
+    assert identification(TRUTH_K13, claim(["C1", "C5"])) == 0.5  # {C2, C1} is left open
+    assert identification(TRUTH_K13, claim(["C1", "C2"])) == 0.0  # C5 is claimed firmly
+    assert identification(TRUTH_K13, claim(["C5", "C9"])) == 0.0  # C1 is never offered
+    assert identification(TRUTH_K13, claim()) == 0.0
+    assert identification(TRUTH_K13, {"effects": [c2, _effect("C1", {"delta_n": 0.4})]}) == 1.0
+    # A truth two swaps away, through two sets, earns nothing: the rule asks for one set.
+    c9 = _effect("C9", {"gamma": 1.2})
+    two = {"effects": [c9, c5], "ambiguity_sets": [{"ids": ["C1", "C5"]}, {"ids": ["C2", "C9"]}]}
+    assert identification(TRUTH_K13, two) == 0.0
+
+
 def test_false_discovery_on_the_null_cases(tmp_path):
     gen.generate_case("K18", "semantickitti", 0, tmp_path, max_points=SMALL)
     dirs = {

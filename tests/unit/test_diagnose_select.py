@@ -21,6 +21,7 @@ from lads.diagnose.analysis import (
     claim_with_sets,
     diagnose_design,
     effect_family,
+    interval95,
 )
 from lads.diagnose.design import group_index, paired_design, sim_log_variance
 from lads.diagnose.effects import azimuth_spacing_deg, candidates, odd_rings
@@ -492,8 +493,19 @@ def test_a_parameter_interval_is_never_narrower_than_its_resolution_floor():
     samples = [{"start_deg": 143.1 + 0.01 * k, "a": 0.4 + 0.001 * k} for k in range(40)]
     ci = _ci({"start_deg": 143.3, "a": 0.42}, samples, {"start_deg": 0.5})
     assert ci["start_deg"][0] == pytest.approx(142.8) and ci["start_deg"][1] == pytest.approx(143.8)
-    # Without a floor: the plain 95 % percentile interval of the samples.
-    assert ci["a"] == pytest.approx(list(np.percentile([s["a"] for s in samples], [2.5, 97.5])))
+    # Without a floor: the samples' 95 % interval, read at order-statistic positions.
+    assert ci["a"] == pytest.approx([0.400025, 0.438975])
+
+
+def test_a_95_percent_interval_of_40_replicates_holds_95_percent_of_further_draws():
+    rng = np.random.default_rng(5)
+    draws = rng.standard_normal((20000, 41))
+    lo, hi = interval95(draws[:, :40].T)
+    inside = np.mean((draws[:, 40] >= lo) & (draws[:, 40] <= hi))
+    assert inside == pytest.approx(0.95, abs=0.01)
+    # numpy's default positions give the 2nd order statistics: about 90 %.
+    lo7, hi7 = np.percentile(draws[:, :40], [2.5, 97.5], axis=1)
+    assert np.mean((draws[:, 40] >= lo7) & (draws[:, 40] <= hi7)) < 0.92
 
 
 def test_the_azimuth_spacing_is_the_median_step_between_returns_of_a_ring(ring_case):

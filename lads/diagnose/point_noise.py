@@ -1,0 +1,244 @@
+"""Point noise of ln I from differences between neighbouring returns (discovery.md E11).
+
+The likelihood's sigma is the spread of every residual about the fitted model: point noise
+(shot noise, speckle) plus the reflectance every surface has and the simulation does not
+know. The surface part is the larger (M2 draws sigma 0.2-0.4 per object against a point
+noise of 0.05-0.2), so a point noise that quadruples from 5 to 40 m moves the total sigma by
+a few per cent and its slope was never significant (K19). Two returns next to each other
+on one ring share the surface, its reflectance and every smooth term of the model; their
+difference holds the point noise of both (the von Neumann successive-difference estimate),
+plus both values' rounding.
+
+Model: d_ij = e_i - e_j, e = ln(I_real + h) - mu (the fitted model), Student t (NU degrees
+of freedom: a pair that straddles two surfaces is a heavy tail, not noise) with scale^2
+s_i^2 + s_j^2 + q_i + q_j, ln s = ln_sigma + range_slope (ln R - m_R) + level_slope
+(ln I_sim - m_I) (the likelihood's own noise form), q the variance of ln(x + h) over each
+stored value's rounding interval, real and simulated. Slopes get cluster-robust (sandwich)
+CIs over the groups; "heteroscedastic" is a held-out verdict on the test groups' pairs.
+Where the rounding is as large as the noise (0.03 at 10 steps above 0) their sum is no t:
+the level slope then reads ~0.1 on constant noise (tests/unit/test_diagnose_point_noise.py).
+Pure computation on a `Design`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+import scipy.optimize
+from scipy.special import gammaln
+
+from lads.diagnose.design import Design, evenly_spaced, sim_log_variance
+from lads.diagnose.select import by_rows
+
+NU = 4.0
+# The t(NU) scale that maximises the likelihood of N(0, 1) data (solves E[(NU + 1) x^2 /
+# (NU s^2 + x^2)] = 1): a Gaussian point noise of sigma is read as a scale of 0.831 sigma.
+GAUSS_SCALE = 0.8310
+MAX_GAP_SPACINGS = 2.5  # neighbours at most this many azimuth spacings apart (one lost return)
+MAX_DR_SHARE = 0.02  # |R_i - R_j| <= 2 % of R + MAX_DR_M: one surface seen almost face-on
+MAX_DR_M = 0.05
+MIN_PAIRS = 500
+FIT_PAIRS = 200_000  # three parameters: more pairs only cost time
+Z95 = 1.959963984540054
+
+
+@dataclass(frozen=True)
+class Pairs:
+    """Neighbouring returns of one design, (P,) each.
+
+    Attributes:
+        i, j: int64 rows of the design. d: float64 difference of their residuals.
+        q: float64 summed rounding variance of the four stored values. group: int64, row i's.
+    """
+
+    i: npt.NDArray[np.int64]
+    j: npt.NDArray[np.int64]
+    d: npt.NDArray[np.float64]
+    q: npt.NDArray[np.float64]
+    group: npt.NDArray[np.int64]
+
+    def take(self, k: npt.NDArray[np.int64]) -> Pairs:
+        return Pairs(self.i[k], self.j[k], self.d[k], self.q[k], self.group[k])
+
+    def __len__(self) -> int:
+        return len(self.d)
+
+
+def neighbour_pairs(d: Design, mu: npt.NDArray[np.float64]) -> Pairs:
+    """Pairs of consecutive returns on one ring of one scan, both fitted as exact values,
+    of one class and group, within MAX_GAP_SPACINGS azimuth spacings and at nearly the same
+    range (`mu`: (N,) the model's ln(I_real + h))."""
+    ok = np.flatnonzero(d.fits_intensity & (d.censor.numpy() == 0))
+    if len(ok) < 2:
+        return _empty()
+    scan, ring = d.scan.numpy()[ok], d.ring.numpy()[ok]
+    az = d.azimuth_deg.numpy()[ok]
+    rows = ok[np.lexsort((az, ring, scan))]
+    a, b = rows[:-1], rows[1:]
+    scan, ring = d.scan.numpy(), d.ring.numpy()
+    az, r = d.azimuth_deg.numpy(), d.range_m.numpy()
+    same = (scan[a] == scan[b]) & (ring[a] == ring[b])
+    gap = az[b] - az[a]
+    positive = gap[same & (gap > 0)]
+    if positive.size == 0:
+        return _empty()
+    # The median gap is the sensor's azimuth spacing: most consecutive returns are adjacent.
+    spacing = float(np.median(positive))
+    keep = same & (gap > 0) & (gap <= MAX_GAP_SPACINGS * spacing)
+    keep &= d.class_index.numpy()[a] == d.class_index.numpy()[b]
+    keep &= d.group[a] == d.group[b]
+    keep &= np.abs(r[a] - r[b]) <= MAX_DR_SHARE * np.minimum(r[a], r[b]) + MAX_DR_M
+    a, b = a[keep], b[keep]
+    y = d.y.numpy()
+    e = y - mu
+    i_real = np.exp(y) - d.half_step
+    q_real = sim_log_variance(i_real, d.step, d.half_step)
+    sim_var = d.sim_var.numpy()
+    q = q_real[a] + q_real[b] + sim_var[a] + sim_var[b]
+    return Pairs(a, b, e[a] - e[b], q, d.group[a])
+
+
+def _empty() -> Pairs:
+    z = np.zeros(0, dtype=np.int64)
+    return Pairs(z, z, np.zeros(0), np.zeros(0), z)
+
+
+@dataclass(frozen=True)
+class _Regressors:
+    """(P, 3) regressors (1, ln R - m_R, ln I_sim - m_I) of each pair's two rows."""
+
+    xi: npt.NDArray[np.float64]
+    xj: npt.NDArray[np.float64]
+
+    @classmethod
+    def of(cls, d: Design, p: Pairs, ln_range_ref: float, ln_sim_ref: float) -> _Regressors:
+        lr, ls = d.ln_range.numpy(), d.ln_sim.numpy()
+
+        def x(rows: npt.NDArray[np.int64]) -> npt.NDArray[np.float64]:
+            return np.column_stack(
+                [np.ones(len(rows)), lr[rows] - ln_range_ref, ls[rows] - ln_sim_ref]
+            )
+
+        return cls(x(p.i), x(p.j))
+
+
+def _nll_terms(
+    theta: npt.NDArray[np.float64], x: _Regressors, p: Pairs
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    """(P,) Student-t NLL of each pair and (P, 3) its gradient in theta."""
+    vi = np.exp(2.0 * (x.xi @ theta))
+    vj = np.exp(2.0 * (x.xj @ theta))
+    s2 = vi + vj + p.q
+    u = p.d * p.d / s2
+    nll = 0.5 * np.log(s2) + 0.5 * (NU + 1.0) * np.log1p(u / NU)
+    nll += gammaln(0.5 * NU) - gammaln(0.5 * (NU + 1.0)) + 0.5 * math.log(NU * math.pi)
+    # d nll / d s2, then d s2 / d theta = 2 v_i x_i + 2 v_j x_j.
+    ds2 = 0.5 / s2 * (1.0 - (NU + 1.0) * u / (NU + u))
+    grad = ds2[:, None] * (2.0 * vi[:, None] * x.xi + 2.0 * vj[:, None] * x.xj)
+    return nll, grad
+
+
+def _fit(
+    x: _Regressors, p: Pairs, start: npt.NDArray[np.float64], free: npt.NDArray[np.bool_]
+) -> npt.NDArray[np.float64]:
+    """theta minimising the mean pair NLL over the `free` coordinates (the rest stay 0)."""
+
+    def loss(v: npt.NDArray[np.float64]) -> tuple[float, npt.NDArray[np.float64]]:
+        th = np.zeros(3)
+        th[free] = v
+        nll, grad = _nll_terms(th, x, p)
+        return float(nll.mean()), grad.mean(axis=0)[free]
+
+    res = scipy.optimize.minimize(loss, start[free], jac=True, method="L-BFGS-B")
+    out = np.zeros(3)
+    out[free] = res.x
+    return out
+
+
+def _sandwich(theta: npt.NDArray[np.float64], x: _Regressors, p: Pairs) -> npt.NDArray[np.float64]:
+    """(3, 3) cluster-robust covariance of theta over the pairs' groups."""
+    _, grad = _nll_terms(theta, x, p)
+    n = len(p)
+    hess = np.zeros((3, 3))
+    for k in range(3):
+        # Central differences of the analytic gradient: three parameters, six evaluations.
+        step = np.zeros(3)
+        step[k] = 1e-5
+        up = _nll_terms(theta + step, x, p)[1].mean(axis=0)
+        down = _nll_terms(theta - step, x, p)[1].mean(axis=0)
+        hess[:, k] = (up - down) / 2e-5
+    hess = 0.5 * (hess + hess.T)
+    _, inv = np.unique(p.group, return_inverse=True)
+    k_groups = int(inv.max()) + 1
+    scores = np.stack([np.bincount(inv, weights=grad[:, c], minlength=k_groups)
+                       for c in range(3)], axis=1) / n  # fmt: skip
+    meat = scores.T @ scores * k_groups / max(k_groups - 1, 1)
+    h_inv = np.linalg.pinv(hess)
+    return h_inv @ meat @ h_inv
+
+
+def point_noise(
+    d: Design,
+    mu: npt.NDArray[np.float64],
+    fit_rows: npt.NDArray[np.int64],
+    test_rows: npt.NDArray[np.int64],
+    ln_range_ref: float,
+    ln_sim_ref: float,
+    min_slope: float,
+    z_accept: float,
+) -> dict[str, Any]:
+    """The point noise of ln I (module docstring), fitted on pairs within `fit_rows` and
+    judged on pairs within `test_rows` (numpy row indices of `d`; `mu` (N,) the final
+    model's ln(I_real + h)).
+
+    Returns a dict: pairs, t_scale_ln_i (the t scale at the reference range and level) and
+    sigma_ln_i_if_gaussian (the sigma of Gaussian noise with that scale),
+    range_slope, level_slope with ci95, heldout_gain_nats {delta, se, z} of the sloped over
+    the constant scale on the test pairs, and kind: "heteroscedastic" when that gain's z
+    exceeds `z_accept` and a slope exceeds `min_slope`, "homoscedastic" otherwise, or
+    "undetermined" with a reason when too few pairs exist."""
+    pairs = neighbour_pairs(d, mu)
+    in_fit = np.zeros(len(d), dtype=bool)
+    in_fit[fit_rows] = True
+    in_test = np.zeros(len(d), dtype=bool)
+    in_test[test_rows] = True
+    train = pairs.take(np.flatnonzero(in_fit[pairs.i] & in_fit[pairs.j]))
+    test = pairs.take(np.flatnonzero(in_test[pairs.i] & in_test[pairs.j]))
+    out: dict[str, Any] = {
+        "method": "differences of neighbouring returns on one ring and surface, Student t "
+        f"(nu = {NU:g}), rounding variance removed",
+        "pairs": int(len(train)),
+        "test_pairs": int(len(test)),
+    }
+    if len(train) < MIN_PAIRS or len(test) < MIN_PAIRS:
+        out["kind"] = "undetermined"
+        out["reason"] = (f"{len(train)} fitting and {len(test)} test neighbour pairs; at least "
+                         f"{MIN_PAIRS} of each are needed")  # fmt: skip
+        return out
+    train = train.take(evenly_spaced(len(train), FIT_PAIRS))
+    x = _Regressors.of(d, train, ln_range_ref, ln_sim_ref)
+    # Start at the robust scale of the differences: MAD / 0.6745 of d is sqrt(2) sigma.
+    mad = float(np.median(np.abs(train.d))) / 0.6745
+    start = np.array([math.log(max(mad, 1e-3) / math.sqrt(2.0)), 0.0, 0.0])
+    free_all = np.ones(3, dtype=bool)
+    flat_only = np.array([True, False, False])
+    sloped = _fit(x, train, start, free_all)
+    flat = _fit(x, train, start, flat_only)
+    cov = _sandwich(sloped, x, train)
+    se = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    out["t_scale_ln_i"] = float(math.exp(sloped[0]))
+    out["sigma_ln_i_if_gaussian"] = float(math.exp(sloped[0]) / GAUSS_SCALE)
+    for k, name in ((1, "range_slope"), (2, "level_slope")):
+        out[name] = float(sloped[k])
+        out[f"{name}_ci95"] = [float(sloped[k] - Z95 * se[k]), float(sloped[k] + Z95 * se[k])]
+    xt = _Regressors.of(d, test, ln_range_ref, ln_sim_ref)
+    gain = _nll_terms(flat, xt, test)[0] - _nll_terms(sloped, xt, test)[0]
+    c = by_rows(gain, gain, test.group)
+    out["heldout_gain_nats"] = {"delta": c.delta, "se": c.se, "z": c.z}
+    big = max(abs(sloped[1]), abs(sloped[2])) > min_slope
+    out["kind"] = "heteroscedastic" if big and c.z > z_accept else "homoscedastic"
+    return out
