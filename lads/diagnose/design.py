@@ -30,7 +30,7 @@ LOW_STEPS = 10  # below this many quantisation steps a stored value is treated a
 ZERO_FIT_STEPS = 2  # values stored at most this many steps above 0 get their power imputed
 ZERO_FIT_MIN_ROWS = 200
 ZERO_QUANTILES = 16
-TOBIT_MAX_ROWS = 50_000  # the law has ~25 coefficients; more rows only cost time
+TOBIT_MAX_ROWS = 20_000  # the law has ~25 coefficients: 800 rows each; more only cost time
 # A clip below the encoding's maximum (C9's i_max: firmware saturation, a gain stage) shows
 # as an atom at the top of the real values: the largest stored value holding CLIP_RATIO
 # times the rows of the step below it and CLIP_MIN_SHARE of all returns. Noise spreads a
