@@ -48,13 +48,8 @@ PROFILES = {"semantickitti": "hdl64e", "nuscenes": "hdl32e"}
 KITTI_SCANS = ("000000", "000001", "000002")
 UNLABELLED_RHO = 0.2
 SEED = 0
-# Effort of the diagnosis. The tool's defaults (analysis.Settings: resamples 10, bootstrap 40)
-# took 445 s for both bases on 2 shared cores (SemanticKITTI 329 s, nuScenes 115 s), over the
-# ~6 min budget; the stability resamples (a full forward selection each) dominate, so they
-# are cut to 6 (an effect is then claimed when selected in >= 5 of 6) and the CI bootstrap
-# to 30 refits.
-# The tool's own defaults (lads.diagnose.analysis.Settings): the time recorded here is the
-# time a user waits for `lads diagnose` on these frames.
+# Effort of the diagnosis: the tool's own defaults (lads.diagnose.analysis.Settings), so the
+# time recorded here is the time a user waits for `lads diagnose` on these frames.
 RESAMPLES = 10
 BOOTSTRAP = 40
 TOOL_TIMEOUT_S = 1800

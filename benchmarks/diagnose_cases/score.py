@@ -272,9 +272,19 @@ def _find(tree: dict[str, Any], rel: str) -> Any:
     return tree[hits[0]] if len(hits) == 1 else None
 
 
-def log_mse(other: Path | str, real: Path | str, half_step: float) -> float | None:
-    """Mean squared ln(I + h) difference of `other` against `real` over matched points."""
+Matches = dict[str, tuple[npt.NDArray[np.float64], npt.NDArray[np.int64], npt.NDArray[np.bool_]]]
+
+
+def log_mse(
+    other: Path | str, real: Path | str, half_step: float, matches: Matches | None = None
+) -> float | None:
+    """Mean squared ln(I + h) difference of `other` against `real` over matched points.
+
+    `matches` (relpath -> (xyz of `other`, nearest index, matched)) carries nearest-neighbour
+    matches from one call to the next: the simulated, oracle and corrected trees hold the
+    same points, and matching each against the real tree again was most of a run's scoring."""
     a, b = read_tree(other), read_tree(real)
+    matches = {} if matches is None else matches
     total, count = 0.0, 0
     for rel, (xyz_b, i_b) in b.items():
         hit = _find(a, rel)
@@ -284,8 +294,11 @@ def log_mse(other: Path | str, real: Path | str, half_step: float) -> float | No
         if len(i_a) == len(i_b) and np.allclose(xyz_a, xyz_b, atol=1e-4):
             ia, ib = i_a, i_b
         else:
-            dist, j = cKDTree(xyz_a).query(xyz_b, distance_upper_bound=MATCH_RADIUS_M)
-            ok = np.isfinite(dist)
+            known = matches.get(rel)
+            if known is None or not np.array_equal(known[0], xyz_a):
+                dist, j = cKDTree(xyz_a).query(xyz_b, distance_upper_bound=MATCH_RADIUS_M)
+                known = matches[rel] = (xyz_a, j, np.isfinite(dist))
+            _, j, ok = known
             ia, ib = i_a[j[ok]], i_b[ok]
         diff = np.log(np.clip(ia, 0.0, None) + half_step) - np.log(
             np.clip(ib, 0.0, None) + half_step
@@ -305,9 +318,10 @@ def recovery(
 ) -> dict[str, Any]:
     """L_before, L_after, L_oracle and the recovery ratio (None when not defined)."""
     h = 0.5 * load_profile(PROFILES[truth["base"]]).intensity.step
-    before = log_mse(sim_dir, real_dir, h)
-    oracle = log_mse(oracle_dir, real_dir, h)
-    after = log_mse(corrected_dir, real_dir, h) if corrected_dir is not None else None
+    matches: Matches = {}
+    before = log_mse(sim_dir, real_dir, h, matches)
+    oracle = log_mse(oracle_dir, real_dir, h, matches)
+    after = log_mse(corrected_dir, real_dir, h, matches) if corrected_dir is not None else None
     ratio = None
     if before is not None and oracle is not None and after is not None:
         denom = before - oracle
