@@ -213,6 +213,40 @@ def return_rate(table: BeamTable, predicted_return_prob: npt.ArrayLike | None, p
     return _save(fig, path)
 
 
+def point_noise(noise: Mapping[str, Any], path: Path) -> Path:
+    """Point noise of ln I against range: the model-free scale of neighbour differences per
+    range bin (points) and the fitted law (line), as in `point_noise.by_range`.
+
+    Args:
+        noise: report.json's `noise_model.point_noise` (with `by_range`).
+        path: PNG path.
+
+    Returns:
+        path.
+    """
+    bins = list(noise.get("by_range") or [])
+    fig, axes = _figure((6.0, 3.8), 1, 1)
+    ax = axes[0]
+    if bins:
+        r = np.array([b["range_m"] for b in bins])
+        ax.plot(r, [b["sigma_ln_i"] for b in bins], "o", color="k",
+                label="neighbour differences (MAD, rounding removed)")  # fmt: skip
+        ax.plot(r, [b["fitted_sigma_ln_i"] for b in bins], "-", color=AFTER,
+                label="fitted law (Student t, as Gaussian sigma)")  # fmt: skip
+        ax.set_xscale("log")
+        ax.legend(fontsize=7)
+    else:
+        ax.text(0.5, 0.5, "too few neighbour pairs", ha="center", va="center")
+    ax.set_ylim(bottom=0.0)
+    ax.set_xlabel("range (m)", fontsize=8)
+    ax.set_ylabel("point noise sigma of ln I", fontsize=8)
+    ax.tick_params(labelsize=7)
+    slope = noise.get("range_slope")
+    extra = f", range slope {slope:+.2f} per ln R" if slope is not None else ""
+    ax.set_title(f"point noise: {noise.get('kind', '?')}{extra}", fontsize=10)
+    return _save(fig, path)
+
+
 def bootstrap_histograms(samples: Mapping[str, npt.ArrayLike], path: Path) -> Path:
     """One histogram per parameter of its bootstrap replicates, median and 95% interval.
 

@@ -31,6 +31,7 @@ import numpy.typing as npt
 import scipy.optimize
 from scipy.special import gammaln
 
+from lads.diagnose.binning import RANGE_EDGES_M
 from lads.diagnose.design import Design, evenly_spaced, sim_log_variance
 from lads.diagnose.select import by_rows
 
@@ -42,6 +43,7 @@ MAX_GAP_SPACINGS = 2.5  # neighbours at most this many azimuth spacings apart (o
 MAX_DR_SHARE = 0.02  # |R_i - R_j| <= 2 % of R + MAX_DR_M: one surface seen almost face-on
 MAX_DR_M = 0.05
 MIN_PAIRS = 500
+MIN_BIN_PAIRS = 50  # a range bin of the figure's robust scale needs this many pairs
 FIT_PAIRS = 200_000  # three parameters: more pairs only cost time
 Z95 = 1.959963984540054
 
@@ -75,12 +77,10 @@ def neighbour_pairs(d: Design, mu: npt.NDArray[np.float64]) -> Pairs:
     ok = np.flatnonzero(d.fits_intensity & (d.censor.numpy() == 0))
     if len(ok) < 2:
         return _empty()
-    scan, ring = d.scan.numpy()[ok], d.ring.numpy()[ok]
-    az = d.azimuth_deg.numpy()[ok]
-    rows = ok[np.lexsort((az, ring, scan))]
-    a, b = rows[:-1], rows[1:]
     scan, ring = d.scan.numpy(), d.ring.numpy()
     az, r = d.azimuth_deg.numpy(), d.range_m.numpy()
+    rows = ok[np.lexsort((az[ok], ring[ok], scan[ok]))]
+    a, b = rows[:-1], rows[1:]
     same = (scan[a] == scan[b]) & (ring[a] == ring[b])
     gap = az[b] - az[a]
     positive = gap[same & (gap > 0)]
@@ -241,4 +241,35 @@ def point_noise(
     out["heldout_gain_nats"] = {"delta": c.delta, "se": c.se, "z": c.z}
     big = max(abs(sloped[1]), abs(sloped[2])) > min_slope
     out["kind"] = "heteroscedastic" if big and c.z > z_accept else "homoscedastic"
+    out["by_range"] = by_range(d, train, sloped, ln_range_ref, ln_sim_ref)
+    return out
+
+
+def by_range(
+    d: Design, p: Pairs, theta: npt.NDArray[np.float64], ln_range_ref: float, ln_sim_ref: float
+) -> list[dict[str, float]]:
+    """Per range bin (binning.RANGE_EDGES_M) with >= MIN_BIN_PAIRS pairs: the model-free
+    point noise, sqrt(max(MAD(d)^2 / 2 - median(q) / 2, 0)) with MAD = median |d| / 0.6745
+    (the Gaussian sigma of the differences, robust to pairs that straddle two surfaces),
+    beside the fitted law's Gaussian sigma at the bin's median ln R and ln I_sim: the check
+    a reader can do by eye (figures.point_noise)."""
+    r = np.sqrt(d.range_m.numpy()[p.i] * d.range_m.numpy()[p.j])
+    ln_r = 0.5 * (d.ln_range.numpy()[p.i] + d.ln_range.numpy()[p.j])
+    ln_s = 0.5 * (d.ln_sim.numpy()[p.i] + d.ln_sim.numpy()[p.j])
+    edges = np.asarray(RANGE_EDGES_M)
+    index = np.searchsorted(edges, r, side="right") - 1
+    out = []
+    for k in range(len(edges) - 1):
+        sel = index == k
+        n = int(sel.sum())
+        if n < MIN_BIN_PAIRS:
+            continue
+        mad = float(np.median(np.abs(p.d[sel]))) / 0.6745
+        var = 0.5 * mad * mad - 0.5 * float(np.median(p.q[sel]))
+        ln_scale = (theta[0] + theta[1] * (float(np.median(ln_r[sel])) - ln_range_ref)
+                    + theta[2] * (float(np.median(ln_s[sel])) - ln_sim_ref))  # fmt: skip
+        out.append({"range_lo_m": float(edges[k]), "range_hi_m": float(edges[k + 1]),
+                    "range_m": float(np.median(r[sel])), "pairs": n,
+                    "sigma_ln_i": math.sqrt(max(var, 0.0)),
+                    "fitted_sigma_ln_i": math.exp(ln_scale) / GAUSS_SCALE})  # fmt: skip
     return out

@@ -149,6 +149,9 @@ def _figures(
         prob = np.full(len(table), np.nan)
         prob[d.rows] = dg.final.predictions(d)[2]
         written.append(figures.return_rate(table, prob, out / "return_rate.png"))
+    if "by_range" in dg.noise_model.get("point_noise", {}):
+        written.append(figures.point_noise(dg.noise_model["point_noise"],
+                                           out / "point_noise.png"))  # fmt: skip
     samples = {f"{r.effect.label}.{k}": v for r in dg.effects for k, v in r.samples.items()
                if v.size}  # fmt: skip
     if samples:

@@ -384,6 +384,18 @@ def test_figures_write_png_files(attenuated, tmp_path):
             tmp_path / "bootstrap.png",
         ),
         figures.selection_trace(steps, tmp_path / "selection.png"),
+        figures.point_noise(
+            {
+                "kind": "heteroscedastic",
+                "range_slope": 0.8,
+                "by_range": [
+                    {"range_m": r, "sigma_ln_i": 0.01 * r**0.8, "fitted_sigma_ln_i": 0.011 * r**0.8}
+                    for r in (3.0, 7.0, 15.0)
+                ],
+            },
+            tmp_path / "point_noise.png",
+        ),
+        figures.point_noise({"kind": "undetermined"}, tmp_path / "point_noise_empty.png"),
     ]
     for path in written:
         assert path.parent == tmp_path

@@ -81,6 +81,16 @@ def test_point_noise_growing_with_range_is_found_under_a_larger_surface_spread()
     assert noise["heldout_gain_nats"]["z"] > 3.0
 
 
+def test_the_model_free_scale_per_range_bin_follows_the_true_noise_and_the_fitted_law():
+    true_sd = lambda r: 0.03 * (r / 5.0) ** 0.8  # noqa: E731
+    noise = noise_of(paired_design(surfaces(2, true_sd)))
+    bins = noise["by_range"]
+    assert len(bins) >= 5
+    for b in bins:
+        assert b["sigma_ln_i"] == pytest.approx(true_sd(b["range_m"]), rel=0.2)
+        assert b["fitted_sigma_ln_i"] == pytest.approx(b["sigma_ln_i"], rel=0.2)
+
+
 @pytest.mark.parametrize("sigma", [0.08, 0.03])
 def test_constant_point_noise_under_surface_spread_is_homoscedastic(sigma):
     # At 0.03 the rounding of values ~10 steps above 0 is as large as the noise. Its
