@@ -229,7 +229,8 @@ def point_noise(noise: Mapping[str, Any], path: Path) -> Path:
     ax = axes[0]
     if bins:
         r = np.array([b["range_m"] for b in bins])
-        ax.plot(r, [b["sigma_ln_i"] for b in bins], "o", color="k",
+        seen = [(b["range_m"], b["sigma_ln_i"]) for b in bins if b["sigma_ln_i"] is not None]
+        ax.plot([x for x, _ in seen], [y for _, y in seen], "o", color="k",
                 label="neighbour differences (MAD, rounding removed)")  # fmt: skip
         ax.plot(r, [b["fitted_sigma_ln_i"] for b in bins], "-", color=AFTER,
                 label="fitted law (Student t, as Gaussian sigma)")  # fmt: skip

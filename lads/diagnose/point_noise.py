@@ -200,7 +200,7 @@ def point_noise(
     range_slope, level_slope with ci95, heldout_gain_nats {delta, se, z} of the sloped over
     the constant scale on the test pairs, and kind: "heteroscedastic" when that gain's z
     exceeds `z_accept` and a slope exceeds `min_slope`, "homoscedastic" otherwise, or
-    "undetermined" with a reason when too few pairs exist."""
+    "undetermined" with a reason when too few pairs exist; and by_range (`by_range`)."""
     pairs = neighbour_pairs(d, mu)
     in_fit = np.zeros(len(d), dtype=bool)
     in_fit[fit_rows] = True
@@ -247,10 +247,11 @@ def point_noise(
 
 def by_range(
     d: Design, p: Pairs, theta: npt.NDArray[np.float64], ln_range_ref: float, ln_sim_ref: float
-) -> list[dict[str, float]]:
+) -> list[dict[str, float | None]]:
     """Per range bin (binning.RANGE_EDGES_M) with >= MIN_BIN_PAIRS pairs: the model-free
-    point noise, sqrt(max(MAD(d)^2 / 2 - median(q) / 2, 0)) with MAD = median |d| / 0.6745
-    (the Gaussian sigma of the differences, robust to pairs that straddle two surfaces),
+    point noise sqrt(MAD(d)^2 / 2 - median(q) / 2) (None when not positive), MAD = median
+    |d| / 0.6745 (the Gaussian sigma of the differences, robust to pairs that straddle two
+    surfaces),
     beside the fitted law's Gaussian sigma at the bin's median ln R and ln I_sim: the check
     a reader can do by eye (figures.point_noise)."""
     r = np.sqrt(d.range_m.numpy()[p.i] * d.range_m.numpy()[p.j])
@@ -270,6 +271,8 @@ def by_range(
                     + theta[2] * (float(np.median(ln_s[sel])) - ln_sim_ref))  # fmt: skip
         out.append({"range_lo_m": float(edges[k]), "range_hi_m": float(edges[k + 1]),
                     "range_m": float(np.median(r[sel])), "pairs": n,
-                    "sigma_ln_i": math.sqrt(max(var, 0.0)),
+                    # None: the rounding is as large as the differences (integer
+                    # counts a few steps above 0, most neighbours stored alike).
+                    "sigma_ln_i": math.sqrt(var) if var > 0.0 else None,
                     "fitted_sigma_ln_i": math.exp(ln_scale) / GAUSS_SCALE})  # fmt: skip
     return out

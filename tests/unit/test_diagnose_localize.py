@@ -391,7 +391,9 @@ def test_figures_write_png_files(attenuated, tmp_path):
                 "by_range": [
                     {"range_m": r, "sigma_ln_i": 0.01 * r**0.8, "fitted_sigma_ln_i": 0.011 * r**0.8}
                     for r in (3.0, 7.0, 15.0)
-                ],
+                ]
+                # rounding as large as the differences: no model-free point
+                + [{"range_m": 30.0, "sigma_ln_i": None, "fitted_sigma_ln_i": 0.17}],
             },
             tmp_path / "point_noise.png",
         ),
