@@ -58,6 +58,9 @@ class Effect:
         starts: initial vectors to try (the best on the training loss is kept).
         scalar: (P,) bool, parameters whose being at a bound disqualifies the effect.
         class_index: the class it is confined to, or -1.
+        domain: for an effect confined to rows its fit chooses (an azimuth sector, a few
+            rings): (numpy theta of this effect, design) -> (N,) bool, the rows it acts on.
+            The held-out test then also reads those rows alone (select.domain_rows).
     """
 
     info: EffectInfo
@@ -74,6 +77,7 @@ class Effect:
     log_survival: Callable[[Tensor, Design], Tensor] | None = None
     penalty: Callable[[Tensor], Tensor] | None = None
     exporter: Callable[[npt.NDArray[np.float64]], dict[str, Any]] | None = None
+    domain: Callable[[npt.NDArray[np.float64], Design], npt.NDArray[np.bool_]] | None = None
     extra: dict[str, Any] = field(default_factory=dict)
 
     @property
@@ -383,11 +387,15 @@ def _blockage(d: Design, train_rows: npt.NDArray[np.int64] | None) -> Effect:
     def survival(th: Tensor, dd: Design) -> Tensor:
         return torch.log1p(-th[3] * _in_sector(dd.azimuth_deg, th[0], th[1]))
 
+    def sector(th: npt.NDArray[np.float64], dd: Design) -> npt.NDArray[np.bool_]:
+        offset = np.remainder(dd.azimuth_deg.numpy() - th[0], 360.0)
+        return offset < th[1]
+
     names = ("start_deg", "width_deg", "a", "drop_fraction")
     bounds = [(-360.0, 720.0), (2.0, 90.0), (0.0, 0.95), (0.0, 0.95)]
     eff = _entry("C11", names, bounds, [[start, width, 0.3, 0.05]],
                  scalar=[False, True, True, False], ln_term=term,
-                 log_survival=survival if d.paired else None,
+                 log_survival=survival if d.paired else None, domain=sector,
                  exporter=lambda th: {"start_deg": float(th[0] % 360.0),
                                       "width_deg": float(th[1]), "a": float(th[2]),
                                       "drop_fraction": float(th[3])})  # fmt: skip
@@ -421,7 +429,7 @@ def _few_ring_gains(d: Design, rings: list[int]) -> Effect | None:
         "C4", tuple(f"ln_gain_by_ring[{r}]" for r in rings), [(-1.0, 1.0)] * k, [[0.0] * k],
         label="C4[few_rings]", scalar=[False] * k,
         ln_term=lambda th, dd: torch.cat([th, th.new_zeros(1)])[lookup[dd.ring]],
-        exporter=export,
+        exporter=export, domain=lambda th, dd: np.isin(dd.ring.numpy(), rings),
     )  # fmt: skip
 
 

@@ -393,6 +393,22 @@ def _simplest_within_one_se(
     return min(tied, key=lambda r: (r[0].size, -r[2].delta))
 
 
+def domain_rows(held_out: Design, effect: Effect, f: Fit) -> Design | None:
+    """The held-out rows an effect confined by its own fit acts on (`Effect.domain`: the
+    sector, the rings its training fit chose), if enough groups hold them.
+
+    Like a class, such a domain is a few of the held-out tiles: a blocked 20 degree sector
+    lay in 21 of 262 validation tiles of a K15 case, all of the gain (0.6 nats per beam)
+    was there, and over all tiles the cluster z was 2.6; tile by tile it was consistent."""
+    if effect.domain is None or effect.label not in [e.label for e in f.model.effects]:
+        return None
+    k = [e.label for e in f.model.effects].index(effect.label)
+    rows = np.flatnonzero(effect.domain(f.theta[f.model.slices()[k]], held_out))
+    if len(np.unique(held_out.group[rows])) < MIN_SUPPORT_GROUPS:
+        return None
+    return held_out.subset(rows)
+
+
 def class_rows(held_out: Design, effect: Effect) -> Design | None:
     """The held-out rows of a class-confined effect's class, if enough groups hold it."""
     if effect.class_index < 0:
@@ -450,6 +466,8 @@ def forward_backward(
     def assess(cand: Effect, f: Fit, n_w: float, ref: Fit, incumbent: Incumbent) -> tuple:
         c = compare_on(f, ref, held_out, scale, n_w, incumbent)
         sub = supports[cand.label]
+        if sub is None:
+            sub = domain_rows(held_out, cand, f)
         return c, None if sub is None else compare_groups(f, ref, sub)
 
     for step in range(1, k_max + 1):

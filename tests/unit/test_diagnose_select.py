@@ -25,7 +25,15 @@ from lads.diagnose.analysis import (
 )
 from lads.diagnose.design import group_index, paired_design, sim_log_variance
 from lads.diagnose.effects import azimuth_spacing_deg, candidates, odd_rings
-from lads.diagnose.model import Fit, Model, directional_gain, fit, initial_base, nll_from_terms
+from lads.diagnose.model import (
+    BASE_NAMES,
+    Fit,
+    Model,
+    directional_gain,
+    fit,
+    initial_base,
+    nll_from_terms,
+)
 from lads.diagnose.parallel import fit_models, fit_warm, map_fits, restrict
 from lads.diagnose.select import (
     MIN_GAIN_NATS,
@@ -38,6 +46,7 @@ from lads.diagnose.select import (
     _passes,
     by_groups,
     by_rows,
+    domain_rows,
     gain_floor,
     group_multiplicity,
     row_gains,
@@ -575,3 +584,23 @@ def test_a_parameter_no_fitted_row_informs_is_flagged_and_gets_the_catalogue_ran
     fitted = fit_warm(empty.with_effect(absent).with_effect(present), design, weights, base, None)
     flat = fitted.flat_parameters(design, weights)
     assert flat == {absent.label: list(absent.names)}
+
+
+def test_an_effect_confined_by_its_fit_is_also_tested_on_the_rows_it_acts_on():
+    # A blocked sector is a few of the held-out tiles; its test reads the rows in the
+    # sector the training fit chose, the other tiles say nothing about it.
+    design = paired_design(make_table(21))
+    pool = {e.label: e for e in candidates(design)}
+    c11 = pool["C11"]
+    model = Model([c11], 0.0, 0.0)
+    theta = np.concatenate([np.zeros(len(BASE_NAMES)), [350.0, 30.0, 0.5, 0.1]])  # wraps 0
+    sub = domain_rows(design, c11, Fit(model, theta, 0.0, True))
+    assert sub is not None
+    az = sub.azimuth_deg.numpy()
+    assert np.all((az >= 350.0) | (az < 20.0))
+    inside = (design.azimuth_deg.numpy() >= 350.0) | (design.azimuth_deg.numpy() < 20.0)
+    assert len(sub) == int(inside.sum())
+    # Effects that act everywhere, or on a class, have no such domain.
+    c5 = pool["C5"]
+    alpha = np.concatenate([np.zeros(len(BASE_NAMES)), [0.01]])
+    assert domain_rows(design, c5, Fit(Model([c5], 0.0, 0.0), alpha, 0.0, True)) is None
