@@ -22,6 +22,7 @@ from lads.diagnose.analysis import (
     diagnose_design,
     effect_family,
     interval95,
+    resample_swaps,
 )
 from lads.diagnose.design import group_index, paired_design, sim_log_variance
 from lads.diagnose.effects import azimuth_spacing_deg, candidates, odd_rings
@@ -604,3 +605,24 @@ def test_an_effect_confined_by_its_fit_is_also_tested_on_the_rows_it_acts_on():
     c5 = pool["C5"]
     alpha = np.concatenate([np.zeros(len(BASE_NAMES)), [0.01]])
     assert domain_rows(design, c5, Fit(Model([c5], 0.0, 0.0), alpha, 0.0, True)) is None
+
+
+def test_resamples_that_swap_a_selected_effect_for_another_make_an_ambiguity_set():
+    pool = candidates(paired_design(make_table(22)))
+    family = {e.label: effect_family(e) for e in pool}
+    split = [["C2", "C1"]] * 5 + [["C2", "C5"]] * 5
+    sets = resample_swaps(["C2", "C1"], split, pool, family, [])
+    assert [s["ids"] for s in sets] == [["C1", "C5"]]
+    assert "50%" in sets[0]["reason"]
+    # Chosen instead in 2 of 10: the selected effect is stable, no set.
+    assert resample_swaps(["C2", "C1"], [["C2", "C1"]] * 8 + [["C2", "C5"]] * 2, pool,
+                          family, []) == []  # fmt: skip
+    # Together in fewer than 7 of 10: the mismatch itself is unstable, not its form.
+    sparse = [["C1"]] * 3 + [["C5"]] * 3 + [[]] * 4
+    assert resample_swaps(["C1"], sparse, pool, family, []) == []
+    # A set the held-out swap test already listed is not repeated.
+    known = [{"ids": ["C1", "C5"]}]
+    assert resample_swaps(["C2", "C1"], split, pool, family, known) == []
+    # Two forms of one effect are one answer, not an ambiguity.
+    forms = [["C3"]] * 5 + [["C3[oren_nayar]"]] * 5
+    assert resample_swaps(["C3"], forms, pool, family, []) == []
