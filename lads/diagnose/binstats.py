@@ -106,7 +106,7 @@ def target_stats(
     share = count >= max(MIN_BIN_SHARE * rows.size, 1)
     effect_bins = np.flatnonzero(share & (n_groups >= MIN_EFFECT_GROUPS))
     testable = share & (n_groups >= MIN_TEST_GROUPS)
-    if np.all((y == 0) | (y == 1)):  # rare binary outcomes: normal theory needs events
+    if y.size and np.all((y == 0) | (y == 1)):  # rare binary outcomes: need events
         rate = float(y.mean())
         testable &= np.minimum(rate, 1 - rate) * count >= MIN_TEST_EVENTS
     test_bins = np.flatnonzero(testable)

@@ -4,9 +4,14 @@ Every file of the simulated tree is copied; each scan's points get the fitted pr
 the real intensity (exp(mu) - h, rounded to the encoding's step and clipped), and beams the
 fitted dropout says are lost are removed together with their label rows, so the corrected
 tree can be compared with the real one by any tool. Dropout draws come from a generator
-seeded by (seed, relpath), so the output does not depend on scan order. Points the analysis
-did not see (zero range) are kept unchanged. A nuScenes tree with devkit tables keeps every
-point (its lidarseg files are addressed by token and count), only intensities change.
+seeded by (seed, relpath), so the output does not depend on scan order.
+
+Predicted are the fitted rows and the simulated returns the fit left out for being stored
+at the encoding's maximum (`design.prediction_design`); unpaired, every simulated return
+(the fitted rows are real beams of other scans). Points the analysis did not see (nearer
+than the sensor's minimum range, zero range) are kept unchanged. A nuScenes tree with
+devkit tables keeps every point (its lidarseg files are addressed by token and count), only
+intensities change; so does every unpaired tree (no dropout is fitted without pairs).
 """
 
 from __future__ import annotations
@@ -18,7 +23,7 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
-from lads.diagnose.design import Design
+from lads.diagnose.design import Design, prediction_design, saturated_rows
 from lads.diagnose.model import Fit
 from lads.diagnose.table import BeamTable, SensorInfo
 from lads.diagnose.trees import TreePair
@@ -29,9 +34,18 @@ _COLUMNS = {"semantickitti": 4, "wads": 4, "nuscenes": 5}
 
 
 def write_corrected(
-    pair: TreePair, table: BeamTable, design: Design, fit: Fit, out_root: Path, seed: int
+    pair: TreePair,
+    table: BeamTable,
+    design: Design,
+    fit: Fit,
+    out_root: Path,
+    seed: int,
+    sim_table: BeamTable | None = None,
 ) -> int:
     """Write the corrected simulation tree to `out_root`; returns the number of scans written.
+
+    `table` is the table `design` was built from; unpaired, `sim_table` is the simulated
+    tree's own table (required there).
 
     Raises:
         DiagnoseError: `out_root` is the simulated or real tree itself, or a scan file does
@@ -45,14 +59,28 @@ def write_corrected(
     if out_root.exists():
         shutil.rmtree(out_root)
     shutil.copytree(pair.sim_root, out_root)
-    mu, _, p = fit.predictions(design)
+    if design.paired:
+        parts = [design]
+        saturated = saturated_rows(table)
+        if saturated.size:
+            parts.append(prediction_design(table, saturated, design))
+    else:
+        if sim_table is None:
+            raise DiagnoseError("an unpaired corrected tree needs the simulated tree's table "
+                                "(write_corrected(..., sim_table=...)).")  # fmt: skip
+        table = sim_table
+        rows = np.flatnonzero(table.ret_sim & np.isfinite(table.i_sim))
+        parts = [prediction_design(table, rows, design)]
+    predicted = [fit.predictions(part) for part in parts]
+    mu = np.concatenate([m for m, _, _ in predicted])
+    p = np.concatenate([q for _, _, q in predicted])
     intensity = np.exp(mu) - design.half_step
     # Without any dropout effect the constant return rate is the sensor's random loss, which
     # the simulation is not asked to reproduce: only fitted dropout mechanisms remove beams.
-    has_dropout = any(e.log_survival is not None or e.extra.get("threshold")
-                      for e in fit.model.effects)  # fmt: skip
+    has_dropout = design.paired and any(e.log_survival is not None or e.extra.get("threshold")
+                                        for e in fit.model.effects)  # fmt: skip
     base_rate = 1.0 / (1.0 + np.exp(-fit.theta[4]))
-    table_rows = design.rows
+    table_rows = np.concatenate([part.rows for part in parts])
     scan_of_row = table.scan[table_rows]
     sim_index = table.sim_index[table_rows]
     written = 0

@@ -214,9 +214,7 @@ def paired_design(table: BeamTable) -> Design:
     A simulated value stored at the encoding's maximum is only a lower bound of what the
     simulation meant; used as exact it biases every fitted slope (a near-range clip reads as
     a flatter range law), so those rows are left out."""
-    top, step = table.sensor.max_value, table.sensor.step
-    clipped = table.i_sim > top - 0.5 * step
-    rows = np.flatnonzero(table.ret_sim & np.isfinite(table.i_sim) & ~clipped)
+    rows = np.flatnonzero(table.ret_sim & np.isfinite(table.i_sim) & ~_sim_clipped(table))
     t = table.take(rows)
     i_real = np.nan_to_num(t.i_real, nan=0.0).astype(np.float64)
     h, step = t.sensor.half_step, t.sensor.step
@@ -228,6 +226,38 @@ def paired_design(table: BeamTable) -> Design:
     sim_mean[low] = _low_power(t, i_sim, low, step, h)
     return _design(t, rows, i_real, t.ret_real.copy(), ln_sim, True, sim_var, ~zero,
                    sim_mean - ln_sim)  # fmt: skip
+
+
+def saturated_rows(table: BeamTable) -> npt.NDArray[np.int64]:
+    """Rows of a paired table whose simulated return is stored at the encoding's maximum
+    (left out of `paired_design`, predicted by `prediction_design`)."""
+    return np.flatnonzero(table.ret_sim & np.isfinite(table.i_sim) & _sim_clipped(table))
+
+
+def _sim_clipped(table: BeamTable) -> npt.NDArray[np.bool_]:
+    return table.i_sim > table.sensor.max_value - 0.5 * table.sensor.step
+
+
+def prediction_design(table: BeamTable, rows: npt.NDArray[np.int64], like: Design) -> Design:
+    """Design of simulated returns `rows` of `table` to predict from, not to fit on.
+
+    Its real columns are empty (no row is returned). The simulated value is taken as
+    stored: one at the encoding's maximum is a lower bound of what the simulation meant, so
+    for the catalogue's laws (monotone in ln I_sim) the prediction is a lower bound too,
+    which the writer clips at the maximum again. Left at the maximum instead, those beams
+    kept none of the fitted effects: on a nuScenes near-range case (K3) the simulation had
+    saturated the beams nearer than 3 m, whose real values lay 2.8 lower in ln I.
+    Classes, per-scan levels (C10) and the real clip are `like`'s when both designs hold
+    the same scans (paired), so a fitted per-class or per-scan term means the same rows;
+    unpaired, the simulated scans are other scans and get their own levels."""
+    t = table.take(rows)
+    h, step = t.sensor.half_step, t.sensor.step
+    i_sim = t.i_sim.astype(np.float64)
+    sim_mean, sim_var = _sim_log_moments(i_sim, step, h)
+    ln_sim = np.log(i_sim + h)
+    n = len(rows)
+    return _design(t, rows, np.zeros(n), np.zeros(n, dtype=bool), ln_sim, like.paired, sim_var,
+                   i_sim >= 0.5 * step, sim_mean - ln_sim, like=like)  # fmt: skip
 
 
 def clip_level(i_real: npt.ArrayLike, step: float, max_value: float) -> float | None:
@@ -394,9 +424,10 @@ def _design(
     sim_var: npt.NDArray[np.float64],
     sim_ok: npt.NDArray[np.bool_],
     sim_shift: npt.NDArray[np.float64],
+    like: Design | None = None,
 ) -> Design:
     h, step, top = t.sensor.half_step, t.sensor.step, t.sensor.max_value
-    clip = clip_level(i_real[returned], step, top)
+    clip = clip_level(i_real[returned], step, top) if like is None else like.real_clip
     if clip is not None:
         top = clip
     y = np.where(returned, np.log(i_real + h), 0.0)
@@ -407,6 +438,9 @@ def _design(
     y_lo = np.log(np.maximum(i_real - 0.5 * step, 0.0) + h)
     y_hi = np.log(i_real + 0.5 * step + h)
     classes = tuple(int(c) for c in np.unique(t.class_id[t.class_id >= 0]))
+    class_names = tuple(t.class_names.get(c, str(c)) for c in classes)
+    if like is not None:
+        classes, class_names = like.classes, like.class_names
     lookup = {c: i for i, c in enumerate(classes)}
     class_index = np.array([lookup.get(int(c), -1) for c in t.class_id], dtype=np.int64)
     cos = np.clip(t.cos_incidence.astype(np.float64), 0.0, 1.0)
@@ -417,6 +451,9 @@ def _design(
     counts = np.maximum(np.bincount(scans, minlength=n_scans), 1)
     scan_mean = sums / counts
     scan_mean = scan_mean - np.average(scan_mean, weights=counts)
+    if like is not None and like.paired:
+        scan_mean = np.zeros(n_scans)
+        scan_mean[like.scan.numpy()] = like.scan_ln_mean.numpy()
 
     def f64(a: npt.ArrayLike) -> torch.Tensor:
         return torch.as_tensor(np.asarray(a, dtype=np.float64))
@@ -447,7 +484,7 @@ def _design(
         group=t.group.astype(np.int64),
         rows=rows.astype(np.int64),
         classes=classes,
-        class_names=tuple(t.class_names.get(c, str(c)) for c in classes),
+        class_names=class_names,
         half_step=t.sensor.half_step,
         full_scale=t.sensor.full_scale,
         max_value=t.sensor.max_value,

@@ -76,6 +76,7 @@ def _diagnose(
 ) -> dict[str, Any]:
     torch.set_num_threads(1)  # fits are small; one thread keeps results identical everywhere
     pair = open_trees(sim_root, real_root, source, paired=paired)
+    sim_table = None
     if paired:
         table = paired_table(pair, progress=progress)
         design = paired_design(table)
@@ -105,7 +106,8 @@ def _diagnose(
     doc = build_report(dg, context, to_json(loc_before), figs)
     write_report(doc, out)
     if write_corrected_to is not None:
-        write_corrected(pair, table, design, dg.final, Path(write_corrected_to), seed)
+        write_corrected(pair, table, design, dg.final, Path(write_corrected_to), seed,
+                        sim_table=sim_table)  # fmt: skip
     return doc
 
 
