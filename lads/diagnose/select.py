@@ -57,6 +57,16 @@ MIN_SUPPORT_GROUPS = 4
 # class-confined ones) on all of them. Fit time is linear in rows, so a step over ~25
 # candidates costs ~1/3 of full fits, and the decision still rests on full fits.
 SCREEN_ROWS = 5000
+# A class whose held-out support has fewer than CROSSFIT_BELOW_GROUPS groups is also scored
+# on the training groups that hold it, each out of sample: the training groups are split in
+# CROSSFIT_FOLDS folds and both the incumbent and the candidate are refitted without each
+# fold (`crossfit_support`). A retro-reflecting sign in a K8 case lay in 8 held-out tiles,
+# gained 12.9 nats per sign beam there, t = 3.6 against the t(7) bar of 4.5 (z = 3), and
+# was chosen in 10 of 10 stability resamples; the training tiles held more signs that no
+# test read. Only candidates that already pass the resamples' bar on their held-out groups
+# are cross-fitted (the refits cost 2 x CROSSFIT_FOLDS fits each).
+CROSSFIT_BELOW_GROUPS = 20
+CROSSFIT_FOLDS = 4
 SHORTLIST = 4
 SHORTLIST_CONFINED = 2
 CLAIM_FREQUENCY = 0.7
@@ -218,6 +228,50 @@ def compare_groups(new: Fit, old: Fit, sub: Design) -> Comparison:
     return by_groups(old.row_nll(sub) - new.row_nll(sub), sub.group, index=sub.group_index)
 
 
+def crossfit_support(
+    new: Fit,
+    old: Fit,
+    d: Design,
+    weights: npt.NDArray[np.float64],
+    sub: Design,
+    class_index: int,
+    refs: dict[int, Fit],
+) -> Comparison:
+    """`compare_groups` on the held-out class rows `sub` pooled with the class rows of the
+    training groups, each scored by `new` and `old` refitted without its fold.
+
+    The folds are the training groups (weight > 0) that hold the class, in sorted order,
+    dealt round-robin into CROSSFIT_FOLDS folds; a fold's refits start from `new`'s and
+    `old`'s parameters and train on every other training row. `refs` caches the refits of
+    `old` by fold (one incumbent, many candidates). Every group's gain is out of sample,
+    so under no effect its expectation is not above 0, as on the held-out groups."""
+    gains = [old.row_nll(sub) - new.row_nll(sub)]
+    groups = [sub.group]
+    train = weights > 0
+    of_class = d.class_index.numpy() == class_index
+    holding = np.unique(d.group[train & of_class])
+    for k in range(min(CROSSFIT_FOLDS, len(holding))):
+        fold = holding[k::CROSSFIT_FOLDS]
+        out = np.isin(d.group, fold)
+        w = np.where(out, 0.0, weights)
+        if k not in refs:
+            refs[k] = fit(old.model, d, w, old.theta)
+        refit = fit(new.model, d, w, new.theta)
+        rows = d.rows_subset(np.flatnonzero(out & of_class))
+        gains.append(refs[k].row_nll(rows) - refit.row_nll(rows))
+        groups.append(rows.group)
+    return by_groups(np.concatenate(gains), np.concatenate(groups))
+
+
+def _worth_crossfit(c: Comparison, support: Comparison | None, effect: Effect) -> bool:
+    if support is None or effect.class_index < 0 or support.groups >= CROSSFIT_BELOW_GROUPS:
+        return False
+    if c.delta <= 0.0 or support.delta <= 0.0:
+        return False
+    t_bar = float(stats.t.isf(stats.norm.sf(Z_RESAMPLE), df=support.groups - 1))
+    return support.delta > t_bar * support.se
+
+
 def by_groups(
     gain: npt.NDArray[np.float64],
     group: npt.NDArray[np.int64],
@@ -271,6 +325,7 @@ class Step:
     support: Comparison | None = None
     screened: bool = False  # fitted on the screening rows only (not shortlisted)
     z: float = 0.0  # the held-out directional score in cluster SEs (the acceptance test)
+    crossfit: bool = False  # support pooled with cross-fitted training groups
 
     @classmethod
     def of(cls, step: int, label: str, c: Comparison, at_bound: bool, **kw: Any) -> Step:
@@ -285,7 +340,9 @@ class Step:
             out["class_rows"] = {"delta_loss": self.support.delta, "se": self.support.se,
                                  "t": self.support.delta / max(self.support.se, 1e-300),
                                  "groups": self.support.groups,
-                                 "statistic": "mean of group mean gains"}  # fmt: skip
+                                 "statistic": "mean of group mean gains"
+                                 + (", held-out and cross-fitted training groups"
+                                    if self.crossfit else "")}  # fmt: skip
         return out
 
 
@@ -499,12 +556,19 @@ def forward_backward(
                     sel.first_step[cand.label] = c
         fits = fit_models([current.model.with_effect(c) for c in listed], d, weights, base,
                           current, jobs, warm)  # fmt: skip
+        fold_refs: dict[int, Fit] = {}
         for cand, f in zip(listed, fits, strict=True):
             sel.fitted[f.model.key] = f
             c, support = assess(cand, f, n_fit, current, incumbent)
             bound = cand.label in f.binding_bounds(d, weights)
+            crossfit = (not _passes(c, bound, z_accept, floor, support)
+                        and _worth_crossfit(c, support, cand))  # fmt: skip
+            if crossfit:
+                support = crossfit_support(f, current, d, weights, supports[cand.label],
+                                           cand.class_index, fold_refs)  # fmt: skip
             results.append((cand, f, c, bound, support))
-            sel.trace.append(Step.of(step, cand.label, c, bound, support=support))
+            sel.trace.append(Step.of(step, cand.label, c, bound, support=support,
+                                     crossfit=crossfit))  # fmt: skip
             if step == 1:
                 sel.first_step[cand.label] = c
         # The best held-out gain, or a simpler effect within one SE of it.

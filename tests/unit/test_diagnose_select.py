@@ -25,13 +25,14 @@ from lads.diagnose.analysis import (
     resample_swaps,
 )
 from lads.diagnose.design import group_index, paired_design, sim_log_variance
-from lads.diagnose.effects import azimuth_spacing_deg, candidates, odd_rings
+from lads.diagnose.effects import _one_class_scale, azimuth_spacing_deg, candidates, odd_rings
 from lads.diagnose.model import (
     BASE_NAMES,
     Fit,
     Model,
     directional_gain,
     fit,
+    fit_best,
     initial_base,
     nll_from_terms,
 )
@@ -47,9 +48,12 @@ from lads.diagnose.select import (
     _passes,
     by_groups,
     by_rows,
+    compare_groups,
+    crossfit_support,
     domain_rows,
     gain_floor,
     group_multiplicity,
+    reference_levels,
     row_gains,
 )
 from lads.diagnose.table import BeamTable
@@ -347,6 +351,46 @@ def test_a_bright_rare_class_is_found_from_its_own_rows():
     assert abs(claimed["C3r[traffic-sign]"].params["ln_gain"] - 1.0) < 0.2
     step = next(s for s in dg.selection.trace if s.candidate == "C3r[traffic-sign]")
     assert step.support is not None and step.support.groups >= MIN_SUPPORT_GROUPS
+
+
+def _sign_fits(ln_gain: float | None):
+    """(design, baseline fit, fit with a sign reflectance scale (C6), training weights,
+    held-out sign rows, sign class index) of a table whose signs are brighter by ln_gain
+    (None: relabelled only, no effect). C6 nests the baseline (C3r's gain range does not)."""
+    base_table = make_table(6, group_sd=0.25, noise=0.1)
+    table = with_bright_signs(base_table, 0.0 if ln_gain is None else ln_gain, seed=1)
+    if ln_gain is None:
+        table = dataclasses.replace(table, i_real=base_table.i_real)
+    d = paired_design(table)
+    groups = np.unique(d.group)
+    held_out = np.isin(d.group, groups[::2])  # every other group held out
+    weights = np.where(held_out, 0.0, 1.0)
+    sign = d.classes.index(81)
+    c6 = _one_class_scale(sign, "traffic-sign")
+    start = initial_base(d, np.flatnonzero(weights))
+    refs = reference_levels(d)
+    baseline = fit_best(Model([], *refs), d, weights, start)
+    with_c6 = fit_best(baseline.model.with_effect(c6), d, weights, start, baseline)
+    signs = d.subset(np.flatnonzero(held_out & (d.class_index.numpy() == c6.class_index)))
+    return d, baseline, with_c6, weights, signs, c6.class_index
+
+
+def test_cross_fitting_adds_the_training_groups_of_a_rare_class_scored_out_of_sample():
+    d, baseline, with_c6, weights, signs, k = _sign_fits(1.0)
+    held = compare_groups(with_c6, baseline, signs)
+    pooled = crossfit_support(with_c6, baseline, d, weights, signs, k, {})
+    training_groups = np.unique(d.group[(weights > 0) & (d.class_index.numpy() == k)])
+    assert pooled.groups == held.groups + len(training_groups)
+    assert pooled.delta / pooled.se > held.delta / held.se
+    # Without an effect the training groups, scored in sample, flatter the candidate (its
+    # fit has seen their noise); scored by refits without their fold, they do not.
+    d, baseline, with_c6, weights, signs, k = _sign_fits(None)
+    rows = d.subset(np.flatnonzero((weights > 0) & (d.class_index.numpy() == k)))
+    in_sample = compare_groups(with_c6, baseline, rows)
+    out_of_sample = crossfit_support(with_c6, baseline, d, weights, signs, k, {})
+    assert in_sample.delta > 0.0
+    assert out_of_sample.delta < in_sample.delta
+    assert out_of_sample.delta / out_of_sample.se < 2.0
 
 
 def comparison(delta: float, se: float, groups: int) -> Comparison:
