@@ -45,7 +45,11 @@ NOISE_MIN_SLOPE = 0.1  # ln sigma per ln R (or ln I): sigma changes by < 7 % per
 # 0.05-0.13 (pairs that straddle two surfaces, the rounding model), 0.37 on K14's
 # piecewise-planar ground (scratch run of `make bench-diagnose-ci`).
 POINT_NOISE_MIN_SLOPE = 0.25
-GROUND_IDENTITIES = ("C1", "C3", "C4")
+# On flat ground cos theta = h / R, so ln I_sim = ln(c rho h) - 3 ln R: a range exponent, an
+# incidence law, per-ring gains (each ring meets the ground at one range) and the encoding's
+# gamma (a multiple of ln I_sim) are all functions of range there, apart from the few
+# ground classes' reflectances. A nuScenes K14 case claimed C9 alone on ground-only data.
+GROUND_IDENTITIES = ("C1", "C3", "C4", "C9")
 GROUND_ONLY_SHARE = 0.05  # off-ground share of intensity rows below which they are one term
 Z_TEST = 3.0  # test-group gain (cluster SEs) that makes unstable effects "ambiguous", not null
 
@@ -479,10 +483,10 @@ def separating_data(a: str, b: str) -> str:
 
 
 def _ground_only_rule(d: Design, sel: Selection, reasons: list[str]) -> list[dict[str, Any]]:
-    """§2 item 3, §5.4: on ground alone a range exponent, an incidence law and per-ring gains
-    are one function (cos theta = h / R on flat ground, each ring meets it at one range), so
-    a selected one of them is reported with the others when < GROUND_ONLY_SHARE of the
-    intensity rows lie off the ground."""
+    """§2 item 3, §5.4: on ground alone a range exponent, an incidence law, per-ring gains
+    and the encoding's gamma are one function of range (GROUND_IDENTITIES), so a selected
+    one of them is reported with the others when < GROUND_ONLY_SHARE of the intensity rows
+    lie off the ground."""
     if not {e.info.id for e in sel.fit.model.effects} & set(GROUND_IDENTITIES):
         return []
     rows = d.fits_intensity
@@ -490,7 +494,8 @@ def _ground_only_rule(d: Design, sel: Selection, reasons: list[str]) -> list[dic
     if off_ground >= GROUND_ONLY_SHARE:
         return []
     reasons.append(f"only {off_ground:.1%} of the returns lie off the ground: a range exponent, "
-                   "an incidence law and per-ring gains cannot be told apart there")  # fmt: skip
+                   "an incidence law, per-ring gains and an encoding gamma cannot be told "
+                   "apart there")  # fmt: skip
     keys = [CATALOGUE[i].key for i in GROUND_IDENTITIES]
     reason = ("ground-only data: not separable from ground data (add walls, vehicles or poles, "
               "where incidence, range and ring vary independently)")  # fmt: skip

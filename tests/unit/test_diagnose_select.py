@@ -578,13 +578,16 @@ def _selection_of(design, labels):
     return Selection(fit, fit)
 
 
-def test_on_ground_only_data_exponent_incidence_and_ring_gains_are_one_ambiguity_set():
+def test_on_ground_only_data_exponent_incidence_ring_gains_and_gamma_are_one_ambiguity_set():
     table = make_table(7, group_sd=0.25, noise=0.1)
     ground_only = paired_design(table.take(table.is_ground))
     reasons: list[str] = []
     sets = _ground_only_rule(ground_only, _selection_of(ground_only, ["C3"]), reasons)
-    assert [s["ids"] for s in sets] == [["C1", "C3", "C4"]]
+    assert [s["ids"] for s in sets] == [["C1", "C3", "C4", "C9"]]
     assert "off the ground" in reasons[0]
+    # An encoding gamma scales ln I_sim, which on flat ground is a function of range too.
+    gamma = _ground_only_rule(ground_only, _selection_of(ground_only, ["C9"]), [])
+    assert [s["ids"] for s in gamma] == [["C1", "C3", "C4", "C9"]]
     # With walls and objects in the data (half the groups here) the terms are separable,
     # and an effect outside the ground identities never raises the rule.
     mixed = paired_design(table)
