@@ -16,7 +16,7 @@ Rules
   {C1, C2} earns 1/2, while a claim {C2, C5} with the set {C1, C2} or {C5, C9} does not.
   `exact` (and the summary's identification_pairs_exact) counts exact matches only.
   K14 (truth `accept_ambiguity`): 1 when such a set of two or more IDs lies within the
-  accepted sets' union ({C1, C3, C4}); the exact claim {C3} alone then earns 1/2 (a guess
+  accepted sets' union ({C1, C3, C4, C9}); the exact claim {C3} alone then earns 1/2 (a guess
   the ground-only data cannot support). Null cases (no true effect): 1 when nothing is
   claimed.
 * False discovery (null cases): any claimed effect other than C0. K19 also scores

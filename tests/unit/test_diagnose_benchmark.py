@@ -284,7 +284,7 @@ TRUTH_K14 = {
     **TRUTH_K2,
     "case": "K14",
     "effects": [{"id": "C3", "key": "incidence_law", "params": {"p_extra": -1.0}}],
-    "accept_ambiguity": [["C1", "C3"], ["C1", "C3", "C4"], ["C3", "C4"]],
+    "accept_ambiguity": gen.K14_ACCEPT,
     "param_ranges": {"p_extra": [-1.0, 2.0]},
 }
 TRUTH_K18 = {**TRUTH_K2, "case": "K18", "effects": [], "param_ranges": {}}
@@ -317,6 +317,14 @@ def test_identification_exact_wrong_ambiguous_and_k14():
     assert identification(TRUTH_K14, k14_set) == 1.0
     assert identification(TRUTH_K14, {"effects": [_effect("C3", {"p_extra": -1.0})]}) == 0.5
     assert identification(TRUTH_K14, {"effects": [_effect("C1", {"delta_n": -1.0})]}) == 0.0
+    # An encoding gamma is a function of range on flat ground too; a set reaching beyond the
+    # ground confounds (a near-range term) is not accepted.
+    gamma = {"effects": [_effect("C9", {"gamma": 0.67})],
+             "ambiguity_sets": [{"ids": ["C1", "C3", "C4", "C9"]}]}  # fmt: skip
+    assert identification(TRUTH_K14, gamma) == 1.0
+    beyond = {"effects": [_effect("C9", {"gamma": 0.67})],
+              "ambiguity_sets": [{"ids": ["C2", "C3", "C9"]}]}  # fmt: skip
+    assert identification(TRUTH_K14, beyond) == 0.0
 
 
 K13_EFFECTS = [
