@@ -377,12 +377,19 @@ def _passes(
 ) -> bool:
     """The directional score beats `z_accept` and the NLL gain beats `floor` (nats/row) on
     all held-out rows; or, for a class-confined effect, the gain over its class's groups
-    beats the t bar and the floor.
+    beats the t bar and the floor. Either way a confined effect (`support` given) must gain
+    on its own rows.
 
     On class rows the gain, not the score, is tested: a group mean of per-row scores over
     a few tiles is heavy-tailed, and with the score a chance offset of the few cars in a
     sample (their own reflectance draws) passed the t bar."""
     if at_bound:
+        return False
+    if support is not None and support.delta <= 0.0:
+        # A confined effect changes its own rows only: a gain over all rows with a loss on
+        # those is the refitted baseline's (gain, noise, return rate), not the effect's. A
+        # null case (K18, seed 8) took a 4 % "blockage" of a 60 degree sector at z 3.7 over
+        # all rows; on the sector's own tiles the gain was -3.5 SE.
         return False
     if c.z > z_accept and c.delta > floor:
         return True

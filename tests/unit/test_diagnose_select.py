@@ -412,6 +412,12 @@ def test_a_class_confined_gain_passes_on_its_rows_only_with_enough_consistent_gr
     losing = dataclasses.replace(overall, delta=-0.001)
     assert not _passes(losing, False, Z_ACCEPT, floor, consistent)  # other rows got worse
     assert not _passes(overall, False, Z_ACCEPT, 0.6, consistent)  # too small to matter
+    # A score that passes over all rows does not carry a confined effect that loses on its
+    # own rows: that gain came from the refitted baseline.
+    strong = comparison(delta=0.005, se=0.001, groups=200)
+    assert _passes(strong, False, Z_ACCEPT, floor)
+    assert _passes(strong, False, Z_ACCEPT, floor, erratic)
+    assert not _passes(strong, False, Z_ACCEPT, floor, comparison(-0.01, 0.003, 60))
 
 
 def test_an_effect_is_accepted_on_its_directional_score_and_a_gain_above_the_floor():
