@@ -437,9 +437,10 @@ def _design(
     censor[returned & (i_real > top - 0.5 * step)] = 3
     y_lo = np.log(np.maximum(i_real - 0.5 * step, 0.0) + h)
     y_hi = np.log(i_real + 0.5 * step + h)
-    classes = tuple(int(c) for c in np.unique(t.class_id[t.class_id >= 0]))
-    class_names = tuple(t.class_names.get(c, str(c)) for c in classes)
-    if like is not None:
+    if like is None:
+        classes = tuple(int(c) for c in np.unique(t.class_id[t.class_id >= 0]))
+        class_names = tuple(t.class_names.get(c, str(c)) for c in classes)
+    else:
         classes, class_names = like.classes, like.class_names
     lookup = {c: i for i, c in enumerate(classes)}
     class_index = np.array([lookup.get(int(c), -1) for c in t.class_id], dtype=np.int64)
@@ -447,13 +448,14 @@ def _design(
     ln_cos = np.where(t.normal_ok, np.log(np.maximum(cos, COS_FLOOR)), 0.0)
     scans = t.scan.astype(np.int64)
     n_scans = len(t.scans)
-    sums = np.bincount(scans, weights=ln_sim, minlength=n_scans)
-    counts = np.maximum(np.bincount(scans, minlength=n_scans), 1)
-    scan_mean = sums / counts
-    scan_mean = scan_mean - np.average(scan_mean, weights=counts)
     if like is not None and like.paired:
         scan_mean = np.zeros(n_scans)
         scan_mean[like.scan.numpy()] = like.scan_ln_mean.numpy()
+    else:
+        sums = np.bincount(scans, weights=ln_sim, minlength=n_scans)
+        counts = np.maximum(np.bincount(scans, minlength=n_scans), 1)
+        scan_mean = sums / counts
+        scan_mean = scan_mean - np.average(scan_mean, weights=counts)
 
     def f64(a: npt.ArrayLike) -> torch.Tensor:
         return torch.as_tensor(np.asarray(a, dtype=np.float64))

@@ -235,7 +235,7 @@ def crossfit_support(
     weights: npt.NDArray[np.float64],
     sub: Design,
     class_index: int,
-    refs: dict[int, Fit],
+    refs: dict[bytes, Fit],
 ) -> Comparison:
     """`compare_groups` on the held-out class rows `sub` pooled with the class rows of the
     training groups, each scored by `new` and `old` refitted without its fold.
@@ -243,8 +243,9 @@ def crossfit_support(
     The folds are the training groups (weight > 0) that hold the class, in sorted order,
     dealt round-robin into CROSSFIT_FOLDS folds; a fold's refits start from `new`'s and
     `old`'s parameters and train on every other training row. `refs` caches the refits of
-    `old` by fold (one incumbent, many candidates). Every group's gain is out of sample,
-    so under no effect its expectation is not above 0, as on the held-out groups."""
+    `old` by the groups a fold leaves out (one incumbent, many candidates; two classes make
+    different folds). Every group's gain is out of sample, so under no effect its
+    expectation is not above 0, as on the held-out groups."""
     gains = [old.row_nll(sub) - new.row_nll(sub)]
     groups = [sub.group]
     train = weights > 0
@@ -254,11 +255,12 @@ def crossfit_support(
         fold = holding[k::CROSSFIT_FOLDS]
         out = np.isin(d.group, fold)
         w = np.where(out, 0.0, weights)
-        if k not in refs:
-            refs[k] = fit(old.model, d, w, old.theta)
+        key = fold.tobytes()
+        if key not in refs:
+            refs[key] = fit(old.model, d, w, old.theta)
         refit = fit(new.model, d, w, new.theta)
         rows = d.rows_subset(np.flatnonzero(out & of_class))
-        gains.append(refs[k].row_nll(rows) - refit.row_nll(rows))
+        gains.append(refs[key].row_nll(rows) - refit.row_nll(rows))
         groups.append(rows.group)
     return by_groups(np.concatenate(gains), np.concatenate(groups))
 
@@ -563,7 +565,7 @@ def forward_backward(
                     sel.first_step[cand.label] = c
         fits = fit_models([current.model.with_effect(c) for c in listed], d, weights, base,
                           current, jobs, warm)  # fmt: skip
-        fold_refs: dict[int, Fit] = {}
+        fold_refs: dict[bytes, Fit] = {}
         for cand, f in zip(listed, fits, strict=True):
             sel.fitted[f.model.key] = f
             c, support = assess(cand, f, n_fit, current, incumbent)

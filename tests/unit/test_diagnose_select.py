@@ -393,6 +393,17 @@ def test_cross_fitting_adds_the_training_groups_of_a_rare_class_scored_out_of_sa
     assert out_of_sample.delta / out_of_sample.se < 2.0
 
 
+def test_cross_fitted_folds_of_two_classes_do_not_share_the_incumbents_refits():
+    d, baseline, with_c6, weights, signs, k = _sign_fits(1.0)
+    other = int(np.bincount(d.class_index.numpy()[d.class_index.numpy() >= 0]).argmax())
+    other_rows = d.subset(np.flatnonzero((weights == 0) & (d.class_index.numpy() == other)))
+    shared: dict = {}
+    crossfit_support(with_c6, baseline, d, weights, signs, k, shared)
+    reused = crossfit_support(with_c6, baseline, d, weights, other_rows, other, shared)
+    alone = crossfit_support(with_c6, baseline, d, weights, other_rows, other, {})
+    assert reused == alone
+
+
 def comparison(delta: float, se: float, groups: int) -> Comparison:
     """A held-out comparison whose directional score has the z of its gain."""
     return Comparison(delta, se, 0.0, groups, delta, se)
