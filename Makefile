@@ -24,7 +24,7 @@ test: install
 bench: install
 	$(PY) -m benchmarks.run_all
 
-# The concealed-effect benchmark of `lads diagnose` (discovery.md §6): every case x 20 seeds x
+# The concealed-effect benchmark of `lads diagnose` (docs/diagnose.md §6): every case x 20 seeds x
 # both bases (offline, hours), and a CI-sized subset (~5 min).
 bench-diagnose: install
 	$(PY) -m benchmarks.diagnose_bench --full
@@ -41,11 +41,17 @@ lint: install
 release: install
 	$(PY) -m lads.release
 
-# The shipped intensity weights and their model cards, from ../shared/data (CPU, ~30 min).
+# The shipped intensity weights and their model cards, from the real frames in TRAIN_DATA
+# (CPU, ~30 min): `lads train NAME --data-root DIR`, the command users run, with the output
+# pointed at the package's weights folder.
 TRAIN_CONFIGS = synth-to-kitti synth-to-nuscenes weather
+TRAIN_DATA ?= ../shared/data
 train: install
-	for c in $(TRAIN_CONFIGS); do $(PY) -m lads.cli train $$c || exit 1; done
-	$(PY) -m lads.intensity.model_card $(TRAIN_CONFIGS)
+	for c in $(TRAIN_CONFIGS); do \
+	  .venv/bin/lads train $$c --data-root $(TRAIN_DATA) --output lads/intensity/weights/$$c.pt || exit 1; \
+	done
+	$(PY) -m lads.intensity.model_card --weights-dir lads/intensity/weights --docs docs/intensity \
+	  --data-root $(TRAIN_DATA) $(TRAIN_CONFIGS)
 
 clean:
 	rm -rf .venv demo_output dist release

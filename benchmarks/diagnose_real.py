@@ -1,4 +1,4 @@
-"""The real case M3 of `lads diagnose` (discovery.md §6.2): a simple simulator vs reality.
+"""The real case M3 of `lads diagnose` (docs/diagnose.md §6.2): a simple simulator vs reality.
 
     .venv/bin/python -m benchmarks.diagnose_real [--bases semantickitti,nuscenes]
                                                  [--resamples N] [--bootstrap N]
@@ -225,7 +225,7 @@ def main(argv: list[str] | None = None) -> int:
                 **summarise(report),
             }
     payload = {
-        "benchmark": "diagnose_real (discovery.md §6.2 M3): simple simulator vs real data",
+        "benchmark": "diagnose_real (docs/diagnose.md §6.2 M3): simple simulator vs real data",
         "simulator": "I = c * rho * cos(theta) / R^2 on the real geometry, quantised",
         "command": ".venv/bin/python -m benchmarks.diagnose_real",
         "tool_args": {

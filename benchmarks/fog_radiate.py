@@ -88,7 +88,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             "the HDL-32E's true detection threshold (the weakest return is an upper bound) "
             "and overlap function, which the bound depends on",
             "intensity response: the sensor reports calibrated reflectivity with its own "
-            "gain logic (physics.md §5.3), not received power",
+            "gain logic (docs/physics.md §5.3), not received power",
             "generality: 3 consecutive frames (0.2 s) of one sequence",
         ],
         "seconds": round(time.perf_counter() - start, 1),

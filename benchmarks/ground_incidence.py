@@ -13,17 +13,15 @@ median |ln cos error| (cos floored at 0.05, as the diagnosis' design floors it).
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 
-from benchmarks.common import machine_info, write_result
+from benchmarks.common import SHARED_DATA, machine_info, write_result
 from lads.diagnose.beams import GROUND_CLASSES
 from lads.diagnose.ground_normals import local_ground_cos
 from lads.physics.modalities import incidence
 from lads.sensors.profile import load_profile
 
-ROOT = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "semantickitti"
+ROOT = SHARED_DATA / "semantickitti"
 THIN_POINTS = 40000
 BANDS_M = ((0.0, 10.0), (10.0, 20.0), (20.0, 40.0), (40.0, 80.0))
 

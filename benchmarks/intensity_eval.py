@@ -11,7 +11,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from benchmarks.common import machine_info, write_result
+from benchmarks.common import SHARED_DATA, machine_info, write_result
 from lads.intensity.commands import evaluate_pair
 from lads.intensity.train_config import load_train_config
 
@@ -22,13 +22,13 @@ FIGURES = Path(__file__).resolve().parent / "results" / "intensity"
 def main() -> dict[str, Any]:
     results: dict[str, Any] = {}
     for name in CONFIGS:
-        cfg = load_train_config(name)
+        cfg = load_train_config(name, data_root=SHARED_DATA)
         for pair in cfg.pairs:
             key = f"{name}/{pair.key}"
             if not pair.target.holdout:
                 results[key] = {"skipped": "no held-out target frame (see the model card)"}
                 continue
-            res = evaluate_pair(cfg, pair, str(cfg.output_path()), FIGURES / name)
+            res = evaluate_pair(cfg, pair, name, FIGURES / name)  # the shipped weights
             results[key] = res
             beats = res.get("summary", {}).get("beats", {})
             sys.stdout.write(f"intensity eval {key}: beats {beats}\n")

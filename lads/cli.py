@@ -19,6 +19,7 @@ import numpy as np
 
 from lads.errors import InputDataError, LadsError
 from lads.files import atomic_write
+from lads.readers import READERS
 
 EXIT_INCOMPLETE = 1
 EXIT_LADS_ERROR = 2
@@ -170,12 +171,24 @@ def weather(
 
 
 @main.command()
-@click.option(
-    "--source", required=True, help="Reader: semantickitti, nuscenes, voxelscape, wads, radiate."
-)
+@_lads_errors
+def variants() -> None:
+    """List the variants of every source and the shipped pipeline each one runs."""
+    from lads.config import find_pipeline, load_pipeline, variants_for
+
+    for source in sorted(READERS):
+        for variant in variants_for(source):
+            path = find_pipeline(source, variant)
+            stages = ", ".join(s.stage for s in load_pipeline(path).stages)
+            click.echo(f"{source:14s} {variant:20s} {path.name:24s} {stages}")
+
+
+@main.command()
+@click.option("--source", required=True, type=click.Choice(sorted(READERS)), help="Reader.")
 @click.option(
     "--variant",
-    help="Variant: snow, rain or fog (pipelines/<source>-<variant>.yaml or <variant>.yaml).",
+    help="Variant: snow, rain, fog, intensity-kitti or intensity-nuscenes (`lads variants` "
+    "lists them per source with the shipped pipeline each one runs).",
 )
 @click.option(
     "--pipeline",
@@ -215,10 +228,13 @@ def weather(
 )
 @click.option(
     "--device", type=click.Choice(["cpu", "cuda"]),
-    help="Device of the learned intensity stage (default cpu; cuda when present).",
+    help="Device of the learned intensity stage: cpu (the default, bytes reproducible "
+    "everywhere) or cuda (needs a CUDA GPU; a value may differ by one quantisation step).",
 )  # fmt: skip
 @click.option(
-    "--sequences", help="Comma-separated sequences to build (SemanticKITTI, WADS, Voxelscape)."
+    "--sequences",
+    help="Comma-separated sequences to build (SemanticKITTI, WADS, Voxelscape, RADIATE; the "
+    "scene folders of nuscenes-kitti).",
 )
 @click.option("--version", "nuscenes_version", help="nuScenes table version, e.g. v1.0-trainval.")
 @click.option("--include-sweeps", is_flag=True, help="nuScenes: transform sweeps too.")
@@ -315,6 +331,16 @@ def verify(
     click.echo(report.summary_text())
     if not report.ok:
         sys.exit(EXIT_INCOMPLETE)
+
+
+@main.command()
+@click.argument("out_root", type=click.Path(exists=True, file_okay=False, path_type=Path))
+@_lads_errors
+def card(out_root: Path) -> None:
+    """Rewrite the dataset card (README.md) of a built tree and its line in SHA256SUMS."""
+    from lads.finalise import refresh_card
+
+    click.echo(f"wrote {refresh_card(out_root)}")
 
 
 def _register_synth() -> None:

@@ -17,9 +17,10 @@ from typing import Any
 import yaml
 
 from lads.errors import ConfigError
+from lads.readers import READERS
+from lads.resources import pipelines_dir
 
 SCHEMA_VERSION = 1
-PIPELINE_DIR = Path(__file__).resolve().parents[1] / "pipelines"
 POINT_MODES = ("physical", "aligned")
 RETURN_MODES = ("strongest", "last")
 
@@ -61,6 +62,7 @@ class PipelineConfig:
         points: "physical" or "aligned" (docs/output_tree.md).
         particle_label: label of particle returns in physical mode; None = reader default.
         description: free text.
+        sources: the readers (`--source`) this pipeline applies to; empty = every reader.
     """
 
     variant: str
@@ -68,6 +70,7 @@ class PipelineConfig:
     points: str = "physical"
     particle_label: int | None = None
     description: str = ""
+    sources: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         if not self.variant or not self.variant.replace("-", "").replace("_", "").isalnum():
@@ -84,14 +87,25 @@ class PipelineConfig:
             )
 
     def to_dict(self) -> dict[str, Any]:
-        """Canonical dict, as saved in OUT/pipeline.yaml."""
-        return {
+        """Canonical dict, as saved in OUT/pipeline.yaml (`sources` only when restricted)."""
+        out = {
             "schema_version": SCHEMA_VERSION,
             "variant": self.variant,
             "description": self.description,
             "stages": [s.to_dict() for s in self.stages],
             "writer": {"points": self.points, "particle_label": self.particle_label},
         }
+        if self.sources:
+            out["sources"] = list(self.sources)
+        return out
+
+    def check_source(self, source: str, where: str) -> None:
+        """Raise ConfigError if this pipeline is not meant for reader `source`."""
+        if self.sources and source not in self.sources:
+            raise ConfigError(
+                f"{where}: pipeline '{self.variant}' applies to sources "
+                f"{', '.join(self.sources)}, not {source!r}."
+            )
 
     def config_hash(self) -> str:
         """sha256 hex of the canonical JSON (sorted keys, no spaces) of `to_dict()`."""
@@ -195,7 +209,9 @@ def parse_pipeline(data: Any, where: str) -> PipelineConfig:
     """Validate a loaded pipeline mapping (see pipelines/README.md) into a PipelineConfig."""
     if not isinstance(data, dict):
         raise ConfigError(f"{where}: expected a YAML mapping at the top level.")
-    _reject_unknown(data, {"schema_version", "variant", "description", "stages", "writer"}, where)
+    _reject_unknown(
+        data, {"schema_version", "variant", "description", "stages", "writer", "sources"}, where
+    )
     if data.get("schema_version") != SCHEMA_VERSION:
         raise ConfigError(
             f"{where}: schema_version is {data.get('schema_version')!r}; this lads reads "
@@ -215,12 +231,16 @@ def parse_pipeline(data: Any, where: str) -> PipelineConfig:
     if not isinstance(writer, dict):
         raise ConfigError(f"{where}: 'writer' must be a mapping.")
     _reject_unknown(writer, {"points", "particle_label"}, f"{where}: writer")
+    sources = data.get("sources") or []
+    if not isinstance(sources, list) or not all(isinstance(s, str) and s for s in sources):
+        raise ConfigError(f"{where}: 'sources' must be a list of reader names.")
     return PipelineConfig(
         variant=str(data.get("variant", "")),
         stages=tuple(stages),
         points=str(writer.get("points", "physical")),
         particle_label=writer.get("particle_label"),
         description=str(data.get("description", "")),
+        sources=tuple(sources),
     )
 
 
@@ -235,13 +255,55 @@ def load_pipeline(path: Path) -> PipelineConfig:
     return parse_pipeline(data, str(path))
 
 
-def find_pipeline(source: str, variant: str, directory: Path = PIPELINE_DIR) -> Path:
-    """`pipelines/<source>-<variant>.yaml` if present, else `pipelines/<variant>.yaml`."""
-    for name in (f"{source}-{variant}.yaml", f"{variant}.yaml"):
-        if (directory / name).is_file():
-            return directory / name
-    known = sorted(p.stem for p in directory.glob("*.yaml"))
+def _pipeline_files(directory: Path) -> dict[str, Path]:
+    return {p.stem: p for p in sorted(directory.glob("*.yaml"))}
+
+
+def variants_for(source: str, directory: Path | None = None) -> list[str]:
+    """The variants `lads build --source source --variant V` accepts, sorted.
+
+    A variant is `<source>-<V>.yaml` or, when no such file exists, `<V>.yaml` whose
+    `sources` (if any) name `source`; another source's `<other>-<V>.yaml` is not a variant
+    of this one.
+    """
+    files = _pipeline_files(directory or pipelines_dir())
+    names = set()
+    for stem, path in files.items():
+        owner = _source_prefix(stem)
+        if owner is not None:
+            if owner == source:
+                names.add(stem[len(owner) + 1 :])
+        elif source in (load_pipeline(path).sources or (source,)):
+            names.add(stem)
+    return sorted(names)
+
+
+def _source_prefix(stem: str) -> str | None:
+    """The reader a `<source>-<variant>` file name belongs to (the longest matching name)."""
+    owners = [r for r in READERS if stem.startswith(f"{r}-") and len(stem) > len(r) + 1]
+    return max(owners, key=len) if owners else None
+
+
+def find_pipeline(source: str, variant: str, directory: Path | None = None) -> Path:
+    """The shipped pipeline of (source, variant): `<source>-<variant>.yaml` if present, else
+    `<variant>.yaml` when it applies to `source`.
+
+    Raises:
+        ConfigError: no such variant for this source; the message lists the valid ones and
+            the sources that do have the variant.
+    """
+    directory = directory or pipelines_dir()
+    files = _pipeline_files(directory)
+    own = files.get(f"{source}-{variant}")
+    if own is not None:
+        return own
+    valid = variants_for(source, directory)
+    if variant in valid:
+        return files[variant]
+    others = [s for s in sorted(READERS) if s != source and variant in variants_for(s, directory)]
+    elsewhere = f" '{variant}' exists for: {', '.join(others)}." if others else ""
     raise ConfigError(
         f"no pipeline for source {source!r} and variant {variant!r} in {directory}; "
-        f"available: {', '.join(known) or 'none'}. Pass --pipeline FILE to use your own."
+        f"variants of {source!r}: {', '.join(valid) or 'none'}.{elsewhere} "
+        "Pass --pipeline FILE to use your own."
     )

@@ -26,6 +26,7 @@ PIPELINE_YAML = "pipeline.yaml"
 SHA256SUMS = "SHA256SUMS"
 RUN_REPORT = "run_report.json"
 NOT_SUMMED = {SHA256SUMS, RUN_REPORT}
+PREVIEW = "figures/preview.png"
 
 
 def identity(plan: BuildPlan) -> dict[str, Any]:
@@ -62,7 +63,7 @@ def finalise(
         "source_root": plan.source_root,
         "points_mode": plan.pipeline.points,
         "sensor": reader_for(plan).sensor,
-        "device": "cpu",
+        "device": _device(plan),
         "libraries": library_versions(),
         "items": len(manifest),
         "failed": sum(r["status"] != "ok" for r in manifest),
@@ -78,6 +79,13 @@ def finalise(
     atomic_write(out_root / SHA256SUMS, _sha256sums(out_root, known).encode())
 
 
+def _device(plan: BuildPlan) -> str:
+    """Where the build computed: the learned stage's device, else the CPU."""
+    stages = plan.pipeline.stages
+    devices = {s.params.get("device", "cpu") for s in stages if s.stage == "intensity"}
+    return ",".join(sorted(devices)) or "cpu"
+
+
 def _preview(out_root: Path, plan: BuildPlan, manifest: list[dict[str, Any]]) -> list[str]:
     """Draw the card's preview figure from the first built item; [] for text formats."""
     from lads.figures import variant_figure
@@ -87,12 +95,39 @@ def _preview(out_root: Path, plan: BuildPlan, manifest: list[dict[str, Any]]) ->
     if scan is None or scan["record_bytes"] == 0:
         return []
     reader = reader_for(plan)
-    relpath = "figures/preview.png"
+    relpath = PREVIEW
     variant_figure(
         Path(reader.root), {plan.pipeline.variant: out_root}, scan["path"], out_root / relpath,
         sensor=reader.sensor, columns=scan["record_bytes"] // 4,
     )  # fmt: skip
     return [relpath]
+
+
+def refresh_card(out_root: Path) -> Path:
+    """Re-render the dataset card (OUT/README.md) of a finished build from its run.json,
+    manifest.jsonl and pipeline.yaml, and update the card's line in SHA256SUMS; every other
+    file and line is left as it is. Returns the card's path.
+
+    Raises:
+        BuildError: the tree has no SHA256SUMS (not a finished build).
+        ManifestError: run.json or manifest.jsonl is missing or not JSON.
+    """
+    from lads.card import CARD_NAME, write_card
+    from lads.errors import BuildError
+
+    sums = out_root / SHA256SUMS
+    if not sums.is_file():
+        raise BuildError(
+            f"{sums}: missing; a card is refreshed on a finished build. Run (or resume) "
+            "`lads build` with the same settings first."
+        )
+    figures = [PREVIEW] if (out_root / PREVIEW).is_file() else []
+    card = write_card(out_root, figures=figures)
+    entries = [line for line in sums.read_text().splitlines() if line[66:] != CARD_NAME]
+    entries.append(f"{sha256_file(card)}  {CARD_NAME}")
+    entries.sort(key=lambda line: line[66:].encode())
+    atomic_write(sums, "".join(f"{line}\n" for line in entries).encode())
+    return card
 
 
 def _sha256sums(out_root: Path, known: dict[str, str]) -> str:

@@ -20,8 +20,8 @@ from typing import Any
 import yaml
 
 from lads.errors import ConfigError
+from lads.resources import manifests_dir as shipped_manifests
 
-MANIFESTS = Path(__file__).resolve().parents[1] / "manifests"
 GROUP_BY = ("sequence", "voxelscape_sequence", "nuscenes_version")
 APPROXIMATE_TOLERANCE = 0.01  # relative: an "approximate" count accepts +-1 %
 _TOP_KEYS = {
@@ -69,7 +69,7 @@ class Inventory:
 
 def available() -> list[str]:
     """Dataset names with an inventory file."""
-    return sorted(p.stem for p in MANIFESTS.glob("*.yaml"))
+    return sorted(p.stem for p in shipped_manifests().glob("*.yaml"))
 
 
 @functools.lru_cache(maxsize=16)
@@ -80,7 +80,7 @@ def load_inventory(name: str, manifests_dir: Path | None = None) -> Inventory:
         ConfigError: the file is missing, not YAML, or breaks the schema (unknown keys,
             negative counts, a subset naming an unknown group or a wrong `total`).
     """
-    path = (manifests_dir or MANIFESTS) / f"{name}.yaml"
+    path = (manifests_dir or shipped_manifests()) / f"{name}.yaml"
     if not path.is_file():
         raise ConfigError(
             f"{path}: no inventory for dataset {name!r}; known: {available()}. Add the file "

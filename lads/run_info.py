@@ -22,9 +22,27 @@ def library_versions() -> dict[str, str]:
     return versions
 
 
-def git_commit() -> str:
-    """HEAD of the lads checkout (with '+dirty' when the work tree has changes), or 'unknown'."""
+def own_checkout() -> Path | None:
+    """The root of lads' own git checkout when lads runs from one (an editable install),
+    else None: an installed lads may sit in a venv inside some other repository, whose
+    commit says nothing about lads."""
     repo = Path(lads.__file__).resolve().parents[1]
+    try:
+        meta = (repo / "pyproject.toml").read_text()
+    except OSError:
+        return None
+    if 'name = "lads"' not in meta or not (repo / ".git").exists():
+        return None
+    return repo
+
+
+def git_commit() -> str | None:
+    """HEAD of lads' own checkout (with '+dirty' when lads/ has uncommitted changes);
+    None when lads is installed from a wheel (its version is then the whole story), or
+    'unknown' when the checkout's git cannot be asked."""
+    repo = own_checkout()
+    if repo is None:
+        return None
     try:
         head = subprocess.run(
             ["git", "-C", str(repo), "rev-parse", "HEAD"],

@@ -243,6 +243,7 @@ def run_build(
     _check_paths(source_root, out_root)
     options = freeze_options(reader_options or {})
     plan = BuildPlan(source, str(source_root), str(out_root), options, pipeline, seed)
+    pipeline.check_source(source, f"pipeline '{pipeline.variant}'")
     stages_for(pipeline)  # a bad stage (e.g. missing weights) stops here, before any output
     reader = reader_for(plan)
     items = reader.items()[:limit] if limit else reader.items()

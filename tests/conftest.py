@@ -1,4 +1,9 @@
-"""Shared fixtures: real scans from ../shared/data and a small synthetic street frame."""
+"""Shared fixtures: real scans from ../shared/data and a small synthetic street frame.
+
+Real-data tests: every test under tests/realdata/, marked `realdata`, or using the
+`shared_data` fixture (directly or through `real_tree`, `kitti_frame`, ...). Where
+../shared/data is absent (a bare clone) they are skipped, and the summary says so in one line.
+"""
 
 from __future__ import annotations
 
@@ -8,11 +13,43 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from benchmarks.common import SHARED_DATA
 from lads.sensors.profile import SensorProfile
 
-SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 KITTI_VELODYNE = "semantickitti/sequences/00/velodyne"
 KITTI_FRAMES = (0, 1, 2)
+
+
+def _needs_real_data(item: pytest.Item) -> bool:
+    return (
+        "shared_data" in getattr(item, "fixturenames", ())
+        or item.get_closest_marker("realdata") is not None
+        or "realdata" in Path(str(item.path)).parts
+    )
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    real = [item for item in items if _needs_real_data(item)]
+    config.stash[_REAL_COUNT] = len(real)
+    for item in real:
+        item.add_marker(pytest.mark.realdata)
+        if not SHARED_DATA.is_dir():
+            item.add_marker(pytest.mark.skip(reason=f"real data: {SHARED_DATA} not found"))
+
+
+def pytest_terminal_summary(terminalreporter, exitstatus: int, config: pytest.Config) -> None:
+    n = config.stash.get(_REAL_COUNT, 0)
+    if SHARED_DATA.is_dir():
+        line = f"real-data tests: {n} selected, reading {SHARED_DATA}"
+    else:
+        line = (
+            f"real-data tests: {n} SKIPPED: {SHARED_DATA} not found (a clone without the "
+            "shared/ folder beside it); every other test ran"
+        )
+    terminalreporter.write_sep("-", line)
+
+
+_REAL_COUNT = pytest.StashKey[int]()
 
 
 @pytest.fixture(scope="session")
@@ -97,7 +134,8 @@ def synthetic_tree(tmp_path):
     from tests import trees
 
     def build(name: str, **kwargs) -> Path:
-        return getattr(trees, f"synthetic_{name}")(tmp_path / f"synthetic_{name}", **kwargs)
+        builder = getattr(trees, f"synthetic_{name.replace('-', '_')}")
+        return builder(tmp_path / f"synthetic_{name}", **kwargs)
 
     return build
 

@@ -3,7 +3,7 @@
 Two kinds, one function per dataset format each:
 
 - `synthetic_*`: random points written in the format (float32 binaries, CSV text, nuScenes
-  tables), with the traps of formats.md built in: exact-duplicate rows, near-origin points,
+  tables), with the traps of docs/formats.md built in: exact-duplicate rows, near-origin points,
   unlabelled sequences, Voxelscape's three label files.
 - `real_*`: the real sample files of ../shared/data, **symlinked** (never copied into the
   repository) into the layout the reader expects; only generated files (e.g. a label file for
@@ -19,15 +19,15 @@ from pathlib import Path
 
 import numpy as np
 
+from benchmarks.common import SHARED_DATA
+
 # The nuScenes tables come from the package (one implementation); tests use trees.token and
 # trees.NuscSampleData as before.
 from lads.synth.nuscenes import NuscSampleData, lidarseg_classes, nuscenes_tables, token
 
-SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
-
 KITTI_GRID = (np.arange(100, dtype=np.float64) * 0.01).astype(np.float32)  # 0.00..0.99
 
-# lidarseg category order of the data and devkit (formats.md §2.3); `index` = position.
+# lidarseg category order of the data and devkit (docs/formats.md §2.3); `index` = position.
 NUSCENES_CATEGORIES = lidarseg_classes().categories
 
 
@@ -329,6 +329,29 @@ def real_nuscenes(root: Path, version: str = "v1.0-mini") -> Path:
         NuscSampleData(token(NUSC_TINY_SWEEP), NUSC_TINY_SWEEP, False),
     ]
     return write_nuscenes_tables(root, version, records)
+
+
+def synthetic_nuscenes_kitti(
+    root: Path, *, scenes: dict[str, int] | None = None, labelled: tuple[str, ...] = (
+        "train/0001", "train/0002"), seed: int = 5,
+) -> Path:  # fmt: skip
+    """nuScenes keyframes in the KITTI-style export: `<split>/<scene>/velodyne/NNNNNN.bin`
+    (N x 4 float32, intensity integers 0-255), `sem_labels/NNNNNN.label` (uint8 0-31) for the
+    `labelled` scenes, and `poses.txt`. Default scenes {"train/0001": 2, "train/0002": 1,
+    "val/0003": 1}."""
+    rng = np.random.default_rng(seed)
+    scenes = scenes if scenes is not None else {"train/0001": 2, "train/0002": 1, "val/0003": 1}
+    for scene, count in scenes.items():
+        base = root / scene
+        for i in range(count):
+            n = int(rng.integers(40, 160))
+            pts = synthetic_points(rng, n, intensity="byte")
+            _write(base / "velodyne" / f"{i:06d}.bin", pts.astype("<f4").tobytes())
+            if scene in labelled:
+                labels = rng.integers(0, 32, n).astype(np.uint8)
+                _write(base / "sem_labels" / f"{i:06d}.label", labels.tobytes())
+        _write(base / "poses.txt", "".join(" ".join(["1.0"] * 12) + "\n" for _ in range(count)))
+    return root
 
 
 def write_like_the_runner(reader, out: Path) -> None:

@@ -1,4 +1,4 @@
-"""Seeded generator of the concealed-effect benchmark of `lads diagnose` (discovery.md §6).
+"""Seeded generator of the concealed-effect benchmark of `lads diagnose` (docs/diagnose.md §6).
 
 `generate_case(case, base, seed, out_dir)` writes, under `out_dir`:
 
@@ -38,7 +38,7 @@ Bases and scans
   effects use this "true" geometry; the tool estimates its own from the (possibly
   subsampled) trees.
 
-Modes (discovery.md §6.2)
+Modes (docs/diagnose.md §6.2)
 -------------------------
 Every term acts in the catalogue's domain y = ln(I + h), h = half a quantisation step, I in
 stored units (KITTI 0-0.99, nuScenes 0-255), so the truth parameters are exactly the
@@ -56,7 +56,7 @@ sensor gain's (C0), not the hidden effect's.
   per object (sigma_obj in [0.2, 0.4]), then quantised; plus random (MCAR) dropout of a
   fraction in [0, 0.03] of B's points, which is not an effect (recorded as random_dropout).
 
-Effect sizes (discovery.md §6.3)
+Effect sizes (docs/diagnose.md §6.3)
 --------------------------------
 sigma, the per-point noise of the band, is sigma_n (M1) or sqrt(sigma_n^2 + sigma_obj^2)
 (M2); K19 uses its sigma at the median range. The hidden term's RMS is taken after removing
@@ -68,7 +68,7 @@ first draw is kept and truth.json records in_band: false (e.g. K8's x5-x50 retro
 outside the band by design, and K14's fixed p = 1 in M1). Dropout-only K10 is not banded
 (its size is the drop fraction, 3-15 %).
 
-Cases (discovery.md §6.4) and truth (catalogue parametrisation)
+Cases (docs/diagnose.md §6.4) and truth (catalogue parametrisation)
 ---------------------------------------------------------------
 K1  t = -dn ln R; dn in [0.2, 1.0] (KITTI, raw sensor) or uniform over [0.2, 1.0] U [-2, -1.5]
     (nuScenes, compensated sensor)                          -> C1 delta_n = dn (prior range
@@ -127,6 +127,7 @@ import numpy as np
 import numpy.typing as npt
 from scipy.special import ndtr
 
+from benchmarks.common import SHARED_DATA
 from lads.diagnose.catalogue import CATALOGUE
 from lads.physics.materials import class_materials, reflectance_for_labels
 from lads.physics.modalities import incidence_cos
@@ -134,8 +135,6 @@ from lads.readers import get_reader
 from lads.sensors.measure import rings_from_scan_order
 from lads.sensors.profile import IntensityEncoding, load_profile
 
-REPO = Path(__file__).resolve().parents[2]
-SHARED_DATA = REPO.parent / "shared" / "data"
 BASE_ROOTS = {"semantickitti": SHARED_DATA / "semantickitti", "nuscenes": SHARED_DATA / "nuscenes"}
 PROFILES = {"semantickitti": "hdl64e", "nuscenes": "hdl32e"}
 BASES = ("semantickitti", "nuscenes")
@@ -167,7 +166,7 @@ HETERO_SIGMA_CAP = 1.0
 LABEL_SET = "semantickitti"
 
 
-# The explanations ground-only data cannot tell apart (discovery.md §2 item 3, §5.4): on flat
+# The explanations ground-only data cannot tell apart (docs/diagnose.md §2 item 3, §5.4): on flat
 # ground cos theta = h / R and each ring meets the ground at one range, so a range exponent,
 # an incidence law and per-ring gains are one function of range. So is the encoding's gamma
 # (C9), added 2026-11-25: ln I_sim = ln(c rho h) - 3 ln R there, so gamma = 2/3 reproduces

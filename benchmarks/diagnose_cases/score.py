@@ -1,4 +1,4 @@
-"""Scorer of the concealed-effect benchmark (discovery.md §6.5): truth.json vs report.json.
+"""Scorer of the concealed-effect benchmark (docs/diagnose.md §6.5): truth.json vs report.json.
 
 `score_case(truth, report, ...)` scores one run, `summarise(scores)` pools runs and checks the
 acceptance targets. The scorer reads the truth written by `generate.py` and the tool's
@@ -447,7 +447,7 @@ def _met(value: float | None, rule: tuple[str, Any]) -> bool | None:
 
 
 def summarise(scores: list[dict[str, Any]]) -> dict[str, Any]:
-    """Pooled rates, per-case identification and the discovery.md §6.5 targets."""
+    """Pooled rates, per-case identification and the docs/diagnose.md §6.5 targets."""
 
     def group(name: str) -> list[dict[str, Any]]:
         return [s for s in scores if s.get("group") == name]

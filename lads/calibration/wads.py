@@ -1,6 +1,6 @@
 """Fit the physical knobs of the snow model to real falling snow (WADS, label 110).
 
-What is compared (physics.md §5.3). WADS holds real snow with point-wise labels: 110 is
+What is compared (docs/physics.md §5.3). WADS holds real snow with point-wise labels: 110 is
 active falling snow, 111 accumulated snow. Removing the 110 points leaves the "clear" scene
 (every remaining point is one beam with a hard target); we let it snow on that scene and
 compare the simulated particle returns with the real 110 points: their share of the points,
@@ -23,7 +23,7 @@ The knobs (`SnowKnobs`) and their physics:
 
 - particle_reflectivity rho_p: Lambertian-equivalent backscatter reflectivity of one flake
   filling the beam. Fresnel at normal incidence gives 0.0173 for ice (LISA); Mie Q_back / 4
-  of an ice sphere gives 0.4-1.9 (physics.md §2); a real flake is an aggregate of needles and
+  of an ice sphere gives 0.4-1.9 (docs/physics.md §2); a real flake is an aggregate of needles and
   plates whose backscatter lies between. It sets how far out a flake is detectable
   (P_p = rho_p fill T^2 / r^2 >= P_min) and the intensity a flake return carries
   (rho_p fill T^2: real snow reads ~0, which bounds rho_p from above).
@@ -75,7 +75,7 @@ PERCENTILES = (5, 50, 95)
 # Treated as a nuisance parameter: see `rate_sensitivity`.
 ASSUMED_RATE_MM_H = 2.5
 
-# LISA's settings (physics.md §4, paper code / pylisa): Gunn-Marshall with twice the primary
+# LISA's settings (docs/physics.md §4, paper code / pylisa): Gunn-Marshall with twice the primary
 # intercept, melted diameter taken as optical, Fresnel reflectivity of ice, 3 mrad, r_min
 # 1.5 m, fixed threshold 0.9 / 200^2.
 LISA_SNOW = ParticleParams(

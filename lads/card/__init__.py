@@ -23,7 +23,7 @@ from lads.card.front_matter import (
     TASK_IDS,
     size_category,
 )
-from lads.card.render import CARD_NAME, TEMPLATE, card_name, render_card, write_card
+from lads.card.render import CARD_NAME, card_name, render_card, write_card
 from lads.card.sections import NOT_MODELLED, PHYSICS, POINTS_MODE_TEXT, pipeline_stages
 from lads.card.sources import (
     CONFIRM,
@@ -52,7 +52,6 @@ __all__ = [
     "SOURCES",
     "TAGS",
     "TASK_IDS",
-    "TEMPLATE",
     "UNKNOWN_SOURCE",
     "Source",
     "card_name",

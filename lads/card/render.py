@@ -10,10 +10,10 @@ from string import Template
 from lads.card import sections, tree_facts
 from lads.card.front_matter import render_front_matter
 from lads.card.sources import source_info
+from lads.resources import card_template
 
 card_name = "README.md"
 CARD_NAME = card_name
-TEMPLATE = Path(__file__).resolve().parents[2] / "dataset_cards" / "template.md"
 
 
 def render_card(out_root: Path, *, figures: list[str] | tuple[str, ...] = ()) -> str:
@@ -35,7 +35,7 @@ def render_card(out_root: Path, *, figures: list[str] | tuple[str, ...] = ()) ->
     splits = tree_facts.splits(run, ok, src)
     front = render_front_matter(run, src, len(ok), splits)
     fields = sections.fields(run, rows, ok, src, splits, pipeline_text, figures)
-    body = Template(TEMPLATE.read_text()).substitute(fields)
+    body = Template(card_template().read_text()).substitute(fields)
     return f"---\n{front}---\n\n" + re.sub(r"\n{3,}", "\n\n", body)
 
 

@@ -69,7 +69,8 @@ def fields(
         "total_size": f"{_human(total)} of item files",
         "license_text": src.license_text,
         "source_link": src.link,
-        "git_commit": str(run.get("git_commit", "?")),
+        # None: lads ran from an installed package, whose version then names the code.
+        "git_commit": str(run.get("git_commit") or "none (installed package)"),
         "layout": _layout(ok, run),
         "points_mode": mode,
         "points_mode_text": POINTS_MODE_TEXT.get(mode, "Not recorded in run.json."),

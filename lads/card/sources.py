@@ -59,6 +59,13 @@ _WADS = """@misc{kurup2021dsor,
   note   = {arXiv:2109.07078 (introduces WADS)},
   year   = {2021}
 }"""
+_RADIATE = """@inproceedings{sheeny2021radiate,
+  author    = {Sheeny, Marcel and De Pellegrin, Emanuele and Mukherjee, Saptarshi and
+               Ahrabian, Alireza and Wang, Sen and Wallace, Andrew},
+  title     = {{RADIATE: A Radar Dataset for Automotive Perception in Bad Weather}},
+  booktitle = {IEEE International Conference on Robotics and Automation (ICRA)},
+  year      = {2021}
+}"""
 _VOXELSCAPE = """@article{saleh_voxelscape,
   author  = {Saleh, K. and Hossny, M. and others},
   title   = {{VoxelScape: Large Scale Simulated 3D Point Cloud Dataset of Urban Traffic
@@ -79,6 +86,18 @@ SOURCES: dict[str, Source] = {
         "CC BY-NC-SA 4.0 plus the nuScenes Terms of Use, non-commercial share-alike, "
         f"inherited from the source; {CONFIRM}",
         "https://www.nuscenes.org/", _NUSCENES,
+    ),
+    "nuscenes-kitti": Source(
+        "nuScenes-lidarseg (KITTI-style export)", "nuscenes", "cc-by-nc-sa-4.0",
+        "cc-by-nc-sa-4.0-and-nuscenes-terms", "https://www.nuscenes.org/terms-of-use",
+        "CC BY-NC-SA 4.0 plus the nuScenes Terms of Use, non-commercial share-alike, "
+        f"inherited from the source; {CONFIRM}",
+        "https://www.nuscenes.org/", _NUSCENES,
+    ),
+    "radiate": Source(
+        "RADIATE", "radiate", "cc-by-nc-sa-4.0", "cc-by-nc-sa-4.0", NC_SA,
+        f"CC BY-NC-SA 4.0, non-commercial share-alike, inherited from the source; {CONFIRM}",
+        "http://pro.hw.ac.uk/radiate/", _RADIATE,
     ),
     "wads": Source(
         "WADS", "wads", "cc-by-nc-sa-4.0", "cc-by-nc-sa-4.0", NC_SA,

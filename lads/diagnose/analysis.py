@@ -1,10 +1,11 @@
 """One diagnosis of a design: selection, stability, ambiguity, uncertainty and held-out
-metrics (discovery.md §5.4-5.7). Pure computation on a `Design`; no files.
+metrics (docs/diagnose.md §5.4-5.7). Pure computation on a `Design`; no files.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -120,14 +121,27 @@ class Diagnosis:
     frequencies: dict[str, float]
 
 
-def diagnose_design(d: Design, rng: np.random.Generator, settings: Settings) -> Diagnosis:
+# The steps `diagnose_design` announces to its `phase` callback, in order.
+PHASES = ("selection", "resamples", "final fit and bootstrap", "ambiguity, noise, held-out")
+
+
+def diagnose_design(
+    d: Design,
+    rng: np.random.Generator,
+    settings: Settings,
+    phase: Callable[[str], None] | None = None,
+) -> Diagnosis:
     """Select, stabilise, quantify and evaluate the effects that explain `d` (on one
-    thread: `parallel.one_thread`)."""
+    thread: `parallel.one_thread`). `phase` is called with each name of `PHASES` as that
+    step starts (a progress display); it does not change the result."""
     with one_thread():
-        return _diagnose_design(d, rng, settings)
+        return _diagnose_design(d, rng, settings, phase or (lambda name: None))
 
 
-def _diagnose_design(d: Design, rng: np.random.Generator, settings: Settings) -> Diagnosis:
+def _diagnose_design(
+    d: Design, rng: np.random.Generator, settings: Settings, phase: Callable[[str], None]
+) -> Diagnosis:
+    phase(PHASES[0])
     split = split_groups(d, rng)
     weights = fit_weights(len(d), split.train, settings.fit_rows, rng)
     pool = candidates(d, train_rows=split.train)
@@ -143,6 +157,7 @@ def _diagnose_design(d: Design, rng: np.random.Generator, settings: Settings) ->
     # effects win, which costs a full selection each.
     strong = {s.candidate for s in selection.trace if not s.screened
               and s.z > Z_RESAMPLE and s.delta_loss > selection.floor}  # fmt: skip
+    phase(PHASES[1])
     contenders = [e for e in pool if e.label in strong or e.label in selection.labels]
     names = {e.label for e in contenders}
     k_resample = min(settings.k_max, len(selection.labels) + 1)
@@ -176,6 +191,7 @@ def _diagnose_design(d: Design, rng: np.random.Generator, settings: Settings) ->
         fam_freq = {k: 1.0 if family[k] in chosen else 0.0 for k in counts}
 
     # Final model on train + validation, bootstrap CIs on the same rows.
+    phase(PHASES[2])
     fit_all = np.concatenate([split.train, split.validation])
     w_all = fit_weights(len(d), fit_all, settings.fit_rows * 2, rng)
     base = initial_base(d, fit_all)
@@ -207,6 +223,7 @@ def _diagnose_design(d: Design, rng: np.random.Generator, settings: Settings) ->
             possible.append({"id": e.info.id, "key": e.info.key, "label": e.label,
                              "selection_frequency": f})  # fmt: skip
 
+    phase(PHASES[3])
     alternatives, sets = _ambiguity(d, selection, pool, weights, split, settings.jobs)
     reasons: list[str] = []
     sets += _range_band_rule(d, selection, reasons)
@@ -462,7 +479,7 @@ def resample_swaps(
 
 
 def separating_data(a: str, b: str) -> str:
-    """The data that would tell two confounded effects apart (discovery.md §2, §5.4)."""
+    """The data that would tell two confounded effects apart (docs/diagnose.md §2, §5.4)."""
     pair = {a, b}
     if pair == {"C1", "C5"}:
         return ("returns beyond 60 m: attenuation curves ln I by -2 alpha R, the exponent by "

@@ -1,4 +1,4 @@
-"""Reduce a simulated and a real tree to beam tables (discovery.md §5.1).
+"""Reduce a simulated and a real tree to beam tables (docs/diagnose.md §5.1).
 
 Every feature is computed per scan on each tree's own point cloud (vectorised numpy, one
 range image per cloud for the normals, edge distances along the rings: `edges.py`). Paired

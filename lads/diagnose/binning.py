@@ -1,4 +1,4 @@
-"""The binned features of the localization (discovery.md §5.2).
+"""The binned features of the localization (docs/diagnose.md §5.2).
 
 Each `Feature` turns a beam table into a `Binning`: a bin per row (-1 where the feature does
 not apply), labels with units, bin centres, and for ordered features the per-row value the
@@ -148,4 +148,4 @@ FEATURES: tuple[Feature, ...] = (
     Feature("ground", "ground vs non-ground", "", False, _bin_ground),
     Feature("scan", "scan", "", False, _bin_scan),
 )
-"""The features of discovery.md §5.2, in report order."""
+"""The features of docs/diagnose.md §5.2, in report order."""

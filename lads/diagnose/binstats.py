@@ -1,7 +1,7 @@
 """Cluster-bootstrap statistics and tests of one target binned by one feature.
 
-The building blocks of `lads.diagnose.localize` (discovery.md §5.2). Groups (`table.group`),
-never points, are the independent units (discovery.md §2 item 4).
+The building blocks of `lads.diagnose.localize` (docs/diagnose.md §5.2). Groups (`table.group`),
+never points, are the independent units (docs/diagnose.md §2 item 4).
 
 Tests, per feature and target (intensity, dropout), all cluster-robust over groups:
     omnibus  Wald test that all bin means are equal, over bins with >= 1% of the rows,

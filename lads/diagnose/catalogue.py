@@ -1,4 +1,4 @@
-"""The named effect catalogue of `lads diagnose` (discovery.md §1 and §5.3).
+"""The named effect catalogue of `lads diagnose` (docs/diagnose.md §1 and §5.3).
 
 IDs and keys are stable names: they are never renamed or reused, and a new effect gets a new
 ID. Parameter names carry their units; a parameter's value in report.json is a number, or a
@@ -48,7 +48,7 @@ class EffectInfo:
         name: the name printed in reports.
         params: parameter names, units in the names.
         bounds: (low, high) per parameter (None: free); per-ring parameters share one bound.
-        confounds: IDs of effects it is known to be confused with (discovery.md §5.3).
+        confounds: IDs of effects it is known to be confused with (docs/diagnose.md §5.3).
         kind: "intensity", "dropout" or "both".
     """
 

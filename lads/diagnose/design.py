@@ -4,7 +4,7 @@ Only rows the simulation returned enter a paired fit (a beam the simulation did 
 cannot be mis-simulated; real-only rows are reported as extra returns). Unpaired tables are
 turned into pseudo-pairs: each real return is compared with the mean ln I of the simulated
 returns in the same feature cell (class x ring x range bin x cos bin), so only
-feature-conditional differences are ever fitted (discovery.md §5.1).
+feature-conditional differences are ever fitted (docs/diagnose.md §5.1).
 """
 
 from __future__ import annotations

@@ -147,7 +147,7 @@ def _in_sector(az: Tensor, start: Tensor, width: Tensor) -> Tensor:
 def candidates(d: Design, *, train_rows: npt.NDArray[np.int64] | None = None) -> list[Effect]:
     """The catalogue effects the design can inform (C0 is part of the baseline).
 
-    Rules (discovery.md §5.3 "Needs"): class-confined effects only for labelled classes with
+    Rules (docs/diagnose.md §5.3 "Needs"): class-confined effects only for labelled classes with
     enough rows; C10 only with >= 5 scans; dropout effects only for paired designs.
     """
     out: list[Effect] = []
@@ -410,7 +410,7 @@ def _blockage(d: Design, train_rows: npt.NDArray[np.int64] | None) -> Effect:
 def _few_ring_gains(d: Design, rings: list[int]) -> Effect | None:
     """C4 confined to `rings` (one gain each, the other rings at 0), or None without rings.
 
-    One weak laser among 64 (discovery.md K6) is 1.5 % of the rows: the full C4 pays for 63
+    One weak laser among 64 (docs/diagnose.md K6) is 1.5 % of the rows: the full C4 pays for 63
     gains fitted to noise, and its held-out gain came out negative on two such cases. The
     rings are chosen on the training rows only (`odd_rings`), so the held-out test of this
     candidate is as honest as any other's. Exported like C4 (every ring, sum 0)."""

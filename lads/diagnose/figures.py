@@ -1,4 +1,4 @@
-"""PNG figures of `lads diagnose` (discovery.md §5.6).
+"""PNG figures of `lads diagnose` (docs/diagnose.md §5.6).
 
 Drawn with matplotlib's Agg canvas on private Figures (no pyplot state) and written with
 `lads.files.atomic_write_figure`. Residuals are r = ln(I_real + h) - ln(I_sim + h), written

@@ -7,7 +7,7 @@ ground were a median 4-5 degrees off the full cloud's at 20-40 m, 18-19 at 40-80
 local planes 0.5 and 0.9-1.3 (`python -m benchmarks.ground_incidence`). Road surfaces
 are planar over metres, so a plane fitted to the ground points of a few metres around
 each point spans several rings and gives the normal to about a degree
-(discovery.md §5.1: normals from k-NN PCA *or the surface*; ill-conditioned ones excluded).
+(docs/diagnose.md §5.1: normals from k-NN PCA *or the surface*; ill-conditioned ones excluded).
 """
 
 from __future__ import annotations

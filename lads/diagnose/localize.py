@@ -1,10 +1,10 @@
-"""Where do simulated and real intensities and returns differ? (discovery.md §5.2)
+"""Where do simulated and real intensities and returns differ? (docs/diagnose.md §5.2)
 
 Residuals r = ln(I_real + h) - ln(I_sim + h) (h = half a quantisation step) on beams both
 recordings returned, and the dropout indicator d_drop on beams the simulation returned, are
 binned by nine features (`lads.diagnose.binning`). Per bin: count, mean and median with 95%
 CIs, and the drop rate with its CI, all from one cluster bootstrap over `table.group`
-(groups, never points, are the independent units: discovery.md §2 item 4). Every feature and
+(groups, never points, are the independent units: docs/diagnose.md §2 item 4). Every feature and
 target is tested (trend and omnibus, cluster-robust; `lads.diagnose.binstats` describes the
 tests), Benjamini-Hochberg runs over all of them, and the significant ones become ranked
 "where" statements.
@@ -156,7 +156,7 @@ class Localization:
 
 
 def residuals(table: BeamTable) -> Residuals:
-    """r, d_drop and d_extra of every row (discovery.md §5.2).
+    """r, d_drop and d_extra of every row (docs/diagnose.md §5.2).
 
     Args:
         table: the beam table; intensities in stored units.

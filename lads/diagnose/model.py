@@ -11,7 +11,7 @@ For a beam the simulation returned, with mu = the predicted ln(I_real + h):
 A returned beam contributes ln N(y; mu, sigma) + ln P(ret | y), a dropped one ln(1 - P(ret)).
 With D1 the detector sees mu + lam (y - mu): lam = 0 is a threshold on the predicted power
 (the catalogue's form), lam = 1 censors the returned value itself (Tobit), so an attenuation
-is not under-estimated from the survivors alone (discovery.md §2 item 2). lam is fitted.
+is not under-estimated from the survivors alone (docs/diagnose.md §2 item 2). lam is fitted.
 Unpaired designs have no dropout information and use the Gaussian part only.
 
 Fits use scipy's L-BFGS-B on the box bounds with exact gradients from torch autograd.
@@ -34,7 +34,7 @@ from lads.diagnose.effects import Effect
 BASE_NAMES: tuple[str, ...] = (
     "ln_gain", "ln_sigma", "sigma_range_slope", "sigma_level_slope", "return_logit",
 )  # fmt: skip
-# C0 is "free" in discovery.md; e^±12 still spans any encoding change, and a finite box keeps
+# C0 is "free" in docs/diagnose.md; e^±12 still spans any encoding change, and a finite box keeps
 # a term that is collinear with the gain (a ring offset summing to a constant) from drifting.
 _BASE_LOWER = np.array([-12.0, -6.0, -3.0, -3.0, -12.0])
 _BASE_UPPER = np.array([12.0, 3.0, 3.0, 3.0, 12.0])

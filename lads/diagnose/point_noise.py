@@ -1,4 +1,4 @@
-"""Point noise of ln I from differences between neighbouring returns (discovery.md E11).
+"""Point noise of ln I from differences between neighbouring returns (docs/diagnose.md E11).
 
 The likelihood's sigma is the spread of every residual about the fitted model: point noise
 (shot noise, speckle) plus the reflectance every surface has and the simulation does not

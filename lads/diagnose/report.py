@@ -1,4 +1,4 @@
-"""report.json and report.md of `lads diagnose` (discovery.md §1 and §5.6)."""
+"""report.json and report.md of `lads diagnose` (docs/diagnose.md §1 and §5.6)."""
 
 from __future__ import annotations
 

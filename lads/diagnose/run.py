@@ -14,9 +14,10 @@ from typing import Any
 import numpy as np
 import torch
 from threadpoolctl import threadpool_limits
+from tqdm import tqdm
 
 from lads.diagnose import figures
-from lads.diagnose.analysis import Diagnosis, Settings, diagnose_design
+from lads.diagnose.analysis import PHASES, Diagnosis, Settings, diagnose_design
 from lads.diagnose.beams import paired_table, unpaired_tables
 from lads.diagnose.corrected import write_corrected
 from lads.diagnose.design import Design, paired_design, unpaired_design
@@ -85,14 +86,43 @@ def _diagnose(
         design = unpaired_design(sim_table, table)
     _check_fit_data(design, sim_root, real_root)
 
-    residual_before = _row_residual(table, design, None)
-    loc_before = localize(table, residual_before, rng=_rng(seed, "localize"),
-                          n_boot=LOCALIZE_BOOT)  # fmt: skip
-    dg = diagnose_design(design, _rng(seed, "fit"), settings)
-    residual_after = _row_residual(table, design, dg)
-    loc_after = localize(table, residual_after, rng=_rng(seed, "localize-after"),
-                         n_boot=LOCALIZE_BOOT)  # fmt: skip
+    steps = ("localise", *PHASES, "localise after", "figures and report")
+    bar = tqdm(total=len(steps), desc="diagnose", unit="step", disable=not progress,
+               bar_format="{desc}: {n_fmt}/{total_fmt} steps [{elapsed}] {postfix}")  # fmt: skip
 
+    started: list[str] = []
+
+    def step(name: str) -> None:
+        if started:
+            bar.update(1)
+        started.append(name)
+        bar.set_postfix_str(name)
+
+    with bar:
+        step(steps[0])
+        residual_before = _row_residual(table, design, None)
+        loc_before = localize(table, residual_before, rng=_rng(seed, "localize"),
+                              n_boot=LOCALIZE_BOOT)  # fmt: skip
+        dg = diagnose_design(design, _rng(seed, "fit"), settings, phase=step)
+        step(steps[-2])
+        residual_after = _row_residual(table, design, dg)
+        loc_after = localize(table, residual_after, rng=_rng(seed, "localize-after"),
+                             n_boot=LOCALIZE_BOOT)  # fmt: skip
+        step(steps[-1])
+        doc = _write(table, design, dg, loc_before, loc_after, out, sim_root, real_root,
+                     source, paired, seed, settings)  # fmt: skip
+        bar.update(1)
+    if write_corrected_to is not None:
+        write_corrected(pair, table, design, dg.final, Path(write_corrected_to), seed,
+                        sim_table=sim_table)  # fmt: skip
+    return doc
+
+
+def _write(
+    table: BeamTable, design: Design, dg: Diagnosis, loc_before: Any, loc_after: Any, out: Path,
+    sim_root: Path, real_root: Path, source: str, paired: bool, seed: int, settings: Settings,
+) -> dict[str, Any]:  # fmt: skip
+    """Figures, report.json and report.md under `out`; returns the report document."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     figs = _figures(table, design, dg, loc_before, loc_after, out)
@@ -105,9 +135,6 @@ def _diagnose(
     }  # fmt: skip
     doc = build_report(dg, context, to_json(loc_before), figs)
     write_report(doc, out)
-    if write_corrected_to is not None:
-        write_corrected(pair, table, design, dg.final, Path(write_corrected_to), seed,
-                        sim_table=sim_table)  # fmt: skip
     return doc
 
 

@@ -1,5 +1,5 @@
 """Choosing the effects: grouped splits, forward selection, backward pass, stability,
-ambiguity and bootstrap uncertainty (discovery.md §5.4-5.5).
+ambiguity and bootstrap uncertainty (docs/diagnose.md §5.4-5.5).
 
 Every split and resample is over spatial groups (scan x 10 m tile), never points: the
 effective sample size of LiDAR residuals is the number of independent surfaces (§2 item 4).
@@ -38,7 +38,7 @@ Z_ACCEPT = 3.0
 Z_RESAMPLE = 2.0
 TEST_SHARE = 0.2
 VALIDATION_SHARE = 0.5
-# dBIC is reported in the trace, not used to accept. discovery.md §5.5 asks for dBIC < -10
+# dBIC is reported in the trace, not used to accept. docs/diagnose.md §5.5 asks for dBIC < -10
 # with n_eff from the Kish design effect; but the design effect measures correlation
 # *between* groups (object reflectance), while per-ring and per-class terms vary *within* a
 # surface, so that rule rejected 64 ring gains that improved held-out fit by four standard
@@ -79,7 +79,7 @@ class Split:
 
     A fit reads at most `Settings.fit_rows` rows, which 30 % of the groups supply many times
     over, while the cluster SE of a held-out gain shrinks with the number of validation
-    groups: 50 % of them there rather than discovery.md's 20 % halves the variance of every
+    groups: 50 % of them there rather than docs/diagnose.md's 20 % halves the variance of every
     accept/reject decision at no cost in fit quality."""
 
     train: npt.NDArray[np.int64]
@@ -283,7 +283,7 @@ def by_groups(
     """Mean over groups of each group's mean per-row gain, with its SE over groups.
 
     The test of a class-confined effect on its own rows. Every group (an independent surface,
-    discovery.md §2 item 4) counts once: the row-weighted ratio of `by_rows` lets the
+    docs/diagnose.md §2 item 4) counts once: the row-weighted ratio of `by_rows` lets the
     spread of group sizes (1 to 24 sign rows per tile) and of the gain itself (a retro gain
     clipped at the encoding's top in some tiles, not in others) swamp a gain that is positive
     in every group, and lets one large tile carry a chance gain on a null case. `index` as
@@ -403,7 +403,7 @@ def _passes(
 
 def gain_floor(baseline_half_deviance: float) -> float:
     """The smallest held-out NLL gain (nats/row) an effect is accepted for: MIN_GAIN_NATS,
-    or BASELINE_SHARE of the baseline's held-out loss if larger (discovery.md §5.5 step 4),
+    or BASELINE_SHARE of the baseline's held-out loss if larger (docs/diagnose.md §5.5 step 4),
     the loss being the deviance (`RowTerms.half_deviance`, nats/row).
 
     The directional score finds consistent effects far below the noise; the floor keeps

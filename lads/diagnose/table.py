@@ -1,4 +1,4 @@
-"""The beam table: one row per beam of a simulated and a real recording (discovery.md §5.1).
+"""The beam table: one row per beam of a simulated and a real recording (docs/diagnose.md §5.1).
 
 Everything `lads diagnose` fits or plots reads this table and nothing else, so trees of any
 supported dataset are reduced to it once (`lads.diagnose.beams`).
@@ -65,7 +65,7 @@ class BeamTable:
         scan: (N,) int32 index into `scans`.
         group: (N,) int64 spatial group id, unique across scans: the scan and a 10 m x 10 m
             tile of the ground plane. Held-out splits and bootstraps resample groups, never
-            points (discovery.md §2 item 4).
+            points (docs/diagnose.md §2 item 4).
         ring: (N,) int16 laser channel, 0 = lowest beam.
         azimuth_deg: (N,) float32 azimuth in [0, 360), atan2(y, x) in degrees.
         elevation_deg: (N,) float32 beam elevation in degrees.

@@ -8,7 +8,7 @@ frames whose key matches and rebuilds the rest, so a killed preparation resumes.
 made in parallel with joblib (each job writes only its own group).
 
 Statistics for normalisation and decoding are computed from the cache over *occupied
-pixels only* and keyed to the run's data hash (physics.md §10.4, §10.7 item 6).
+pixels only* and keyed to the run's data hash (docs/physics.md §10.4, §10.7 item 6).
 `cache_fingerprint` names the exact cached frames they were computed from, so a stored copy
 (`statistics_to_json`, read back exactly by `statistics_from_json`) is reused only while
 the cache it describes is unchanged.
@@ -116,21 +116,24 @@ def _frame_names(domain: DomainSpec, where: str) -> list[str]:
     missing = sorted(set(domain.holdout) - set(names))
     if missing:
         raise TrainingError(
-            f"{where}: held-out frames {missing} are not in {domain.root}; fix the holdout list "
+            f"{where}: held-out frames {missing} are not in {domain.root_path()}; fix the holdout "
+            "list "
             "(paths as the reader names items, e.g. sequences/00/velodyne/000002.bin)."
         )
     kept = [n for n in names if n not in set(domain.holdout)]
     if domain.frames:
         kept = kept[: domain.frames]
     if not kept:
-        raise TrainingError(f"{where}: no training frame left in {domain.root} after holdout.")
+        raise TrainingError(
+            f"{where}: no training frame left in {domain.root_path()} after holdout."
+        )
     return kept
 
 
 def _raw_scan_names(domain: DomainSpec) -> list[str]:
     root = domain.root_path()
     if root is None or not root.is_dir():
-        raise TrainingError(f"{domain.root}: folder of nuScenes .pcd.bin scans not found.")
+        raise TrainingError(f"{root}: folder of nuScenes .pcd.bin scans not found.")
     return sorted(p.relative_to(root).as_posix() for p in root.rglob("*.pcd.bin"))
 
 

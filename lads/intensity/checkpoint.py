@@ -9,13 +9,12 @@ A weight file is a `torch.save` dict read back with `weights_only=True` (no pick
 
 The normalisation statistics are buffers of the generator itself, and `meta` records their
 hash with the feature version and channel list, so a file whose statistics, channels or
-feature definition do not match is refused at load (physics.md §10.7 item 6), never used.
+feature definition do not match is refused at load (docs/physics.md §10.7 item 6), never used.
 """
 
 from __future__ import annotations
 
 import hashlib
-import importlib.resources
 import io
 import json
 from dataclasses import asdict, dataclass, field
@@ -29,6 +28,7 @@ from lads.files import atomic_write
 from lads.intensity.features import FEATURE_VERSION, NORMALISED_CHANNELS, channel_names
 from lads.intensity.model import Generator
 from lads.physics.materials import material_names
+from lads.resources import weights_dir
 
 FORMAT = "lads-intensity"
 MATERIAL_DIMS = 4
@@ -271,7 +271,7 @@ def shipped_path(name: str) -> Path:
             f"no shipped intensity model {name!r}; shipped: {', '.join(sorted(SHIPPED))}, "
             "or pass a path to a .pt file."
         ) from None
-    return Path(str(importlib.resources.files("lads.intensity") / "weights" / filename))
+    return weights_dir() / filename
 
 
 def resolve_model(name_or_path: str, *, device: str = "cpu") -> IntensityModel:

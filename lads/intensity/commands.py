@@ -11,7 +11,13 @@ import numpy as np
 
 from lads.errors import TrainingError
 from lads.files import atomic_write
-from lads.intensity.train_config import DomainSpec, PairSpec, TrainConfig, load_train_config
+from lads.intensity.train_config import (
+    DATA_ROOT_ENV,
+    DomainSpec,
+    PairSpec,
+    TrainConfig,
+    load_train_config,
+)
 
 
 def _frames_of(domain: DomainSpec, relpaths: list[str], kind: str) -> list[Any]:
@@ -89,29 +95,44 @@ def evaluate_pair(
     return {"context": context, **result.to_json()}
 
 
+_DATA_ROOT_HELP = (
+    f"Folder that holds the datasets the config names (semantickitti/, wads/, ...); default "
+    f"${DATA_ROOT_ENV}, or the config's own folder for a config given by path."
+)
+
+
 @click.command("train")
 @click.argument("config")
+@click.option("--data-root", type=click.Path(file_okay=False, path_type=Path),
+              help=_DATA_ROOT_HELP)  # fmt: skip
 @click.option("--run-dir", type=click.Path(file_okay=False, path_type=Path),
-              help="Run folder (cache, checkpoints, loss.png); default runs/<name>.")  # fmt: skip
+              help="Run folder (cache, checkpoints, loss.png, weights); "
+                   "default runs/<name>.")  # fmt: skip
+@click.option("--output", type=click.Path(dir_okay=False, path_type=Path),
+              help="Weight file to write; default <run folder>/<name>.pt.")  # fmt: skip
 @click.option("--device", type=click.Choice(["cpu", "cuda"]), default=None,
               help="Default: cuda when present, else cpu.")  # fmt: skip
 @click.option("--steps", type=int, help="Override the number of steps.")
 @click.option("--jobs", type=int, help="Parallel jobs for the range-image cache.")
 def train_command(
-    config: str, run_dir: Path | None, device: str | None, steps: int | None, jobs: int | None
-) -> None:
-    """Train an intensity generator from a config (pipelines/train/*.yaml or a path)."""
+    config: str, data_root: Path | None, run_dir: Path | None, output: Path | None,
+    device: str | None, steps: int | None, jobs: int | None,
+) -> None:  # fmt: skip
+    """Train an intensity generator from a config: a shipped name (synth-to-kitti,
+    synth-to-nuscenes, weather) or a YAML path."""
     from dataclasses import replace
 
     import torch
 
     from lads.intensity.train import train
 
-    cfg = load_train_config(config)
+    cfg = load_train_config(config, data_root=data_root)
     if steps is not None:
         cfg = replace(cfg, steps=steps)
     if jobs is not None:
         cfg = replace(cfg, workers=jobs)
+    if output is not None:
+        cfg = replace(cfg, output=str(output))
     dev = device or ("cuda" if torch.cuda.is_available() else "cpu")
     summary = train(cfg, run_dir=run_dir, device=dev, progress=True)
     click.echo(json.dumps(summary, indent=2))
@@ -119,16 +140,22 @@ def train_command(
 
 @click.command("eval-intensity")
 @click.argument("config")
-@click.option("--model", "model_path", help="Weights to evaluate (default: the config's output).")
+@click.option("--data-root", type=click.Path(file_okay=False, path_type=Path),
+              help=_DATA_ROOT_HELP)  # fmt: skip
+@click.option("--model", "model_path",
+              help="Weights to evaluate: a .pt path or a shipped name (default: the shipped "
+                   "model of the config's name, else the config's output).")  # fmt: skip
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path),
               default=Path("eval-intensity"), show_default=True)  # fmt: skip
 @click.option("--no-figures", is_flag=True)
 def eval_intensity_command(
-    config: str, model_path: str | None, out_dir: Path, no_figures: bool
+    config: str, data_root: Path | None, model_path: str | None, out_dir: Path, no_figures: bool
 ) -> None:
     """Evaluate a generator on the config's held-out real frames against the baselines."""
-    cfg = load_train_config(config)
-    path = model_path or str(cfg.output_path())
+    from lads.intensity.checkpoint import SHIPPED
+
+    cfg = load_train_config(config, data_root=data_root)
+    path = model_path or (cfg.name if cfg.name in SHIPPED else str(cfg.output_path()))
     results = {}
     for pair in cfg.pairs:
         if not pair.target.holdout:

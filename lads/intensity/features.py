@@ -1,7 +1,7 @@
 """Range-image inputs of the intensity models, built from one frame's points.
 
 Pure numpy, no I/O. A frame is organised in its *own* sensor geometry (rows = laser channel,
-columns = azimuth; `lads.physics.projection`), never in another sensor's grid (physics.md
+columns = azimuth; `lads.physics.projection`), never in another sensor's grid (docs/physics.md
 §10.7 item 3). Every pixel owned by a point carries the physics modalities of that point:
 
     ln_range       ln(R / 1 m)
@@ -22,7 +22,7 @@ columns = azimuth; `lads.physics.projection`), never in another sensor's grid (p
     rain/snow/fog  one-hot weather style, broadcast (weather models only)
 
 Empty pixels hold 0 in every channel. I_P is computed from materials, incidence and range,
-never from a measured intensity (physics.md §10.7 item 5). The measured intensity of a frame
+never from a measured intensity (docs/physics.md §10.7 item 5). The measured intensity of a frame
 (when it has one) becomes the target image, as reflectivity (encoded / full scale).
 """
 
@@ -44,6 +44,7 @@ from lads.physics.materials import (
 from lads.physics.modalities import _incidence, physics_intensity
 from lads.physics.projection import RangeImage, channels_of, checked_xyz, organise
 from lads.physics.result import Outcome
+from lads.readers import READERS
 from lads.sensors.profile import SensorProfile
 
 FEATURE_VERSION = "2"  # 2: the material channel
@@ -54,7 +55,7 @@ BASE_CHANNELS: tuple[str, ...] = (
 )  # fmt: skip
 # Channels z-scored with statistics from the training cache; the rest are already O(1).
 NORMALISED_CHANNELS: tuple[str, ...] = ("ln_range", "cos_incidence", "reflectance", "ln_physics")
-UNKNOWN_REFLECTANCE = 0.20  # physics.md §10.2 "unknown (default)"
+UNKNOWN_REFLECTANCE = 0.20  # docs/physics.md §10.2 "unknown (default)"
 PHYSICS_FLOOR = 1e-6  # keeps ln(I_P) finite for cos(theta) = 0 or rho = 0
 GEOMETRY_FLOOR = 1e-6
 DEFAULT_DEPTH_JUMP = 0.1
@@ -69,7 +70,11 @@ def channel_names(styles: bool) -> tuple[str, ...]:
 
 
 def label_set_for(dataset: str) -> str | None:
-    """The material label set of a reader's labels, None for unlabelled datasets."""
+    """The material label set of a dataset's labels (a reader's `label_set`; other names,
+    such as "synth", when they are label sets themselves), None for unlabelled datasets."""
+    reader = READERS.get(dataset)
+    if reader is not None:
+        return reader.label_set
     return dataset if dataset in LABEL_SETS else None
 
 

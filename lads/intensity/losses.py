@@ -1,6 +1,6 @@
 """Masked losses of the intensity transfer. Every loss averages over occupied pixels (or
 occupied patches for the critics) only, so empty pixels never enter an objective
-(physics.md §10.7 item 2)."""
+(docs/physics.md §10.7 item 2)."""
 
 from __future__ import annotations
 

@@ -1,10 +1,10 @@
 """The networks of the intensity transfer: generators and patch discriminators (PyTorch).
 
-PICGAN's layout (physics.md §10.5) scaled for CPU inference, with the authors' flaws fixed:
+PICGAN's layout (docs/physics.md §10.5) scaled for CPU inference, with the authors' flaws fixed:
 
 - Inputs are the *raw* range-image channels of `lads.intensity.features`; each network
   z-scores them with statistics held as buffers, so they travel inside every checkpoint and
-  cannot go stale (physics.md §10.7 item 6).
+  cannot go stale (docs/physics.md §10.7 item 6).
 - The intensity head is linear in z-space of ln(reflectivity + floor) and has no tanh: after
   decoding it reaches every value the target encoding can hold, retro-reflectors included
   (item 1). A linear path from the inputs to the head carries the physics (ln I_P, per-row
@@ -205,7 +205,7 @@ class Discriminator(nn.Module):
         """(B, 1, H, W) occupancy -> (B, 1, H/4, W/4) weights: patches at least 1/4 occupied.
 
         Every adversarial loss is averaged over these only, so empty sky and the occupancy
-        pattern of a sensor cannot be what the critic learns (physics.md §10.7 item 2).
+        pattern of a sensor cannot be what the critic learns (docs/physics.md §10.7 item 2).
         """
         frac = F.avg_pool2d(mask, 4)
         return (frac >= 0.25).float()

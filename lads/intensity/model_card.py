@@ -1,12 +1,15 @@
-"""Model cards for the shipped intensity weights: `python -m lads.intensity.model_card CONFIG`.
+"""Model cards for intensity weights: `python -m lads.intensity.model_card [options] CONFIG...`.
 
-Evaluates the config's weights on its held-out frames (`lads eval-intensity`), then writes
+Evaluates each config's weights on its held-out frames (`lads eval-intensity`), then writes
 `<weights>.md` beside the weight file: what it was trained on and under which terms, the
-command, seed, steps, sha256 and the held-out metrics against every baseline.
+command, seed, steps, sha256 and the held-out metrics against every baseline; the held-out
+figures go to `<docs>/<name>/`. `make train` runs it on the shipped weights of a checkout
+(`--weights-dir lads/intensity/weights --docs docs/intensity --data-root DATA`).
 """
 
 from __future__ import annotations
 
+import argparse
 import json
 import sys
 from pathlib import Path
@@ -14,13 +17,14 @@ from typing import Any
 
 from lads.files import atomic_write, sha256_file
 from lads.intensity.checkpoint import load_model
-from lads.intensity.train_config import REPO_ROOT, TrainConfig, load_train_config
+from lads.intensity.train_config import TrainConfig, load_train_config
 
 TERMS = {
     "semantickitti": "KITTI (CC BY-NC-SA 3.0) and SemanticKITTI labels (CC BY-NC-SA 4.0): "
     "non-commercial",
     "nuscenes-scans": "nuScenes (CC BY-NC-SA 4.0 and the nuScenes Terms of Use): non-commercial",
     "nuscenes": "nuScenes (CC BY-NC-SA 4.0 and the nuScenes Terms of Use): non-commercial",
+    "nuscenes-kitti": "nuScenes (CC BY-NC-SA 4.0 and the nuScenes Terms of Use): non-commercial",
     "wads": "WADS (Winter Adverse Driving dataSet), research use: non-commercial",
     "radiate": "RADIATE (CC BY-NC-SA 4.0): non-commercial",
     "synth": "made by `lads synth` in this repository (no third-party terms)",
@@ -76,7 +80,6 @@ def _f(value: Any) -> str:
 def render_card(cfg: TrainConfig, weights: Path, results: dict[str, Any]) -> str:
     model = load_model(weights)
     training = model.meta.training
-    config_rel = Path("pipelines/train") / f"{cfg.name}.yaml"
     lines = [
         f"# Intensity model `{cfg.name}`", "",
         cfg.description, "",
@@ -84,7 +87,7 @@ def render_card(cfg: TrainConfig, weights: Path, results: dict[str, Any]) -> str
         f"sha256 `{sha256_file(weights)}`",
         f"- kind: {cfg.kind}; targets: {', '.join(sorted(model.meta.targets))}; "
         f"generator parameters: {sum(p.numel() for p in model.generator.parameters())}",
-        f"- made by: `make train` (`lads train {config_rel}`), seed {cfg.seed}, "
+        f"- made by: `make train` (`lads train {cfg.name} --data-root DATA`), seed {cfg.seed}, "
         f"{training.get('steps')} steps, batch {cfg.batch}, crop {cfg.crop_width} px, lr {cfg.lr}",
         f"- range exponent n = {cfg.range_exponent}; data hash {training.get('data_hash')}",
         "", "## Training data", "",
@@ -116,11 +119,18 @@ def render_card(cfg: TrainConfig, weights: Path, results: dict[str, Any]) -> str
 def main(argv: list[str] | None = None) -> int:
     from lads.intensity.commands import evaluate_pair
 
-    args = sys.argv[1:] if argv is None else argv
-    for name in args:
-        cfg = load_train_config(name)
-        weights = cfg.output_path()
-        out_dir = REPO_ROOT / "docs" / "intensity" / cfg.name
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("configs", nargs="+", help="shipped config names or YAML paths")
+    parser.add_argument("--weights-dir", type=Path, default=None,
+                        help="folder of <name>.pt (default: each config's output)")  # fmt: skip
+    parser.add_argument("--docs", type=Path, default=Path("docs/intensity"),
+                        help="where the held-out figures go (<docs>/<name>/)")  # fmt: skip
+    parser.add_argument("--data-root", type=Path, default=None)
+    args = parser.parse_args(argv)
+    for name in args.configs:
+        cfg = load_train_config(name, data_root=args.data_root)
+        weights = (args.weights_dir / f"{cfg.name}.pt") if args.weights_dir else cfg.output_path()
+        out_dir = args.docs / cfg.name
         results = {}
         for pair in cfg.pairs:
             if pair.target.holdout:

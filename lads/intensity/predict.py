@@ -24,16 +24,13 @@ import numpy as np
 import numpy.typing as npt
 import torch
 
-from lads.errors import InvalidPointsError, ModelError
+from lads.errors import ModelError
 from lads.intensity.checkpoint import IntensityModel
 from lads.intensity.features import PHYSICS_FLOOR, FrameImage, frame_image
+from lads.sensors.conformity import check_scan_of
 from lads.sensors.profile import SensorProfile
 
 MAX_SHARED_RATIO = 10.0
-# A frame "fits" a sensor profile when almost all its points lie within the profile's
-# vertical field of view (with this margin); otherwise its rows are another sensor's.
-FOV_MARGIN_DEG = 2.0
-MAX_OUTSIDE_FOV = 0.05
 
 
 @dataclass(frozen=True, slots=True)
@@ -50,23 +47,6 @@ class Prediction:
     reflectivity: npt.NDArray[np.float32]
     encoded: npt.NDArray[np.float32]
     owner: npt.NDArray[np.bool_]
-
-
-def check_geometry(xyz: npt.NDArray[np.floating], profile: SensorProfile, where: str) -> None:
-    """Raise InvalidPointsError if the points do not look like a scan of `profile`."""
-    if len(xyz) == 0:
-        return
-    xyz64 = np.asarray(xyz, dtype=np.float64)
-    elevation = np.degrees(np.arctan2(xyz64[:, 2], np.hypot(xyz64[:, 0], xyz64[:, 1])))
-    low, high = profile.vertical_fov_deg
-    outside = (elevation < low - FOV_MARGIN_DEG) | (elevation > high + FOV_MARGIN_DEG)
-    share = float(outside.mean())
-    if share > MAX_OUTSIDE_FOV:
-        raise InvalidPointsError(
-            f"{where}: {share:.0%} of the points lie outside the vertical field of view "
-            f"{low:g}..{high:g} deg of sensor profile '{profile.name}'; the frame is not a scan "
-            "of that sensor. Pass the frame's own profile (lads profiles)."
-        )
 
 
 def predict_image(
@@ -132,12 +112,13 @@ def predict_points(
 
     Raises:
         ModelError: the model lacks the target, or a calibration for the output sensor.
-        InvalidPointsError: bad points, or a frame that is not a scan of `profile`.
+        InvalidPointsError: bad points, or a frame that is clearly not a scan of `profile`
+            (`lads.sensors.conformity.check_scan_of`).
     """
     from lads.sensors.profile import load_profile
 
     xyz_arr = np.asarray(xyz)
-    check_geometry(xyz_arr, profile, where)
+    check_scan_of(xyz_arr, profile, ring=ring, where=where)
     key, spec = model.target(target)
     weather = model.meta.kind == "weather"
     out_profile = output_profile or load_profile(spec.sensor)

@@ -378,7 +378,7 @@ def train(
     Raises:
         TrainingError: unusable data, a checkpoint of another config, or a diverged run.
     """
-    run = run_dir or (Path("runs") / cfg.name)
+    run = cfg.run_path(run_dir)
     run.mkdir(parents=True, exist_ok=True)
     jobs = build_cache(run, cfg, progress=progress)
     channels = channel_names(cfg.kind == "weather")
@@ -436,8 +436,9 @@ def train(
                   "cache_frames": len(jobs)},
     )  # fmt: skip
     nets.g.cpu()
-    save_model(cfg.output_path(), meta, nets.g)
-    summary["weights"] = str(cfg.output_path())
+    weights = cfg.output_path(run)
+    save_model(weights, meta, nets.g)
+    summary["weights"] = str(weights)
     return summary
 
 

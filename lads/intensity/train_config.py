@@ -5,27 +5,36 @@ A config names the model, its kind, and one or more *pairs*: an unpaired source 
 pair keyed by the target's name; weather models have one pair per weather style ("snow",
 "fog"), all feeding one style-conditioned generator. Unknown keys are errors.
 
-Relative paths are taken from the repository root (the folder holding `pipelines/`), so
-`../shared/data/...` works from any working directory.
+Data roots: a relative `root` is taken from the *data root*, the folder that holds the
+datasets (`--data-root DIR` of `lads train`, else the environment variable `LADS_DATA`); a
+config given by path without either takes its own folder. The shipped configs
+(`lads/pipelines/train/`, the repository's `pipelines/train/`) name their datasets relative
+to it (`semantickitti`, `wads`, ...), so they work wherever lads is installed.
+
+Outputs: training writes into its run folder (`runs/<name>/` under the working directory by
+default), the weights as `<run folder>/<name>.pt`, unless `output` (config) or `--output`
+(command line) says where; nothing is ever written into the installed package.
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
-from dataclasses import asdict, dataclass, field
+import os
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 import yaml
 
-from lads.config import PIPELINE_DIR
 from lads.errors import ConfigError
 from lads.intensity.features import STYLES
+from lads.resources import train_configs_dir
 
-REPO_ROOT = PIPELINE_DIR.parent
-TRAIN_DIR = PIPELINE_DIR / "train"
 KINDS = ("sensor", "weather")
+# Where relative dataset roots of a training config are taken from, unless --data-root.
+DATA_ROOT_ENV = "LADS_DATA"
+RUNS_DIR = "runs"
 
 
 @dataclass(frozen=True, slots=True)
@@ -34,7 +43,7 @@ class DomainSpec:
 
     Attributes:
         dataset: a reader name (`lads.readers.READERS`) or "synth" (made here, in memory).
-        root: dataset root (None for synth).
+        root: dataset root (None for synth), absolute or relative to `data_root`.
         sensor: sensor profile of the frames (default: the reader's).
         frames: synth only: number of frames; readers: at most this many (0 = all).
         seed: synth street seed; also seeds the weather stage for weather sources.
@@ -44,6 +53,8 @@ class DomainSpec:
         extinction_per_m: alpha assumed for target recordings in weather (1/m), used in
             their I_P; sources in weather take alpha from the physics stage.
         azimuth_bins: synth only: beams per ring (default the profile's width).
+        data_root: the folder a relative `root` is taken from (set when the config is
+            loaded, never in the YAML; not part of the data hash).
     """
 
     dataset: str
@@ -55,12 +66,15 @@ class DomainSpec:
     weather: dict[str, Any] = field(default_factory=dict)
     extinction_per_m: float = 0.0
     azimuth_bins: int | None = None
+    data_root: str | None = None
 
     def root_path(self) -> Path | None:
         if self.root is None:
             return None
         p = Path(self.root).expanduser()
-        return p if p.is_absolute() else (REPO_ROOT / p).resolve()
+        if p.is_absolute() or self.data_root is None:
+            return p
+        return (Path(self.data_root) / p).resolve()
 
 
 @dataclass(frozen=True, slots=True)
@@ -95,10 +109,11 @@ class TrainConfig:
     """One training run.
 
     Attributes:
-        name: model name; the weight file is `output` and the run folder `runs/<name>`.
+        name: model name; the run folder defaults to `runs/<name>`.
         kind: "sensor" or "weather".
         pairs: the source -> target pairs.
-        output: weight file to write (relative to the repo root unless absolute).
+        output: weight file to write (relative to the working directory); None = `<name>.pt`
+            in the run folder.
         range_exponent: n of I_P.
         steps, batch, crop_width: optimisation length, frames per domain per step, and the
             azimuth crop (pixels) taken from each frame per sample.
@@ -113,7 +128,7 @@ class TrainConfig:
     name: str
     kind: str
     pairs: tuple[PairSpec, ...]
-    output: str
+    output: str | None = None
     range_exponent: float = 1.0
     steps: int = 2000
     batch: int = 4
@@ -129,16 +144,26 @@ class TrainConfig:
     workers: int = 2
     description: str = ""
 
-    def output_path(self) -> Path:
-        p = Path(self.output).expanduser()
-        return p if p.is_absolute() else REPO_ROOT / p
+    def run_path(self, run_dir: Path | None = None) -> Path:
+        """The run folder: `run_dir`, else `runs/<name>` under the working directory."""
+        return Path(run_dir) if run_dir is not None else Path(RUNS_DIR) / self.name
+
+    def output_path(self, run_dir: Path | None = None) -> Path:
+        """The weight file this run writes."""
+        if self.output is not None:
+            return Path(self.output).expanduser()
+        return self.run_path(run_dir) / f"{self.name}.pt"
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
 
     def data_hash(self) -> str:
         """Hash of everything that decides the cached inputs (not the optimisation)."""
-        payload = {"pairs": [asdict(p) for p in self.pairs], "n": self.range_exponent}
+        pairs = [asdict(p) for p in self.pairs]
+        for pair in pairs:  # where the data lives on this machine does not change them
+            pair["source"].pop("data_root")
+            pair["target"].pop("data_root")
+        payload = {"pairs": pairs, "n": self.range_exponent}
         return hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()[:16]
 
 
@@ -147,32 +172,70 @@ _TOP = {
     "steps", "batch", "crop_width", "lr", "betas", "base", "blocks", "disc_base", "seed",
     "checkpoint_every", "losses", "workers",
 }  # fmt: skip
-_DOMAIN = set(DomainSpec.__dataclass_fields__)
+_DOMAIN = set(DomainSpec.__dataclass_fields__) - {"data_root"}
 _LOSSES = set(LossWeights.__dataclass_fields__)
 
 
-def load_train_config(path: str | Path) -> TrainConfig:
-    """Read and validate a training config. Raises ConfigError naming the file and key."""
+def shipped_train_configs() -> list[str]:
+    """Names of the training configs shipped with lads."""
+    return sorted(q.stem for q in train_configs_dir().glob("*.yaml"))
+
+
+def load_train_config(path: str | Path, *, data_root: str | Path | None = None) -> TrainConfig:
+    """Read and validate a training config: a path, or the name of a shipped config.
+
+    Relative dataset roots are resolved against `data_root`, else $LADS_DATA, else (for a
+    config given by path) the config's own folder.
+
+    Raises:
+        ConfigError: unknown name or unreadable file, a schema error naming the key, or a
+            relative root with no data root to take it from.
+    """
     p = Path(path)
-    if not p.is_file():
-        candidate = TRAIN_DIR / f"{path}.yaml"
-        if candidate.is_file():
-            p = candidate
-        else:
-            known = sorted(q.stem for q in TRAIN_DIR.glob("*.yaml"))
-            raise ConfigError(f"{path}: training config not found; shipped configs: {known}.")
+    shipped = not p.is_file()
+    if shipped:
+        candidate = train_configs_dir() / f"{path}.yaml"
+        if not candidate.is_file():
+            raise ConfigError(
+                f"{path}: training config not found; shipped configs: "
+                f"{', '.join(shipped_train_configs())}, or pass a path to a YAML file."
+            )
+        p = candidate
     try:
         raw = yaml.safe_load(p.read_text())
     except (OSError, yaml.YAMLError) as exc:
         raise ConfigError(f"{p}: cannot read the training config: {exc}") from None
-    return parse_train_config(raw, str(p))
+    cfg = parse_train_config(raw, str(p))
+    base = data_root or os.environ.get(DATA_ROOT_ENV) or (None if shipped else p.parent)
+    return resolve_roots(cfg, None if base is None else Path(base), str(p))
+
+
+def resolve_roots(cfg: TrainConfig, data_root: Path | None, where: str) -> TrainConfig:
+    """`cfg` with `data_root` recorded in every domain whose root is relative."""
+
+    def fix(domain: DomainSpec, ctx: str) -> DomainSpec:
+        if domain.root is None or Path(domain.root).expanduser().is_absolute():
+            return domain
+        if data_root is None:
+            raise ConfigError(
+                f"{where}: {ctx}.root is {domain.root!r}, relative to a data root: pass "
+                f"--data-root DIR (the folder that holds {domain.root}/) or set {DATA_ROOT_ENV}."
+            )
+        return replace(domain, data_root=str(data_root.expanduser().resolve()))
+
+    pairs = tuple(
+        replace(p, source=fix(p.source, f"pairs.{p.key}.source"),
+                target=fix(p.target, f"pairs.{p.key}.target"))
+        for p in cfg.pairs
+    )  # fmt: skip
+    return replace(cfg, pairs=pairs)
 
 
 def parse_train_config(raw: Any, where: str) -> TrainConfig:
     if not isinstance(raw, dict):
         raise ConfigError(f"{where}: expected a mapping at the top level.")
     _reject(raw, _TOP, where)
-    for key in ("name", "kind", "pairs", "output"):
+    for key in ("name", "kind", "pairs"):
         if key not in raw:
             raise ConfigError(f"{where}: missing key '{key}'.")
     kind = raw["kind"]

@@ -1,6 +1,6 @@
 """Shared per-beam bookkeeping for every weather model: input checks, power units, output.
 
-Power convention (LISA, Kilic et al. 2021; physics.md §4 and §9): one input point is one
+Power convention (LISA, Kilic et al. 2021; docs/physics.md §4 and §9): one input point is one
 beam whose hard target has reflectivity rho (the stored intensity converted through the
 profile's encoding; it already contains cos(theta)). Received power is normalised so that
 a target at range r gives P0 = rho * T^2 / r^2 with two-way transmission T^2 = exp(-2 alpha r).

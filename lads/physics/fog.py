@@ -1,7 +1,7 @@
 """Fog as single-scattering extinction plus a soft (volume) return per beam.
 
-Re-implemented from the equations of Hahner et al. 2021 (arXiv 2108.05249; physics.md §7)
-and the lidar equation (physics.md §9); no code or lookup table of the original is used.
+Re-implemented from the equations of Hahner et al. 2021 (arXiv 2108.05249; docs/physics.md §7)
+and the lidar equation (docs/physics.md §9); no code or lookup table of the original is used.
 
 Power convention (`lads.physics.beams`): received power is normalised so that a Lambertian
 hard target of reflectivity rho (cos theta included) at range r gives, at its pulse peak,
@@ -10,7 +10,7 @@ hard target of reflectivity rho (cos theta included) at range r gives, at its pu
 
 Derivation of the matching fog (volume) return. With peak transmitted power P_T, pulse
 shape w(t) (peak 1), receiver area A_R and efficiency eta, a Lambertian target returns
-P_T eta A_R rho T^2 / (pi r^2) (physics.md §9.2): dividing by P_T eta A_R / pi gives the
+P_T eta A_R rho T^2 / (pi r^2) (docs/physics.md §9.2): dividing by P_T eta A_R / pi gives the
 convention above. A slab [s, s + ds] of fog with lidar backscatter coefficient beta_pi
 (1/(m sr), per steradian at 180 degrees) scatters P_T w beta_pi ds per steradian back to the
 sensor; the aperture subtends A_R / s^2, so the slab adds P_T eta A_R w beta_pi xi(s) T^2(s)
@@ -22,7 +22,7 @@ the same normalisation
     w(t) = sin^2(pi t / (2 tau_H)),     s = r - ct/2,
 
 i.e. pi * beta_pi plays the role of a reflectivity per metre of fog; the Heaviside H keeps
-only fog in front of the target at r0. This is physics.md §7 with C_A P0 divided out, and it
+only fog in front of the target at r0. This is docs/physics.md §7 with C_A P0 divided out, and it
 needs beta_pi in the lidar convention (1/(m sr)); a radar-convention value is 4 pi larger.
 Substituting u = r - s, L = c tau_H:
 
@@ -51,7 +51,7 @@ Model choices (see `FogParams`):
   kappa_pulse = 2 pi^2 / L^2), and the broader fog echo (smaller kappa_fog, tabulated) is
   timed less precisely in proportion.
 - detection and returns: strongest / last return of two peaks (fog and target), compared
-  without summing the waveforms (physics.md §9.5), single scattering only.
+  without summing the waveforms (docs/physics.md §9.5), single scattering only.
 """
 
 from __future__ import annotations
@@ -94,7 +94,7 @@ class FogParams:
             0.023-0.092).
         droplet_modal_radius_um: r_c of the modified-gamma size distribution
             n(r) ~ r^a exp(-(a / g) (r / r_c)^g), um (10: strong advection fog, Rasshofer
-            et al. 2011 via LISA `augment_avg`, physics.md §1).
+            et al. 2011 via LISA `augment_avg`, docs/physics.md §1).
         droplet_shape_a: a of that distribution (3).
         droplet_shape_g: g of that distribution (1).
         refractive_index: real refractive index of water at the wavelength (1.328 at 905 nm;
@@ -340,7 +340,7 @@ def simulate_fog(
     P_f > P_w and P_f >= P_min, else the target if P_w >= P_min, else lost. last: the target
     if P_w >= P_min, else fog if P_f >= P_min, else lost. Kept targets (ATTENUATED) get
     intensity rho T^2 and extra range noise of variance sigma(SNR_w)^2 - sigma(SNR_clear)^2,
-    sigma = dR / sqrt(2 SNR), SNR = P / P_min (LISA, physics.md §4). Fog returns (PARTICLE)
+    sigma = dR / sqrt(2 SNR), SNR = P / P_min (LISA, docs/physics.md §4). Fog returns (PARTICLE)
     lie on the same ray at the reported peak range plus noise (module docstring), with
     intensity P_f r^2. Intensities are encoded once, by `assemble`.
 

@@ -1,6 +1,6 @@
 """Material reflectance at 905 nm per semantic class, from `lads/physics/materials.yaml`.
 
-The YAML is the single source of truth (physics.md §10.2): materials with a reflectance and
+The YAML is the single source of truth (docs/physics.md §10.2): materials with a reflectance and
 a citation each, and one class -> material map per label set. It is read from the package
 data once, validated, and turned into one lookup array per label set, so mapping a frame's
 labels is a single fancy-indexing operation.

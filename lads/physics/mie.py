@@ -95,7 +95,7 @@ def extinction_per_m(psd: ExponentialPSD, material: str, wavelength_nm: float) -
 
     The 1e-6 turns mm^2 into m^2. Integrated on a dense grid out to D_min + 40/Lambda
     (the tail beyond holds < e^-40 of the particles). With Q_ext = 2 and D_min = 0 this is
-    the closed form pi N0 / Lambda^3 * 1e-6 (physics.md §2).
+    the closed form pi N0 / Lambda^3 * 1e-6 (docs/physics.md §2).
     """
     lam = psd.slope_per_mm
     d = psd.min_diameter_mm + np.linspace(0.0, 40.0 / lam, 4001)

@@ -2,7 +2,7 @@
 
 Pure numpy (plus a scipy k-d tree and compiled loops), no file I/O. Every function returns
 one value per input point: points are never dropped, because labels and output files are
-matched by index (physics.md §10.7 item 4).
+matched by index (docs/physics.md §10.7 item 4).
 
 The range image (rows = channel, columns = azimuth) lives in `lads.physics.projection`;
 range_m, channels, project and RangeImage are re-exported here.
@@ -170,11 +170,11 @@ def physics_intensity(
     range_exponent: float = 1.0,
     extinction_per_m: float = 0.0,
 ) -> FloatArray:
-    """Physics intensity I = rho cos(theta) / R^n * exp(-2 alpha R) (physics.md §10.1).
+    """Physics intensity I = rho cos(theta) / R^n * exp(-2 alpha R) (docs/physics.md §10.1).
 
     ReaLiTy's clear-weather I_phy = MR cos(theta) / r has n = 1 and alpha = 0; the
     adverse-weather form adds two-way Beer-Lambert extinction. The extended-target radar
-    equation has n = 2 (physics.md §9), real sensors n_eff 1-3, so n is a parameter.
+    equation has n = 2 (docs/physics.md §9), real sensors n_eff 1-3, so n is a parameter.
 
     Args:
         reflectance: (N,) unitless, >= 0.

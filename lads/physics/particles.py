@@ -1,6 +1,6 @@
 """Per-beam Monte Carlo of rain and snow, sampled exactly through a thinned Poisson process.
 
-Model (LISA, Kilic et al. 2021, arXiv 2107.07004; physics.md §4, §6 and §9). Each input
+Model (LISA, Kilic et al. 2021, arXiv 2107.07004; docs/physics.md §4, §6 and §9). Each input
 point is one beam hitting a hard target of reflectivity rho at range r0; received powers
 are normalised so the target gives P0 = rho T^2(r0) / r0^2, T^2(r) = exp(-2 alpha r). The
 particles in the beam cone form a Poisson process over range r and diameter D with
@@ -58,7 +58,7 @@ class ParticleParams:
             a flake of density 0.1 g/cm^3 is 2.15 times wider (psd.flake_diameter_ratio).
         min_diameter_mm: smallest particle simulated, mm.
         extinction_scale: effective alpha / Mie alpha in [0.5, 1]; <1 credits forward
-            diffraction that stays inside the receiver field of view (physics.md §2).
+            diffraction that stays inside the receiver field of view (docs/physics.md §2).
         beam_divergence_mrad: full-angle divergence; None -> profile.
         min_range_m: R1, bistatic minimum range, nothing nearer is detected; None -> profile.
         overlap_full_m: R2, range of full transmitter/receiver overlap, m; between R1 and R2

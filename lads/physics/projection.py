@@ -1,6 +1,6 @@
 """Organise a point cloud into a range image: rows = laser channel, columns = azimuth.
 
-Pure numpy, no file I/O (physics.md §10.3, with one change): the row is the point's
+Pure numpy, no file I/O (docs/physics.md §10.3, with one change): the row is the point's
 *channel* (ring column, or nearest elevation in the sensor profile), top row = highest
 channel, so no point is lost outside a nominal vertical FOV. Columns follow the azimuth,
 u = 0.5 (-atan2(y, x) / pi + 1) W. Among points sharing a pixel the nearest owns it.
@@ -17,7 +17,7 @@ from lads.errors import ConfigError, InvalidPointsError
 from lads.physics.image_kernels import pixel_owners
 from lads.sensors.profile import SensorProfile
 
-MIN_RANGE_M = 1e-6  # physics.md §10.3: a point is valid if its range exceeds this
+MIN_RANGE_M = 1e-6  # docs/physics.md §10.3: a point is valid if its range exceeds this
 
 FloatArray = npt.NDArray[np.float32]
 

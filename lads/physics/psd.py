@@ -3,7 +3,7 @@
 Diameters D in mm, N(D) in m^-3 mm^-1, rates in mm/h (water-equivalent for snow).
 Sources: Marshall & Palmer (1948); Gunn & Marshall (1958); Sekhon & Srivastava (1970),
 J. Atmos. Sci. 27(2), 299-307 (N0 = 2.50e3 R^-0.94 mm^-1 m^-3, Lambda = 22.9 R^-0.45 cm^-1,
-D the melted diameter). LISA and its forks use twice the snow intercepts (physics.md §1);
+D the melted diameter). LISA and its forks use twice the snow intercepts (docs/physics.md §1);
 `n0_scale=2` reproduces them.
 """
 

@@ -13,6 +13,7 @@ from typing import Any
 from lads.errors import ConfigError
 from lads.readers.base import EncodedFile, Reader
 from lads.readers.nuscenes import NuScenesReader
+from lads.readers.nuscenes_kitti import NuScenesKittiReader
 from lads.readers.radiate import RadiateReader
 from lads.readers.semantickitti import SemanticKittiReader
 from lads.readers.voxelscape import VoxelscapeReader
@@ -21,6 +22,7 @@ from lads.readers.wads import WadsReader
 READERS: dict[str, type] = {
     "semantickitti": SemanticKittiReader,
     "nuscenes": NuScenesReader,
+    "nuscenes-kitti": NuScenesKittiReader,
     "voxelscape": VoxelscapeReader,
     "wads": WadsReader,
     "radiate": RadiateReader,

@@ -46,12 +46,15 @@ class Reader(Protocol):
         sensor: the sensor profile name of this dataset's LiDAR, e.g. "hdl64e".
         particle_label: default label of particle (rain/snow/fog) returns in this dataset's
             label space (SemanticKITTI 1 "outlier", nuScenes 0 "noise").
+        label_set: the material label set of its labels
+            (`lads.physics.materials.LABEL_SETS`), None when the format has no labels.
         root: the source root directory.
     """
 
     name: str
     sensor: str
     particle_label: int
+    label_set: str | None
     root: Path
 
     def items(self) -> list[Item]:

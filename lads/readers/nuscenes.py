@@ -1,6 +1,6 @@
 """nuScenes-lidarseg: LIDAR_TOP `.pcd.bin` scans with uint8 lidarseg labels.
 
-Layout (formats.md §2), relative to the dataroot:
+Layout (docs/formats.md §2), relative to the dataroot:
 
     samples/LIDAR_TOP/<log>__LIDAR_TOP__<us>.pcd.bin   keyframes; headerless little-endian
                                                        float32, N x 5: x, y, z in m (sensor
@@ -101,6 +101,7 @@ class NuScenesReader:
     name = "nuscenes"
     sensor = "hdl32e"
     particle_label = 0  # "noise": dust, fog, raindrops, smoke
+    label_set = "nuscenes"
     columns: tuple[str, ...] = ("x", "y", "z", "intensity", "ring")
     label_dtype = np.dtype(np.uint8)
 

@@ -1,6 +1,6 @@
 """RADIATE: Velodyne HDL-32E scans as CSV text, one line per point.
 
-Layout (formats.md §4), relative to the reader root (the folder that holds the sequence
+Layout (docs/formats.md §4), relative to the reader root (the folder that holds the sequence
 folders, or one sequence folder itself):
 
     <seq>/velo_lidar/NNNNNN.csv   text, one line `x,y,z,intensity,ring` per point, "\\n" line
@@ -49,6 +49,7 @@ class RadiateReader:
     name = "radiate"
     sensor = "hdl32e"
     particle_label = 0  # unused: RADIATE has no point labels
+    label_set = None
     columns: tuple[str, ...] = ("x", "y", "z", "intensity", "ring")
 
     def __init__(self, root: str | Path, *, sequences: Iterable[str] | None = None):

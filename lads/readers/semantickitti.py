@@ -1,6 +1,6 @@
 """SemanticKITTI: `sequences/SS/velodyne/NNNNNN.bin` scans with `labels/NNNNNN.label`.
 
-Layout (formats.md §1), relative to the reader root (the folder that holds `sequences/`):
+Layout (docs/formats.md §1), relative to the reader root (the folder that holds `sequences/`):
 
     sequences/SS/velodyne/NNNNNN.bin     headerless little-endian float32, N x 4:
                                          x, y, z in m (Velodyne frame), remission in [0, 0.99]
@@ -50,6 +50,7 @@ class SemanticKittiReader:
     name = "semantickitti"
     sensor = "hdl64e"
     particle_label = 1  # "outlier"
+    label_set: str | None = "semantickitti"
     columns: tuple[str, ...] = ("x", "y", "z", "intensity")
     label_dtype = np.dtype(np.uint32)
     copied_names: tuple[str, ...] = ("calib.txt", "poses.txt", "times.txt")

@@ -1,13 +1,13 @@
 """Voxelscape: simulated HDL-64E-like scans with three per-point label files.
 
-Layout (formats.md §3.2), relative to the reader root (the folder that holds the `SS`
+Layout (docs/formats.md §3.2), relative to the reader root (the folder that holds the `SS`
 sequence folders, `VoxelScape/dataset/` in the devkit README):
 
     SS/velodyne/xyz_iom_NNNNNN.bin            headerless little-endian float32, N x 4:
                                               x, y, z in m, intensity continuous in [0, 1)
     SS/kitti_labels/xyz_iom_NNNNNN.label      uint32, N: Voxelscape's kitti-label ids; the same
                                               numbers as SemanticKITTI but 14 of them name other
-                                              classes (formats.md §3.3): never map them with
+                                              classes (docs/formats.md §3.3): never map them with
                                               SemanticKITTI's label map
     SS/orig_labels/xyz_iom_NNNNNN.label       int32, N: the 32 raw Voxelscape classes
     SS/orig_labels/xyz_iom_NNNNNN_subl.label  int32, N: fine sub-labels
@@ -64,6 +64,7 @@ class VoxelscapeReader:
     name = "voxelscape"
     sensor = "voxelscape64"
     particle_label = 1  # kitti_labels 1 "outlier" keeps its SemanticKITTI meaning
+    label_set = "voxelscape"
     columns: tuple[str, ...] = ("x", "y", "z", "intensity")
     label_dtype = np.dtype(np.uint32)
 

@@ -1,6 +1,6 @@
 """WADS (Winter Adverse Driving dataSet, Michigan Tech): real snow in SemanticKITTI layout.
 
-Layout and encodings are SemanticKITTI's (formats.md §4), relative to the folder that holds
+Layout and encodings are SemanticKITTI's (docs/formats.md §4), relative to the folder that holds
 `sequences/`:
 
     sequences/SS/velodyne/NNNNNN.bin     headerless little-endian float32, N x 4:
@@ -27,5 +27,6 @@ class WadsReader(SemanticKittiReader):
     name = "wads"
     sensor = "wads64"
     particle_label = 110  # active falling snow
+    label_set = "wads"
     scan_what = "WADS scan (N x 4 float32: x, y, z, intensity 0-255)"
     label_what = "WADS labels (uint32 per point)"

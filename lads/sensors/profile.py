@@ -19,8 +19,7 @@ import numpy.typing as npt
 import yaml
 
 from lads.errors import IntensityEncodingError, SensorProfileError
-
-PROFILE_DIR = Path(__file__).parent
+from lads.resources import sensors_dir
 
 
 @functools.lru_cache(maxsize=16)
@@ -161,7 +160,7 @@ class SensorProfile:
 
 def available_profiles() -> list[str]:
     """Names of the profiles shipped with lads."""
-    return sorted(p.stem for p in PROFILE_DIR.glob("*.yaml"))
+    return sorted(p.stem for p in sensors_dir().glob("*.yaml"))
 
 
 @functools.lru_cache(maxsize=32)
@@ -174,7 +173,7 @@ def load_profile(name_or_path: str | Path) -> SensorProfile:
     """
     path = Path(name_or_path)
     if path.suffix not in (".yaml", ".yml"):
-        path = PROFILE_DIR / f"{name_or_path}.yaml"
+        path = sensors_dir() / f"{name_or_path}.yaml"
     if not path.is_file():
         raise SensorProfileError(
             f"sensor profile '{name_or_path}' not found (looked for {path}); "
@@ -228,7 +227,7 @@ def _build(raw: dict[str, Any], path: Path) -> SensorProfile:
 def _check(p: SensorProfile, path: Path) -> None:
     problems = []
     elev = np.asarray(p.elevation_deg)
-    if p.name != path.stem and path.parent == PROFILE_DIR:
+    if p.name != path.stem and path.parent == sensors_dir():
         problems.append(f"name '{p.name}' differs from the file stem '{path.stem}'")
     if len(elev) != p.channels:
         problems.append(f"{len(elev)} elevation_deg values for {p.channels} channels")

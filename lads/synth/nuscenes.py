@@ -1,9 +1,9 @@
-"""nuScenes-lidarseg dataroots: the JSON tables, labels and scans (formats.md §2).
+"""nuScenes-lidarseg dataroots: the JSON tables, labels and scans (docs/formats.md §2).
 
 `nuscenes_tables` builds the 13 tables (+ lidarseg.json / panoptic.json) of a one-log,
 one-scene database around LIDAR_TOP sample_data records, plus the map PNG the map table
 names; it is used by `lads synth --layout nuscenes` (lads/synth/writer.py) and by the tests'
-tree builders (tests/trees.py). What `NuScenes(version, dataroot)` asserts (formats.md §2.5):
+tree builders (tests/trees.py). What `NuScenes(version, dataroot)` asserts (docs/formats.md §2.5):
 all 13 tables load; category has `index` when lidarseg.json exists; #label files ==
 #lidarseg records; every map PNG exists; map records have log_tokens.
 

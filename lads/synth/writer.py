@@ -1,5 +1,5 @@
 """Write a synthetic sequence as a SemanticKITTI, Voxelscape or nuScenes-lidarseg dataset tree
-(formats.md §1-§3).
+(docs/formats.md §1-§3).
 
 SemanticKITTI: `sequences/SS/{velodyne/NNNNNN.bin, labels/NNNNNN.label, calib.txt, poses.txt,
 times.txt}`. Voxelscape: `SS/{velodyne, kitti_labels, orig_labels}/xyz_iom_NNNNNN.*` plus

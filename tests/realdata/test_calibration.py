@@ -26,7 +26,7 @@ def scenes(shared_data):
 
 
 def test_real_wads_statistics_match_the_documented_ones(scenes):
-    # physics.md §5.3: 110 is 4.98-5.27 % of rows, p5/p50/p95 4.05/6.58/10.98 m pooled.
+    # docs/physics.md §5.3: 110 is 4.98-5.27 % of rows, p5/p50/p95 4.05/6.58/10.98 m pooled.
     for s in scenes:
         assert 0.045 < s.real["snow_row_fraction"] < 0.056
         p5, p50, p95 = s.real["snow_range_pct_rows"]

@@ -152,7 +152,7 @@ def test_nuscenes_runner_like_output_loads_with_the_devkit(nusc_root, tmp_path):
     full = nusc.get("sample_data", trees.token(trees.NUSC_FULL_SAMPLE))
     assert LidarPointCloud.from_file(str(out / full["filename"])).points.shape == (4, 34_688)
 
-    # The trap of formats.md §2.5: one extra file in lidarseg/<version>/ breaks loading.
+    # The trap of docs/formats.md §2.5: one extra file in lidarseg/<version>/ breaks loading.
     (out / "lidarseg" / "v1.0-mini" / "extra_lidarseg.bin").write_bytes(b"\x00")
     with pytest.raises(AssertionError, match="3 label files but 2 lidarseg records"):
         NuScenes("v1.0-mini", dataroot=str(out), verbose=False)

@@ -1,6 +1,6 @@
 """Brute-force fog: integrate the soft-return waveform of each beam directly, find its peak.
 
-The model of `lads.physics.fog` (its module docstring; physics.md §7, §9), evaluated the
+The model of `lads.physics.fog` (its module docstring; docs/physics.md §7, §9), evaluated the
 literal way instead of through the per-extinction lookup table:
 
     P_soft(r; r0) = pi beta_pi * int_{max(r - L, R1)}^{min(r, r0)} sin^2(pi (r - s) / L) g(s) ds

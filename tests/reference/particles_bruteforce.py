@@ -1,6 +1,6 @@
 """Brute-force rain/snow: draw EVERY particle in every beam cone, one beam at a time.
 
-This is the model of `lads.physics.particles` (its module docstring; physics.md §4, §6, §9)
+This is the model of `lads.physics.particles` (its module docstring; docs/physics.md §4, §6, §9)
 written the slow, literal way, as a reference for the thinned-Poisson fast path:
 
 - The particles in a beam cone form a Poisson process with intensity A(r) N(D),

@@ -185,3 +185,30 @@ def test_pipeline_stage_shapes():
         ("intensity", {}),
     ]  # fmt: skip
     assert pipeline_stages("not: [valid") == []
+
+
+def test_lads_card_rewrites_the_card_and_its_checksum_line(out):
+    from click.testing import CliRunner
+
+    from lads.cli import main
+
+    write_card(out)
+    write_sums(out)
+    (out / "README.md").write_text("an edited card\n")
+    assert not verify_tree(out, None).ok  # the card no longer matches SHA256SUMS
+    other_lines = [x for x in (out / "SHA256SUMS").read_text().splitlines() if "README" not in x]
+    result = CliRunner().invoke(main, ["card", str(out)])
+    assert result.exit_code == 0, result.output
+    assert front_matter((out / "README.md").read_text())["license"] == "cc-by-nc-sa-4.0"
+    lines = (out / "SHA256SUMS").read_text().splitlines()
+    assert [x for x in lines if "README" not in x] == other_lines  # nothing else touched
+    assert verify_tree(out, None).ok
+
+
+def test_lads_card_needs_a_finished_build(out):
+    from lads.errors import BuildError
+    from lads.finalise import refresh_card
+
+    (out / "SHA256SUMS").unlink()
+    with pytest.raises(BuildError, match="finished build"):
+        refresh_card(out)

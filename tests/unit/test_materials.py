@@ -1,4 +1,6 @@
-"""Material reflectance per class label: lads/physics/materials.{yaml,py} (physics.md §10.2)."""
+"""Material reflectance per class label: lads/physics/materials.{yaml,py}.
+
+See docs/physics.md §10.2."""
 
 from __future__ import annotations
 
@@ -21,7 +23,7 @@ from lads.physics.materials import (
     reflectance_for_labels,
 )
 
-# physics.md §10.2, SemanticKITTI class -> material table, written out as the specification.
+# docs/physics.md §10.2, SemanticKITTI class -> material table, written out as the specification.
 KITTI_TABLE = {
     **dict.fromkeys((0, 1, 99), 0.20),
     **dict.fromkeys((10, 11, 13, 15, 16, 18, 20, 252, 256, 257, 258, 259), 0.52),

@@ -1,8 +1,6 @@
-"""Per-point modalities: lads/physics/modalities.py (physics.md §10.1, §10.3)."""
+"""Per-point modalities: lads/physics/modalities.py (docs/physics.md §10.1, §10.3)."""
 
 from __future__ import annotations
-
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -21,16 +19,6 @@ from lads.physics.modalities import (
 )
 from lads.sensors.profile import load_profile
 from lads.synthetic import synthetic_scan
-
-SHARED_DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data"
-KITTI = SHARED_DATA / "semantickitti" / "sequences" / "00"
-NUSCENES_KEYFRAME = (
-    SHARED_DATA
-    / "nuscenes/samples/LIDAR_TOP"
-    / "n015-2018-07-24-11-22-45+0800__LIDAR_TOP__1532402927647951.pcd.bin"
-)
-realdata = pytest.mark.realdata
-needs_data = pytest.mark.skipif(not SHARED_DATA.is_dir(), reason=f"{SHARED_DATA} is absent")
 
 HDL64 = load_profile("hdl64e")
 SENSOR_HEIGHT_M = 1.73
@@ -279,33 +267,3 @@ def test_labels_must_match_the_points():
         compute_modalities(np.ones((1, 3)), np.array([-3]), "semantickitti", HDL64)
     with pytest.raises(ConfigError):
         compute_modalities(np.ones((1, 3)), np.array([3]), "kitti", HDL64)
-
-
-# --- real data ------------------------------------------------------------------------
-
-
-@realdata
-@needs_data
-def test_kitti_frame_gets_a_plausible_cos_for_every_point():
-    points = np.fromfile(KITTI / "velodyne" / "000000.bin", np.float32).reshape(-1, 4)
-    labels = np.fromfile(KITTI / "labels" / "000000.label", np.uint32)
-    mods = compute_modalities(points[:, :3], labels, "semantickitti", HDL64)
-    cos = mods.cos_incidence
-    assert cos.shape == (124_668,) and np.all(np.isfinite(cos)) and np.all((cos >= 0) & (cos <= 1))
-    # physics.md §10.3 quotes ~0.35 for ReaLiTy's 64 x 1024 projection; this one gives ~0.40.
-    assert 0.3 < cos.mean() < 0.5
-    assert np.mean(mods.incidence_source == IncidenceSource.IMAGE) > 0.85
-    assert np.all(np.isfinite(mods.physics_intensity))
-
-
-@realdata
-@needs_data
-def test_nuscenes_channels_equal_the_ring_column():
-    points = np.fromfile(NUSCENES_KEYFRAME, np.float32).reshape(-1, 5)
-    profile = load_profile("hdl32e")
-    ring = points[:, 4]
-    np.testing.assert_array_equal(channels(points[:, :3], profile, ring=ring), ring)
-    # Ego-body returns at 1e-5 m stay in the frame, with finite (clamped) physics intensity.
-    labels = np.zeros(len(points), np.uint8)
-    mods = compute_modalities(points[:, :3], labels, "nuscenes", profile, ring=ring)
-    assert np.all(np.isfinite(mods.physics_intensity)) and len(mods.range_m) == 34_688

@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import pytest
+import yaml
 
-from lads.config import PIPELINE_DIR, find_pipeline, load_pipeline, parse_pipeline
+from lads.config import find_pipeline, load_pipeline, parse_pipeline, variants_for
 from lads.errors import ConfigError
+from lads.readers import READERS
 
 SNOW = {
     "schema_version": 1,
@@ -22,16 +24,49 @@ def test_shipped_pipelines_load_and_name_their_variant():
         assert config.stages[0].stage == variant
 
 
+def _write(path, **extra):
+    path.write_text(yaml.safe_dump({**SNOW, **extra}))
+
+
 def test_source_specific_pipeline_wins_over_generic(tmp_path):
-    (tmp_path / "snow.yaml").write_text("x")
-    (tmp_path / "wads-snow.yaml").write_text("x")
+    _write(tmp_path / "snow.yaml")
+    _write(tmp_path / "wads-snow.yaml")
     assert find_pipeline("wads", "snow", tmp_path).name == "wads-snow.yaml"
     assert find_pipeline("semantickitti", "snow", tmp_path).name == "snow.yaml"
 
 
-def test_unknown_variant_lists_what_exists():
-    with pytest.raises(ConfigError, match="available: .*fog"):
-        find_pipeline("semantickitti", "hail", PIPELINE_DIR)
+def test_a_source_prefix_is_the_longest_reader_name(tmp_path):
+    # "nuscenes-kitti-snow" belongs to the reader nuscenes-kitti, not to nuscenes.
+    _write(tmp_path / "nuscenes-kitti-snow.yaml")
+    assert variants_for("nuscenes-kitti", tmp_path) == ["snow"]
+    assert variants_for("nuscenes", tmp_path) == []
+
+
+def test_a_pipeline_restricted_to_sources_is_no_variant_of_the_others(tmp_path):
+    _write(tmp_path / "snow.yaml", sources=["wads"])
+    assert variants_for("wads", tmp_path) == ["snow"]
+    with pytest.raises(ConfigError, match="variants of 'semantickitti': none.*exists for: wads"):
+        find_pipeline("semantickitti", "snow", tmp_path)
+    pipeline = load_pipeline(tmp_path / "snow.yaml")
+    pipeline.check_source("wads", "here")
+    with pytest.raises(ConfigError, match="applies to sources wads, not 'radiate'"):
+        pipeline.check_source("radiate", "here")
+
+
+def test_unknown_variant_lists_the_valid_ones():
+    with pytest.raises(ConfigError, match="variants of 'semantickitti': fog, intensity-kitti"):
+        find_pipeline("semantickitti", "hail")
+
+
+def test_another_sources_pipeline_file_is_not_a_variant():
+    with pytest.raises(ConfigError, match="variants of 'nuscenes': fog, .*snow\\. Pass"):
+        find_pipeline("nuscenes", "voxelscape-snow")
+
+
+def test_every_source_offers_every_shipped_variant():
+    # The matrix users build; tests/realdata/test_matrix_real.py builds it on real frames.
+    expected = ["fog", "intensity-kitti", "intensity-nuscenes", "rain", "snow"]
+    assert all(variants_for(source) == expected for source in READERS)
 
 
 @pytest.mark.parametrize(

@@ -35,6 +35,7 @@ BUILDERS = {
     "voxelscape": trees.synthetic_voxelscape,
     "radiate": trees.synthetic_radiate,
     "nuscenes": trees.synthetic_nuscenes,
+    "nuscenes-kitti": trees.synthetic_nuscenes_kitti,
 }
 SCAN_GLOB = {
     "semantickitti": "sequences/*/velodyne/*.bin",
@@ -42,6 +43,7 @@ SCAN_GLOB = {
     "voxelscape": "*/velodyne/*.bin",
     "radiate": "*/velo_lidar/*.csv",
     "nuscenes": "samples/LIDAR_TOP/*.pcd.bin",
+    "nuscenes-kitti": "*/*/velodyne/*.bin",
 }
 BYTE_EXACT_ROLES = {"scan", "label", "orig_labels", "orig_sublabels"}
 
@@ -65,8 +67,10 @@ def _first(reader, predicate=lambda it: True) -> Item:
 # registry
 
 
-def test_readers_dict_has_exactly_the_five_datasets():
-    assert set(READERS) == {"semantickitti", "nuscenes", "voxelscape", "wads", "radiate"}
+def test_readers_dict_has_exactly_the_six_formats():
+    assert set(READERS) == {
+        "semantickitti", "nuscenes", "nuscenes-kitti", "voxelscape", "wads", "radiate"
+    }  # fmt: skip
     for name, cls in READERS.items():
         assert cls.name == name
 
@@ -218,6 +222,36 @@ def test_semantickitti_labels_split_into_semantic_and_instance(tree):
     np.testing.assert_array_equal(labels, raw)
     assert ((labels >> 16) > 0).any()
     np.testing.assert_array_equal((labels >> 16) << 16 | (labels & 0xFFFF), labels)
+
+
+# ----------------------------------------------------------------------------------------
+# nuScenes in the KITTI-style export
+
+
+def test_nuscenes_kitti_items_labels_and_copied_poses(tree):
+    reader, root = tree("nuscenes-kitti")
+    items = reader.items()
+    assert [it.relpath for it in items] == [
+        "train/0001/velodyne/000000.bin", "train/0001/velodyne/000001.bin",
+        "train/0002/velodyne/000000.bin", "val/0003/velodyne/000000.bin",
+    ]  # fmt: skip
+    assert items[0].label_relpath == "train/0001/sem_labels/000000.label"
+    assert items[-1].label_relpath is None  # val/0003 has no sem_labels/
+    frame = reader.read(items[0])
+    assert frame.labels.dtype == np.uint8 and frame.columns == ("x", "y", "z", "intensity")
+    assert (reader.sensor, reader.label_set, reader.particle_label) == ("hdl32e", "nuscenes", 0)
+    assert reader.copied_files() == [f"{s}/poses.txt" for s in ("train/0001", "train/0002",
+                                                                  "val/0003")]  # fmt: skip
+
+
+def test_nuscenes_kitti_sequences_are_scene_folders(tree):
+    reader, root = tree("nuscenes-kitti", reader_options={"sequences": ["0002", "val/0003"]})
+    assert {it.relpath.rsplit("/", 2)[0] for it in reader.items()} == {"train/0002", "val/0003"}
+    assert get_reader("nuscenes-kitti", root, sequences="0001").copied_files() == [
+        "train/0001/poses.txt"
+    ]
+    with pytest.raises(DatasetNotFoundError, match="'0009'.*Available"):
+        get_reader("nuscenes-kitti", root, sequences=["0009"]).items()
 
 
 # ----------------------------------------------------------------------------------------
@@ -388,7 +422,7 @@ def test_radiate_malformed_lines_name_file_and_line(tree, line, match):
 # ----------------------------------------------------------------------------------------
 # error cases shared by the binary formats
 
-BINARY = ("semantickitti", "wads", "voxelscape", "nuscenes")
+BINARY = ("semantickitti", "wads", "voxelscape", "nuscenes", "nuscenes-kitti")
 
 
 @pytest.mark.parametrize("name", BINARY)
@@ -408,7 +442,7 @@ def test_label_count_mismatch_names_the_label_file(tree, name):
     reader, root = tree(name)
     item = _first(reader, lambda it: it.label_relpath)
     label = root / item.label_relpath
-    width = 1 if name == "nuscenes" else 4
+    width = 1 if name.startswith("nuscenes") else 4
     label.write_bytes(label.read_bytes() + bytes(width))
     with pytest.raises(CorruptItemError, match="records but scan") as err:
         reader.read(item)
@@ -463,12 +497,13 @@ def test_missing_and_empty_roots_are_dataset_not_found(tmp_path, name):
         get_reader(name, tmp_path / "empty").items()
 
 
-@pytest.mark.parametrize("name", ("semantickitti", "voxelscape", "radiate"))
+@pytest.mark.parametrize("name", ("semantickitti", "voxelscape", "radiate", "nuscenes-kitti"))
 def test_layout_without_scans_is_dataset_not_found(tmp_path, name):
     folder = {
         "semantickitti": "sequences/00/velodyne",
         "voxelscape": "00/velodyne",
         "radiate": "fog/velo_lidar",
+        "nuscenes-kitti": "train/0001/velodyne",
     }[name]
     (tmp_path / folder).mkdir(parents=True)
     with pytest.raises(DatasetNotFoundError, match="no scans found"):

@@ -1,4 +1,4 @@
-"""Physical anchors of the weather models (physics.md §2-§7) and their basic invariants."""
+"""Physical anchors of the weather models (docs/physics.md §2-§7) and their basic invariants."""
 
 from __future__ import annotations
 
@@ -32,7 +32,7 @@ from tests.conftest import street_frame
 from tests.reference import fog_bruteforce as fb
 
 DB_PER_KM = math.log(10) / 10 / 1000  # 1 dB/km in 1/m (2.303e-4)
-LISA_THRESHOLD = 0.9 / 200.0**2  # physics.md §4: a 90 % target is just detected at 200 m
+LISA_THRESHOLD = 0.9 / 200.0**2  # docs/physics.md §4: a 90 % target is just detected at 200 m
 PRECIPITATION = {"rain": (rain, RAIN_DEFAULTS), "snow": (snow, SNOW_DEFAULTS)}
 
 
@@ -56,7 +56,7 @@ def test_rain_extinction_is_within_10_percent_of_ulbrich_atlas(rate):
 
 
 def test_two_way_transmission_over_100_m_of_25_mm_h_rain_is_0_57():
-    """physics.md §3 table: T^2 = 0.573 at 100 m (alpha = 2.78e-3 /m = pi N0 / Lambda^3).
+    """docs/physics.md §3 table: T^2 = 0.573 at 100 m (alpha = 2.78e-3 /m = pi N0 / Lambda^3).
 
     Tolerance 0.01 absolute, i.e. alpha within ~1 %: enough for the two effects the closed
     form ignores (Q_ext slightly above 2 and the D >= 0.05 mm cut), small enough to catch a
@@ -76,7 +76,7 @@ def test_mie_extinction_efficiency_tends_to_2_for_large_spheres():
 
 
 def test_mie_uses_the_full_diameter_size_parameter():
-    """physics.md §2 pitfall: Q_ext(1 um) = 2.23 with x = pi D / lambda, 0.46 with x halved."""
+    """docs/physics.md §2 pitfall: Q_ext(1 um) = 2.23 with x = pi D / lambda, 0.46 with x halved."""
     assert extinction_efficiency("water", np.array([1e-3]), 905.0)[0] == pytest.approx(
         2.23, abs=0.05
     )
@@ -111,7 +111,7 @@ def test_particle_returns_and_target_losses_rise_with_rate(street, weather):
 @pytest.mark.parametrize("weather", ["rain", "snow"])
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_lost_fraction_rises_with_rate_at_lisa_fixed_threshold(street, weather, seed):
-    """physics.md §5.1: with P_min = 0.9/200^2 the lost fraction grows with the rate.
+    """docs/physics.md §5.1: with P_min = 0.9/200^2 the lost fraction grows with the rate.
 
     (With the auto threshold the lost count is tiny and can even fall with the rate, since
     particle returns take over beams whose target dropped below P_min.)
@@ -191,7 +191,7 @@ def test_same_generator_state_gives_the_same_bytes(street, call):
 
 def test_auto_threshold_loses_nothing_in_clear_air_unlike_lisa_fixed_threshold(street):
     """The auto threshold is the weakest clear-air return, so every input beam is detectable;
-    LISA's fixed 0.9/200^2 would drop far dark returns before any weather (physics.md §5.2)."""
+    LISA's fixed 0.9/200^2 would drop far dark returns before any weather (docs/physics.md §5.2)."""
     xyz, intensity = street
     profile = load_profile("hdl64e")
     beams = prepare_beams(xyz, intensity, profile)

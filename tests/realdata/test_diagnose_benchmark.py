@@ -1,5 +1,5 @@
 """The concealed-effect benchmark of `lads diagnose`: benchmarks/diagnose_cases/generate.py,
-benchmarks/diagnose_cases/score.py and benchmarks/diagnose_bench.py (discovery.md §6).
+benchmarks/diagnose_cases/score.py and benchmarks/diagnose_bench.py (docs/diagnose.md §6).
 
 Generated cases read the real SemanticKITTI and nuScenes samples from ../shared/data and are
 subsampled to a few thousand points per scan so the whole module runs in seconds. Scorer

@@ -1,0 +1,1 @@
+"""The dataset-card template: a data package, read through lads.resources."""

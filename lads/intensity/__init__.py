@@ -1,0 +1,1 @@
+"""The learned intensity generator: features, model, training, evaluation, prediction."""

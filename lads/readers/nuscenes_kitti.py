@@ -1,0 +1,137 @@
+"""nuScenes keyframes exported to a KITTI-style layout (docs/formats.md §4): 4-column scans.
+
+Some 4D segmentation and moving-object codebases (SegNet4D's `nuScenes_kitti` export, for
+one) turn nuScenes-lidarseg into per-scene folders, relative to the reader root:
+
+    <split>/<scene>/velodyne/NNNNNN.bin      headerless little-endian float32, N x 4: x, y, z
+                                             in m (LIDAR_TOP frame), intensity 0-255. The
+                                             ring column of the original .pcd.bin is dropped;
+                                             N is unchanged (a multiple of 32)
+    <split>/<scene>/sem_labels/NNNNNN.label  headerless uint8, N: the raw lidarseg class index
+                                             (0-31, 31 = ego vehicle), as in nuScenes
+    <split>/<scene>/poses.txt                one 3 x 4 lidar -> global pose per keyframe;
+                                             copied byte for byte
+
+NNNNNN is the keyframe's index in its scene. Points are never filtered: the export keeps
+nuScenes' zero-range placeholders and ego-body returns, and labels are matched by index.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from pathlib import Path
+
+import numpy as np
+
+from lads.errors import DatasetNotFoundError
+from lads.frame import Frame, Item
+from lads.readers.base import (
+    EncodedFile,
+    check_finite,
+    encode_scan_and_labels,
+    read_labels,
+    read_records,
+)
+
+SCANS, LABELS = "velodyne", "sem_labels"
+
+
+class NuScenesKittiReader:
+    """Reader and encoder of the KITTI-style nuScenes export.
+
+    Args:
+        root: the folder that holds the split folders (`train/`, `val/`, ...).
+        sequences: scene folders to restrict to (the `--sequences` of `lads build`), as
+            `<split>/<scene>` ("train/0002") or a bare scene name ("0002", any split); None
+            for all.
+
+    Frames: columns ("x", "y", "z", "intensity"); points (N, 4) float32, intensity 0-255;
+    labels (N,) uint8 lidarseg class indices when the scene has `sem_labels/`.
+    """
+
+    name = "nuscenes-kitti"
+    sensor = "hdl32e"
+    particle_label = 0  # lidarseg "noise"
+    label_set = "nuscenes"
+    columns: tuple[str, ...] = ("x", "y", "z", "intensity")
+    label_dtype = np.dtype(np.uint8)
+    copied_names: tuple[str, ...] = ("poses.txt",)
+
+    def __init__(self, root: str | Path, *, sequences: Iterable[str] | str | None = None):
+        self.root = Path(root)
+        if isinstance(sequences, str):
+            sequences = [sequences]
+        self.sequences = None if sequences is None else tuple(sorted({str(s) for s in sequences}))
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}({str(self.root)!r}, sequences={self.sequences!r})"
+
+    def _expected(self) -> str:
+        return (
+            f"the layout <split>/<scene>/{SCANS}/NNNNNN.bin (+ {LABELS}/NNNNNN.label) under "
+            f"{self.root}; pass the folder that holds the split folders"
+        )
+
+    def _selected(self) -> list[str]:
+        if not self.root.is_dir():
+            raise DatasetNotFoundError(f"{self.root}: no such folder; expected {self._expected()}.")
+        found = sorted(
+            f"{split.name}/{scene.name}"
+            for split in self.root.iterdir()
+            if split.is_dir()
+            for scene in split.iterdir()
+            if (scene / SCANS).is_dir()
+        )
+        if self.sequences is None:
+            return found
+        wanted = set(self.sequences)
+        chosen = [s for s in found if s in wanted or s.split("/")[1] in wanted]
+        matched = {w for w in wanted if any(c == w or c.split("/")[1] == w for c in chosen)}
+        missing = sorted(wanted - matched)
+        if missing:
+            raise DatasetNotFoundError(
+                f"{self.root}: scenes {missing} not found; expected {self._expected()}. "
+                f"Available: {found or 'none'}."
+            )
+        return chosen
+
+    def items(self) -> list[Item]:
+        """Every scan of the selected scenes, sorted by relpath."""
+        items = []
+        for scene in self._selected():
+            labelled = (self.root / scene / LABELS).is_dir()
+            for scan in (self.root / scene / SCANS).glob("*.bin"):
+                if not scan.is_file():
+                    continue
+                label = f"{scene}/{LABELS}/{scan.stem}.label" if labelled else None
+                items.append(Item(self.name, f"{scene}/{SCANS}/{scan.name}", label))
+        if not items:
+            raise DatasetNotFoundError(f"{self.root}: no scans found; expected {self._expected()}.")
+        return sorted(items, key=lambda it: it.relpath)
+
+    def copied_files(self) -> list[str]:
+        """poses.txt of every selected scene that has one."""
+        return sorted(
+            f"{scene}/{name}"
+            for scene in self._selected()
+            for name in self.copied_names
+            if (self.root / scene / name).is_file()
+        )
+
+    def read(self, item: Item) -> Frame:
+        """Scan (N, 4) float32 and, when the scene is labelled, labels (N,) uint8."""
+        path = self.root / item.relpath
+        points = read_records(path, np.float32, 4, "nuScenes KITTI-style scan (N x 4 float32)")
+        check_finite(points, path, self.columns)
+        labels = None
+        if item.label_relpath is not None:
+            labels = read_labels(
+                self.root / item.label_relpath, self.label_dtype, points.shape[0],
+                "lidarseg labels (uint8 per point)", path,
+                why=f"this scene has a {LABELS}/ folder",
+            )  # fmt: skip
+        return Frame.from_source(item, self.sensor, self.columns, points, labels)
+
+    def encode(self, frame: Frame) -> list[EncodedFile]:
+        """The scan (M x 16 bytes) and, if the item has one, the label file (M bytes)."""
+        return encode_scan_and_labels(frame, 4, self.label_dtype)

@@ -1,0 +1,117 @@
+"""Is a frame a scan of a given sensor? Refuse only what is clearly another sensor.
+
+Real scans carry returns that no nominal sensor description allows for: nuScenes keyframes
+hold the ego vehicle's body and near-field returns (a quarter of the points within 3 m, some
+at apparent elevations down to -59 deg), zero-range placeholders, and a few multipath
+returns far below the ground. A check that counts every point refuses such frames although
+they are exactly what the sensor records. So the judgement rests on what the sensor's beam
+geometry does decide:
+
+- with a ring column (nuScenes .pcd.bin, RADIATE): every ring id must be a channel of the
+  profile, and each well-populated ring's median elevation (returns beyond the near field)
+  must lie within one beam spacing of the profile's elevation for that channel;
+- without one: of the returns beyond the near field, at most `MAX_OUTSIDE_FOV` may lie
+  outside the profile's vertical field of view widened by `FOV_MARGIN_DEG`.
+
+Returns nearer than `NEAR_FIELD_M` are not judged: there the lasers' own offsets from the
+sensor origin (centimetres) and the vehicle's body make apparent elevations meaningless.
+Frames with fewer than `MIN_JUDGED_POINTS` returns beyond it (a tiny sample) pass.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import numpy.typing as npt
+
+from lads.errors import InvalidPointsError
+from lads.sensors.profile import SensorProfile
+
+# Apparent-elevation error of a laser mounted ~0.1 m off the sensor origin exceeds the FOV
+# margin below ~3 m; nuScenes' ego-body returns also lie within 2.3 m.
+NEAR_FIELD_M = 3.0
+FOV_MARGIN_DEG = 2.0
+MAX_OUTSIDE_FOV = 0.05
+MIN_JUDGED_POINTS = 200
+# A ring is judged when it holds at least this many returns beyond the near field; the frame
+# is refused when more than MAX_MISPLACED_RINGS of the judged rings sit off their channel.
+MIN_RING_POINTS = 20
+MAX_MISPLACED_RINGS = 0.25
+
+
+def elevation_deg(xyz: npt.ArrayLike) -> npt.NDArray[np.float64]:
+    """(N,) apparent elevation atan2(z, hypot(x, y)) in degrees of (N, 3) points in m."""
+    p = np.asarray(xyz, dtype=np.float64)
+    return np.degrees(np.arctan2(p[:, 2], np.hypot(p[:, 0], p[:, 1])))
+
+
+def check_scan_of(
+    xyz: npt.ArrayLike,
+    profile: SensorProfile,
+    *,
+    ring: npt.ArrayLike | None = None,
+    where: str = "frame",
+) -> None:
+    """Raise InvalidPointsError if the (N, 3) points (m) are clearly not a scan of `profile`.
+
+    Args:
+        xyz: (N, 3) point coordinates in m, sensor frame.
+        profile: the sensor the frame is said to come from.
+        ring: optional (N,) ring (channel) ids, 0 = lowest beam.
+        where: the frame's name for the message.
+    """
+    p = np.asarray(xyz, dtype=np.float64)
+    far = np.linalg.norm(p, axis=1) > NEAR_FIELD_M
+    if int(far.sum()) < MIN_JUDGED_POINTS:
+        return
+    elevation = elevation_deg(p[far])
+    if ring is not None:
+        _check_rings(np.asarray(ring, dtype=np.float64), far, elevation, profile, where)
+        return
+    low, high = profile.vertical_fov_deg
+    outside = (elevation < low - FOV_MARGIN_DEG) | (elevation > high + FOV_MARGIN_DEG)
+    share = float(outside.mean())
+    if share > MAX_OUTSIDE_FOV:
+        raise InvalidPointsError(
+            f"{where}: {share:.0%} of the {elevation.size} returns beyond {NEAR_FIELD_M:g} m lie "
+            f"outside the vertical field of view {low:g}..{high:g} deg (+-{FOV_MARGIN_DEG:g}) of "
+            f"sensor profile '{profile.name}' (nearer returns, such as the vehicle's body, are "
+            "not counted); the frame is not a scan of that sensor. Read it with the reader of "
+            "its own dataset, or pass a sensor profile of its LiDAR (lads profiles)."
+        )
+
+
+def _check_rings(
+    ring: npt.NDArray[np.float64],
+    far: npt.NDArray[np.bool_],
+    elevation: npt.NDArray[np.float64],
+    profile: SensorProfile,
+    where: str,
+) -> None:
+    ids = ring.astype(np.int64)
+    bad = (ids != ring) | (ids < 0) | (ids >= profile.channels)
+    if bad.any():
+        values = np.unique(ring[bad])[:5]
+        raise InvalidPointsError(
+            f"{where}: the ring column holds {int(bad.sum())} values that are not channels "
+            f"0..{profile.channels - 1} of sensor profile '{profile.name}' (e.g. "
+            f"{', '.join(f'{v:g}' for v in values)}); the frame is not a scan of that sensor."
+        )
+    table = np.asarray(profile.elevation_deg)
+    spacing = np.gradient(table) if table.size > 1 else np.ones(1)
+    far_ids = ids[far]
+    judged, misplaced = 0, []
+    for channel in np.unique(far_ids):
+        values = elevation[far_ids == channel]
+        if values.size < MIN_RING_POINTS:
+            continue
+        judged += 1
+        error = float(np.median(values) - table[channel])
+        if abs(error) > abs(spacing[channel]):
+            misplaced.append((int(channel), error))
+    if judged and len(misplaced) > MAX_MISPLACED_RINGS * judged:
+        shown = ", ".join(f"ring {c} off by {e:+.1f} deg" for c, e in misplaced[:4])
+        raise InvalidPointsError(
+            f"{where}: {len(misplaced)} of {judged} rings have a median elevation more than one "
+            f"beam spacing from sensor profile '{profile.name}' ({shown}); the frame is not a "
+            "scan of that sensor. Pass a sensor profile of its LiDAR (lads profiles)."
+        )

@@ -1,0 +1,1 @@
+"""Expected source inventories (YAML): a data package, read through lads.resources."""

@@ -1,0 +1,1 @@
+"""Shipped build pipelines (YAML): a data package, read through lads.resources."""

@@ -1,0 +1,1 @@
+"""Shipped training configs of the intensity models (YAML): a data package."""

@@ -1,0 +1,73 @@
+"""Training configs find their data where the user keeps it and write where the user works."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import yaml
+
+from lads.errors import ConfigError
+from lads.intensity.train_config import (
+    DATA_ROOT_ENV,
+    load_train_config,
+    shipped_train_configs,
+)
+
+
+def test_the_shipped_configs_are_listed():
+    assert shipped_train_configs() == ["synth-to-kitti", "synth-to-nuscenes", "weather"]
+
+
+def test_a_shipped_config_needs_a_data_root(monkeypatch):
+    monkeypatch.delenv(DATA_ROOT_ENV, raising=False)
+    with pytest.raises(ConfigError, match=f"--data-root DIR .*{DATA_ROOT_ENV}"):
+        load_train_config("synth-to-kitti")
+
+
+def test_relative_roots_are_taken_from_the_data_root_or_the_environment(tmp_path, monkeypatch):
+    monkeypatch.delenv(DATA_ROOT_ENV, raising=False)
+    cfg = load_train_config("weather", data_root=tmp_path)
+    roots = {p.key: p.target.root_path() for p in cfg.pairs}
+    assert roots == {"snow": tmp_path / "wads", "fog": tmp_path / "radiate"}
+    monkeypatch.setenv(DATA_ROOT_ENV, str(tmp_path / "elsewhere"))
+    moved = load_train_config("weather")
+    assert moved.pairs[0].target.root_path() == tmp_path / "elsewhere" / "wads"
+    assert moved.data_hash() == cfg.data_hash()  # where the data lives is not what it is
+
+
+def test_a_user_config_takes_its_own_folder_and_writes_under_the_working_folder(
+    tmp_path, monkeypatch
+):
+    monkeypatch.delenv(DATA_ROOT_ENV, raising=False)
+    raw = {
+        "schema_version": 1, "name": "mine", "kind": "sensor",
+        "pairs": {"kitti": {"source": {"dataset": "synth", "frames": 1},
+                            "target": {"dataset": "semantickitti", "root": "kitti"}}},
+    }  # fmt: skip
+    (tmp_path / "cfg").mkdir()
+    path = tmp_path / "cfg" / "mine.yaml"
+    path.write_text(yaml.safe_dump(raw))
+    cfg = load_train_config(path)
+    assert cfg.pairs[0].target.root_path() == tmp_path / "cfg" / "kitti"
+    assert cfg.output_path() == Path("runs") / "mine" / "mine.pt"
+    assert cfg.output_path(tmp_path / "run") == tmp_path / "run" / "mine.pt"
+    raw["output"] = "w/mine.pt"
+    path.write_text(yaml.safe_dump(raw))
+    assert load_train_config(path).output_path() == Path("w/mine.pt")
+
+
+def test_data_root_is_not_a_key_of_the_yaml(tmp_path):
+    raw = {"schema_version": 1, "name": "x", "kind": "sensor",
+           "pairs": {"k": {"source": {"dataset": "synth", "frames": 1},
+                           "target": {"dataset": "semantickitti", "root": "/d",
+                                      "data_root": "/e"}}}}  # fmt: skip
+    path = tmp_path / "x.yaml"
+    path.write_text(yaml.safe_dump(raw))
+    with pytest.raises(ConfigError, match="unknown keys \\['data_root'\\]"):
+        load_train_config(path)
+
+
+def test_an_unknown_name_lists_the_shipped_configs():
+    with pytest.raises(ConfigError, match="synth-to-kitti, synth-to-nuscenes, weather"):
+        load_train_config("no-such-config")
