@@ -23,8 +23,8 @@ The knobs (`SnowKnobs`) and their physics:
 
 - particle_reflectivity rho_p: Lambertian-equivalent backscatter reflectivity of one flake
   filling the beam. Fresnel at normal incidence gives 0.0173 for ice (LISA); Mie Q_back / 4
-  of an ice sphere gives 0.4-1.9 (docs/physics.md §2); a real flake is an aggregate of needles and
-  plates whose backscatter lies between. It sets how far out a flake is detectable
+  of an ice sphere gives about 0.45-0.5 at 5-50 um and 0.06-0.17 at 0.5-2 mm (docs/physics.md
+  §2); a real flake is an aggregate of needles and plates whose backscatter lies between. It sets how far out a flake is detectable
   (P_p = rho_p fill T^2 / r^2 >= P_min) and the intensity a flake return carries
   (rho_p fill T^2: real snow reads ~0, which bounds rho_p from above).
 - beam_divergence_mrad theta: full-angle divergence. The beam diameter theta r sets the

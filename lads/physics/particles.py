@@ -51,7 +51,8 @@ class ParticleParams:
         material: "water" or "ice": refractive index for Mie extinction.
         particle_reflectivity: Lambertian-equivalent backscatter reflectivity rho_p of one
             particle filling the beam, unitless. Fresnel at normal incidence gives 0.0199
-            (water) / 0.0173 (ice), LISA's choice; Mie Q_back / 4 of a sphere gives 0.4-1.9.
+            (water) / 0.0173 (ice), LISA's choice; Mie Q_back / 4 of a sphere gives about
+            0.4-1.6 for water and 0.06-0.5 for ice (docs/physics.md §2).
             The largest free parameter: calibrated on real snow (lads.calibration.wads).
         n0_scale: multiplier on the size-distribution intercept (LISA's snow: 2).
         diameter_ratio: optical / tabulated diameter; snow tables give melted diameters and

@@ -8,7 +8,10 @@ extinction), never the input intensity, so it works the same on simulated and re
 Sensor models write the target sensor's encoding (KITTI remission at 0.01 steps, nuScenes
 integers 0-255) whatever the source format; weather models write the frame's own sensor
 encoding, moved there from the weather recording's units by the model's calibration.
-Points at zero range (no direction, e.g. nuScenes ego returns at 1e-5 m) get intensity 0.
+Points at zero range (within `MIN_RANGE_M` of the origin: placeholders with no direction)
+get intensity 0; every other point, ego-body and near-field returns included, gets a
+prediction. The frame must be a scan of its reader's sensor, judged leniently
+(`lads.sensors.conformity`).
 
 Deterministic on CPU (no randomness is drawn; the rng argument is unused). On a GPU,
 cuDNN convolutions may differ in the last bits, which can flip a quantisation step.

@@ -72,15 +72,6 @@ def test_a_flat_patch_gives_the_analytic_cosine_and_a_line_or_lone_point_is_not_
     np.testing.assert_allclose(cos[:2], expected, rtol=1e-9)
 
 
-def test_matches_the_brute_force_on_a_real_kitti_frame(kitti_frame):
-    xyz = kitti_frame(0)[0].astype(np.float64)
-    query = np.random.default_rng(0).choice(len(xyz), 150, replace=False)
-    cos, found = neighbour_cos(xyz, query, **RULES)
-    ref_cos, ref_found = _reference(xyz, query)
-    np.testing.assert_array_equal(found, ref_found)
-    np.testing.assert_allclose(cos[found], ref_cos[found], atol=1e-9)
-
-
 def test_empty_queries_give_empty_results():
     cos, found = neighbour_cos(np.zeros((3, 3)) + 1.0, np.array([], dtype=np.int64), **RULES)
     assert cos.shape == (0,) and found.shape == (0,)
