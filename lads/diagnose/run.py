@@ -88,7 +88,7 @@ def _diagnose(
 
     steps = ("localise", *PHASES, "localise after", "figures and report")
     bar = tqdm(total=len(steps), desc="diagnose", unit="step", disable=not progress,
-               bar_format="{desc}: {n_fmt}/{total_fmt} steps [{elapsed}] {postfix}")  # fmt: skip
+               bar_format="{desc} (step {n_fmt}/{total_fmt}, {elapsed})")  # fmt: skip
 
     started: list[str] = []
 
@@ -96,7 +96,7 @@ def _diagnose(
         if started:
             bar.update(1)
         started.append(name)
-        bar.set_postfix_str(name)
+        bar.set_description_str(f"diagnose: {name}")
 
     with bar:
         step(steps[0])
