@@ -24,9 +24,10 @@ The knobs (`SnowKnobs`) and their physics:
 - particle_reflectivity rho_p: Lambertian-equivalent backscatter reflectivity of one flake
   filling the beam. Fresnel at normal incidence gives 0.0173 for ice (LISA); Mie Q_back / 4
   of an ice sphere gives about 0.45-0.5 at 5-50 um and 0.06-0.17 at 0.5-2 mm (docs/physics.md
-  §2); a real flake is an aggregate of needles and plates whose backscatter lies between. It sets how far out a flake is detectable
-  (P_p = rho_p fill T^2 / r^2 >= P_min) and the intensity a flake return carries
-  (rho_p fill T^2: real snow reads ~0, which bounds rho_p from above).
+  §2); a real flake is an aggregate of needles and plates whose backscatter lies between.
+  It sets how far out a flake is detectable (P_p = rho_p fill T^2 / r^2 >= P_min) and the
+  intensity a flake return carries (rho_p fill T^2: real snow reads ~0, which bounds rho_p
+  from above).
 - beam_divergence_mrad theta: full-angle divergence. The beam diameter theta r sets the
   fill factor (D / theta r)^2 of a flake (wider beam: dimmer flakes, but more of them in the
   cone, volume ~ theta^2 r^3). Automotive datasheets give 1-3 mrad; bounds 0.5-10.
