@@ -3,7 +3,7 @@
 PY := .venv/bin/python
 STAMP := .venv/.installed
 
-.PHONY: install demo test bench bench-diagnose bench-diagnose-ci lint release train clean
+.PHONY: install demo test bench bench-faults bench-diagnose bench-diagnose-ci lint release train clean
 
 install: $(STAMP)
 
@@ -23,6 +23,11 @@ test: install
 
 bench: install
 	$(PY) -m benchmarks.run_all
+
+# The fault-injection campaign of `lads build` on the real SemanticKITTI frames (~15 min):
+# tried / caught / survived / lost per fault class -> benchmarks/results/faults.json.
+bench-faults: install
+	$(PY) -m benchmarks.faults
 
 # The concealed-effect benchmark of `lads diagnose` (docs/diagnose.md §6): every case x 20 seeds x
 # both bases (offline, hours), and a CI-sized subset (~5 min).

@@ -10,6 +10,7 @@ verify.json       lads verify throughput (MB/s) on a ~450 MB tree
 intensity_speed.json  intensity generator ms per 64-beam frame on one core
 intensity_eval.json   held-out evaluation of the shipped generators against the baselines
 diagnose_real.json    lads diagnose: a simple rho cos/R^2 simulator vs real KITTI and nuScenes
+faults.json           fault injection: kills, races, damage, bad frames, full/read-only disks
 """
 
 from __future__ import annotations
@@ -36,6 +37,7 @@ BENCHMARKS = (
     "intensity_speed",
     "intensity_eval",
     "diagnose_real",
+    "faults",
 )
 
 

@@ -242,6 +242,10 @@ def variants() -> None:
 @click.option("--backend", type=click.Choice(["loky", "dask"]), default="loky", show_default=True)
 @click.option("--scheduler", help="Dask scheduler address (with --backend dask).")
 @click.option("--fail-fast", is_flag=True, help="Stop at the first bad item.")
+@click.option(
+    "--wait", is_flag=True,
+    help="If another lads process is writing --out, wait for it instead of refusing.",
+)  # fmt: skip
 @click.option("--limit", type=int, help="Only the first N items (trial runs).")
 @click.option(
     "--figures/--no-figures", default=True, show_default=True,
@@ -254,7 +258,7 @@ def build(
     points: str | None, particle_label: int | None, intensity_model: str | None,
     device: str | None, sequences: str | None, nuscenes_version: str | None,
     include_sweeps: bool, jobs: int, backend: str, scheduler: str | None, fail_fast: bool,
-    limit: int | None, figures: bool,
+    wait: bool, limit: int | None, figures: bool,
 ) -> None:  # fmt: skip
     """Build a variant tree: one output item per source item, same format and layout."""
     from lads.config import find_pipeline, load_pipeline
@@ -279,7 +283,7 @@ def build(
     report = run_build(
         source, source_root, out_root, pipeline, seed=seed, reader_options=options, jobs=jobs,
         backend=backend, scheduler=scheduler, fail_fast=fail_fast, progress=None, limit=limit,
-        figures=figures,
+        figures=figures, wait=wait,
     )  # fmt: skip
     click.echo(report.summary_text())
     if not report.complete:

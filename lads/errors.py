@@ -55,6 +55,11 @@ class BuildError(LadsError):
     """A build cannot start or finish (output inside the source, a conflicting tree, ...)."""
 
 
+class OutputWriteError(BuildError):
+    """Bytes cannot be written to the output: the disk is full, the file system is read-only
+    or permission is denied. It stops the whole build (every later write would fail too)."""
+
+
 class ManifestError(LadsError):
     """A manifest, SHA256SUMS or run.json is missing or inconsistent."""
 

@@ -2,35 +2,73 @@
 
 from __future__ import annotations
 
+import contextlib
+import errno
 import hashlib
 import io
 import os
+import secrets
 import shutil
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from lads.errors import OutputWriteError
+
 TMP_SUFFIX = ".lads-tmp"
+# Temp files carry the writing process's pid and a random token: parallel writers of one
+# build never share one, and a temp file always names the run that made it.
+_TOKEN = secrets.token_hex(4)
+
+
+def tmp_name(path: Path) -> Path:
+    """The temp file `atomic_write` uses for `path`, owned by this process."""
+    return path.with_name(f"{path.name}.{os.getpid()}-{_TOKEN}{TMP_SUFFIX}")
+
+
+def write_error(path: Path, exc: OSError) -> OutputWriteError:
+    """An OutputWriteError saying in words what stopped a write to `path` and what to do."""
+    if exc.errno in (errno.ENOSPC, errno.EDQUOT):
+        what = "no space left on its device (disk or quota full)"
+        todo = "free space there, then run the same command again: it resumes where it stopped"
+    elif exc.errno == errno.EROFS:
+        what, todo = "the file system is read-only", "choose a writable --out"
+    elif exc.errno in (errno.EACCES, errno.EPERM):
+        what, todo = "permission denied", "choose an --out you may write to, or fix its rights"
+    else:
+        what, todo = exc.strerror or str(exc), "check the output folder and run again"
+    return OutputWriteError(f"{path}: cannot write: {what}; {todo}.")
+
+
+def _atomically(path: Path, fill: Callable[[Path], None]) -> None:
+    """Make `path` by filling a temp file and renaming it; a failure leaves no temp file."""
+    tmp = tmp_name(path)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fill(tmp)
+        os.replace(tmp, path)
+    except OSError as exc:
+        with contextlib.suppress(OSError):
+            tmp.unlink(missing_ok=True)
+        raise write_error(path, exc) from exc
 
 
 def atomic_write(path: Path, payload: bytes) -> None:
     """Write `payload` to `path` via a temp file in the same folder and os.replace.
 
-    A crash leaves either the old file or the new one, never a torn file; the temp name is
-    per process so parallel writers never share one.
+    A crash leaves either the old file or the new one, never a torn file.
+
+    Raises:
+        OutputWriteError: disk full, read-only file system, permission denied (no temp file
+            is left behind).
     """
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f"{path.name}.{os.getpid()}{TMP_SUFFIX}")
-    with open(tmp, "wb") as handle:
-        handle.write(payload)
-    os.replace(tmp, path)
+    _atomically(Path(path), lambda tmp: tmp.write_bytes(payload))
 
 
 def atomic_copy(source: Path, target: Path) -> None:
-    """Copy a file byte for byte, atomically (temp file + rename)."""
-    target.parent.mkdir(parents=True, exist_ok=True)
-    tmp = target.with_name(f"{target.name}.{os.getpid()}{TMP_SUFFIX}")
-    shutil.copyfile(source, tmp)
-    os.replace(tmp, target)
+    """Copy a file byte for byte, atomically (temp file + rename); errors as atomic_write.
+    The source must be readable (the caller checks)."""
+    _atomically(Path(target), lambda tmp: shutil.copyfile(source, tmp))
 
 
 def sha256_bytes(payload: bytes) -> str:
@@ -51,7 +89,8 @@ def sha256_file(path: Path) -> str:
 
 
 def remove_stray_temps(root: Path) -> int:
-    """Delete temp files left by a killed run under `root`; returns how many."""
+    """Delete temp files left by killed runs under `root`; returns how many. Call it only
+    while holding the output's lock (`lads.lock`): then no other run is writing there."""
     count = 0
     for tmp in root.rglob(f"*{TMP_SUFFIX}"):
         tmp.unlink(missing_ok=True)

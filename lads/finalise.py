@@ -15,8 +15,10 @@ from typing import Any
 import yaml
 
 import lads
+from lads import provenance
 from lads.files import atomic_write, sha256_file
 from lads.frame import Item
+from lads.lock import LOCK_NAME
 from lads.run_info import git_commit, library_versions
 from lads.worker import STATE_DIR, BuildPlan, reader_for
 
@@ -25,7 +27,7 @@ RUN_JSON = "run.json"
 PIPELINE_YAML = "pipeline.yaml"
 SHA256SUMS = "SHA256SUMS"
 RUN_REPORT = "run_report.json"
-NOT_SUMMED = {SHA256SUMS, RUN_REPORT}
+NOT_SUMMED = {SHA256SUMS, RUN_REPORT, LOCK_NAME}
 PREVIEW = "figures/preview.png"
 
 
@@ -48,7 +50,9 @@ def finalise(
     copied: list[dict[str, Any]],
     *,
     figures: bool,
-) -> None:
+) -> list[str]:
+    """Write the tree's metadata, card and SHA256SUMS; returns the relpaths of files in the
+    tree that this build did not write (left out of SHA256SUMS, for the report)."""
     manifest = [rows[i.item_id] for i in sorted(items, key=lambda i: i.item_id)]
     lines = "".join(json.dumps(r, sort_keys=True) + "\n" for r in manifest)
     atomic_write(out_root / MANIFEST, lines.encode())
@@ -76,7 +80,10 @@ def finalise(
     write_card(out_root, figures=drawn)
     shutil.rmtree(out_root / STATE_DIR, ignore_errors=True)
     known = {o["path"]: o["sha256"] for r in manifest for o in r["outputs"]}
-    atomic_write(out_root / SHA256SUMS, _sha256sums(out_root, known).encode())
+    known |= {c["path"]: c["sha256"] for c in copied}
+    sums, foreign = _sha256sums(out_root, known, _owned(manifest))
+    atomic_write(out_root / SHA256SUMS, sums.encode())
+    return foreign
 
 
 def _device(plan: BuildPlan) -> str:
@@ -130,14 +137,38 @@ def refresh_card(out_root: Path) -> Path:
     return card
 
 
-def _sha256sums(out_root: Path, known: dict[str, str]) -> str:
-    entries = []
+def _owned(manifest: list[dict[str, Any]]) -> tuple[set[str], tuple[str, ...]]:
+    """What the build writes besides item outputs and copies: (exact relpaths, prefixes of
+    the provenance groups of its ok items)."""
+    from lads.card import CARD_NAME
+
+    exact = {MANIFEST, PIPELINE_YAML, RUN_JSON, CARD_NAME, PREVIEW,
+             f"{provenance.STORE_NAME}/zarr.json"}  # fmt: skip
+    groups = tuple(
+        f"{provenance.STORE_NAME}/{provenance.node_name(r['item_id'].partition(':')[2])}/"
+        for r in manifest
+        if r["status"] == "ok"
+    )
+    return exact, groups
+
+
+def _sha256sums(
+    out_root: Path, known: dict[str, str], owned: tuple[set[str], tuple[str, ...]]
+) -> tuple[str, list[str]]:
+    """SHA256SUMS over the files this build wrote, and the sorted list of the others."""
+    exact, groups = owned
+    entries, foreign = [], []
     for folder, dirs, files in os.walk(out_root):
         dirs[:] = [d for d in dirs if d != STATE_DIR]
         for name in files:
             rel = Path(folder, name).relative_to(out_root).as_posix()
             if rel in NOT_SUMMED:
                 continue
-            entries.append((rel, known.get(rel) or sha256_file(out_root / rel)))
+            if rel in known:
+                entries.append((rel, known[rel]))
+            elif rel in exact or rel.startswith(groups):
+                entries.append((rel, sha256_file(out_root / rel)))
+            else:
+                foreign.append(rel)
     entries.sort(key=lambda e: e[0].encode())
-    return "".join(f"{digest}  {rel}\n" for rel, digest in entries)
+    return "".join(f"{digest}  {rel}\n" for rel, digest in entries), sorted(foreign)

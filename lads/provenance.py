@@ -77,3 +77,40 @@ def read_item(
             f"{path}: no provenance for {relpath}; the build is incomplete. Run the same "
             "`lads build` again to finish it."
         ) from exc
+
+
+def group_files(out_root: Path, relpath: str) -> list[Path]:
+    """Every file of one item's group (its metadata and chunks)."""
+    base = out_root / STORE_NAME / node_name(relpath)
+    return sorted(p for p in base.rglob("*") if p.is_file()) if base.is_dir() else []
+
+
+def item_intact(out_root: Path, row: dict, listed: dict[str, str] | None = None) -> bool:
+    """Whether an ok manifest row's provenance group is whole and agrees with the row.
+
+    The group must open, carry the row's item id, relpath and point counts, and hold
+    `source_index` and `outcome` arrays of the row's output length whose outcome counts are
+    the row's; when `listed` (SHA256SUMS of a finished earlier run: relpath -> sha256) names
+    the group's files, their bytes must still be those.
+    """
+    from lads.correspondence import outcome_counts
+    from lads.files import sha256_file
+
+    relpath = row["item_id"].partition(":")[2]
+    points = row.get("points") or {}
+    try:
+        source_index, outcome, attrs = read_item(out_root, relpath)
+    except Exception:  # noqa: BLE001 - damaged metadata or chunks fail in many ways; any of them means rebuild
+        return False
+    want = {"item_id": row["item_id"], "relpath": relpath,
+            "n_source": points.get("source"), "n_output": points.get("output")}  # fmt: skip
+    if {k: attrs.get(k) for k in want} != want or source_index.shape != outcome.shape:
+        return False
+    if outcome_counts(points.get("source", -1), outcome, points.get("lost", -1)) != points:
+        return False
+    if listed:
+        for path in group_files(out_root, relpath):
+            digest = listed.get(path.relative_to(out_root).as_posix())
+            if digest is not None and sha256_file(path) != digest:
+                return False
+    return True

@@ -50,8 +50,11 @@ def git_commit() -> str | None:
             text=True,
             check=True,
         ).stdout.strip()
+        # --no-optional-locks: a read-only look that never takes the index lock, so a build
+        # killed at this moment cannot leave index.lock behind in the checkout.
         dirty = subprocess.run(
-            ["git", "-C", str(repo), "status", "--porcelain", "--untracked-files=no", "--", "lads"],
+            ["git", "--no-optional-locks", "-C", str(repo), "status", "--porcelain",
+             "--untracked-files=no", "--", "lads"],
             capture_output=True, text=True, check=True,
         ).stdout.strip()  # fmt: skip
     except (OSError, subprocess.CalledProcessError):

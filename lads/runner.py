@@ -19,8 +19,8 @@ import yaml
 
 from lads import provenance
 from lads.config import PipelineConfig, parse_pipeline
-from lads.errors import BuildError, ManifestError
-from lads.files import atomic_copy, atomic_write, remove_stray_temps, sha256_file
+from lads.errors import BuildError, ManifestError, OutputWriteError
+from lads.files import atomic_copy, atomic_write, remove_stray_temps, sha256_file, write_error
 from lads.finalise import (
     MANIFEST,
     NOT_SUMMED,
@@ -32,6 +32,8 @@ from lads.finalise import (
     identity,
 )
 from lads.frame import Item
+from lads.lock import LOCK_NAME, output_lock
+from lads.readers.base import unreadable_reason
 from lads.worker import STATE_DIR, BuildPlan, process_item, reader_for, stages_for, state_path
 
 __all__ = [
@@ -54,10 +56,11 @@ class BuildReport:
     seconds: float = 0.0
     stopped_early: bool = False
     peak_worker_rss_mb: float = 0.0
+    foreign: list[str] = field(default_factory=list)
 
     @property
     def complete(self) -> bool:
-        return not self.failed and not self.stopped_early
+        return not self.failed and not self.stopped_early and not self.foreign
 
     @property
     def frames_per_s(self) -> float:
@@ -74,6 +77,13 @@ class BuildReport:
         lines += [f"  FAILED {item_id}: {error}" for item_id, error in self.failed[:20]]
         if len(self.failed) > 20:
             lines.append(f"  ... and {len(self.failed) - 20} more in {RUN_REPORT}")
+        if self.foreign:
+            lines.append(
+                f"  {len(self.foreign)} files in the output were not written by this build and "
+                f"are left out of {SHA256SUMS} (lads verify reports them): move them out of "
+                "the tree, then run again"
+            )
+            lines += [f"  FOREIGN {rel}" for rel in self.foreign[:20]]
         return "\n".join(lines)
 
 
@@ -98,17 +108,43 @@ def _check_paths(source_root: Path, out_root: Path) -> None:
         )
 
 
+def _make_output(out_root: Path) -> None:
+    """Create OUT (and its parents) or say in words why it cannot be created."""
+    try:
+        out_root.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise write_error(out_root, exc) from exc
+
+
+def _previous_identity(path: Path, ident: dict[str, Any]) -> dict[str, Any]:
+    """The build identity recorded in OUT's plan.json or run.json, or a BuildError when the
+    file is not a lads record (not JSON, or JSON without the identity keys)."""
+    try:
+        record = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise BuildError(
+            f"{path}: not a lads build record ({exc}); the output folder holds something lads "
+            "did not write, or a damaged build. Choose an empty --out, or delete the folder "
+            "to rebuild."
+        ) from exc
+    if not isinstance(record, dict) or "config_hash" not in record or "source" not in record:
+        raise BuildError(
+            f"{path}: a JSON file lads did not write (no source and config_hash); the output "
+            "folder is not a lads build. Choose an empty or new --out."
+        )
+    return {k: record.get(k) for k in ident}
+
+
 def _claim_output(out_root: Path, plan: BuildPlan) -> None:
     """Refuse to mix builds: OUT must be empty, or a (partial) build of the same plan."""
     ident = identity(plan)
     marker = out_root / STATE_DIR / "plan.json"
     previous: dict[str, Any] | None = None
     if marker.is_file():
-        previous = json.loads(marker.read_text())
-    elif (out_root / RUN_JSON).is_file():
-        run = json.loads((out_root / RUN_JSON).read_text())
-        previous = {k: run.get(k) for k in ident}
-    elif out_root.is_dir() and any(out_root.iterdir()):
+        previous = _previous_identity(marker, ident)
+    elif (out_root / RUN_JSON).exists():
+        previous = _previous_identity(out_root / RUN_JSON, ident)
+    elif any(p.name != LOCK_NAME for p in out_root.iterdir()):
         raise BuildError(
             f"{out_root}: the directory is not empty and holds no lads build; choose an empty or "
             "new --out."
@@ -122,35 +158,76 @@ def _claim_output(out_root: Path, plan: BuildPlan) -> None:
     atomic_write(marker, json.dumps(ident, sort_keys=True).encode())
 
 
-def _finished_rows(out_root: Path, items: list[Item]) -> dict[str, dict[str, Any]]:
-    """Rows of items already built whose outputs are still intact on disk."""
-    rows: dict[str, dict[str, Any]] = {}
-    manifest = out_root / MANIFEST
-    if manifest.is_file():
-        for line in manifest.read_text().splitlines():
+def _json_lines(path: Path) -> list[dict[str, Any]]:
+    """The JSON objects of a JSON-lines file; damaged lines (a torn or edited file) are
+    skipped, so their items are rebuilt."""
+    out = []
+    try:
+        text = path.read_text()
+    except (OSError, UnicodeDecodeError):
+        return out
+    for line in text.splitlines():
+        try:
             row = json.loads(line)
-            rows[row["item_id"]] = row
+        except json.JSONDecodeError:
+            continue
+        if isinstance(row, dict) and isinstance(row.get("item_id"), str):
+            out.append(row)
+    return out
+
+
+def _finished_rows(
+    out_root: Path, source_root: Path, items: list[Item]
+) -> dict[str, dict[str, Any]]:
+    """Rows of items already built whose every artefact is still intact on disk: each
+    output file (size and sha256), the provenance group (`provenance.item_intact`, against
+    the SHA256SUMS of an earlier finished run when there is one), and the source files the
+    item was built from (unchanged since). Anything else is rebuilt, so a rerun repairs
+    whatever damage it finds and follows a source that changed."""
+    rows = {r["item_id"]: r for r in _json_lines(out_root / MANIFEST)}
     for item in items:
-        path = state_path(out_root, item.item_id)
-        if path.is_file():
-            rows[item.item_id] = json.loads(path.read_text())
+        for row in _json_lines(state_path(out_root, item.item_id)):
+            rows[item.item_id] = row
+    listed = _listed_sums(out_root / SHA256SUMS)
     intact = {}
     wanted = {i.item_id for i in items}
     for item_id, row in rows.items():
-        if item_id in wanted and row.get("status") == "ok" and _outputs_intact(out_root, row):
+        if (
+            item_id in wanted
+            and row.get("status") == "ok"
+            and _files_intact(out_root, row.get("outputs"))
+            and _files_intact(source_root, row.get("source"))
+            and provenance.item_intact(out_root, row, listed)
+        ):
             intact[item_id] = row
     return intact
 
 
-def _outputs_intact(out_root: Path, row: dict[str, Any]) -> bool:
-    for out in row["outputs"]:
-        path = out_root / out["path"]
-        if (
-            not path.is_file()
-            or path.stat().st_size != out["bytes"]
-            or sha256_file(path) != out["sha256"]
-        ):
-            return False
+def _listed_sums(path: Path) -> dict[str, str]:
+    """relpath -> sha256 of a SHA256SUMS file ({} when absent or unreadable)."""
+    try:
+        lines = path.read_text().splitlines()
+    except (OSError, UnicodeDecodeError):
+        return {}
+    return {line[66:]: line[:64] for line in lines if len(line) > 66 and line[64:66] == "  "}
+
+
+def _files_intact(root: Path, entries: Any) -> bool:
+    """Whether every {path, bytes, sha256} entry (a row's outputs or sources) is on disk
+    under `root` with that size and digest."""
+    if not isinstance(entries, list) or not entries:
+        return False
+    try:
+        for entry in entries:
+            path = root / entry["path"]
+            if (
+                not path.is_file()
+                or path.stat().st_size != entry["bytes"]
+                or sha256_file(path) != entry["sha256"]
+            ):
+                return False
+    except (OSError, KeyError, TypeError):
+        return False
     return True
 
 
@@ -158,10 +235,16 @@ def _copy_files(reader: Any, source_root: Path, out_root: Path) -> list[dict[str
     rows = []
     for rel in sorted(reader.copied_files()):
         src, dst = source_root / rel, out_root / rel
-        digest = sha256_file(src)
+        try:
+            digest, size = sha256_file(src), src.stat().st_size
+        except OSError as exc:
+            raise BuildError(
+                f"{src}: a file the build copies byte for byte cannot be read "
+                f"({unreadable_reason(src, exc)}); restore it in the source, then run again."
+            ) from exc
         if not (dst.is_file() and sha256_file(dst) == digest):
             atomic_copy(src, dst)
-        rows.append({"path": rel, "bytes": src.stat().st_size, "sha256": digest})
+        rows.append({"path": rel, "bytes": size, "sha256": digest})
     return rows
 
 
@@ -212,6 +295,7 @@ def run_build(
     progress: bool | None = None,
     limit: int | None = None,
     figures: bool = False,
+    wait: bool = False,
 ) -> BuildReport:
     """Build (or resume building) the variant tree `out_root` from `source_root`.
 
@@ -228,16 +312,19 @@ def run_build(
         limit: build only the first `limit` items (sorted), for trials.
         figures: draw OUT/figures/preview.png (source vs variant of the first item) for
             the dataset card; about a second per build.
+        wait: when another lads process holds the output's lock, wait for it instead of
+            refusing at once.
 
     Returns:
-        BuildReport; `complete` is False when any item failed.
+        BuildReport; `complete` is False when any item failed or the tree holds files lads
+        did not write.
 
     Raises:
-        BuildError: output inside the source, a conflicting existing tree, or (fail_fast)
+        BuildError: output inside the source, a conflicting or foreign tree, another build
+            holding the output (`lads.lock.OutputLockedError`), a full or read-only output
+            (`OutputWriteError`, after writing run_report.json where it can), or (fail_fast)
             the first failed item. ConfigError/ReaderError for bad settings or source trees.
     """
-    from tqdm import tqdm
-
     start = time.perf_counter()
     source_root, out_root = Path(source_root).resolve(), Path(out_root).resolve()
     _check_paths(source_root, out_root)
@@ -247,24 +334,54 @@ def run_build(
     stages_for(pipeline)  # a bad stage (e.g. missing weights) stops here, before any output
     reader = reader_for(plan)
     items = reader.items()[:limit] if limit else reader.items()
-    out_root.mkdir(parents=True, exist_ok=True)
+    _make_output(out_root)
+    with output_lock(out_root, "build", wait=wait):
+        report = BuildReport(out_root, items=len(items), built=0, skipped=0)
+        seconds: list[float] = []
+        try:
+            _build_locked(plan, reader, items, report, seconds, jobs=jobs, backend=backend,
+                          scheduler=scheduler, fail_fast=fail_fast, progress=progress,
+                          figures=figures)  # fmt: skip
+        except (OutputWriteError, KeyboardInterrupt):
+            report.stopped_early = True
+            report.seconds = time.perf_counter() - start
+            _try_report(out_root, report, seconds)
+            remove_stray_temps(out_root)  # ours: the lock keeps every other run out
+            raise
+        report.seconds = time.perf_counter() - start
+        _write_report(out_root, report, seconds)
+    if report.stopped_early:
+        item_id, error = report.failed[0]
+        raise BuildError(
+            f"{item_id}: {error} (stopped by --fail-fast; fix it and run again to resume)"
+        )
+    return report
+
+
+def _build_locked(
+    plan: BuildPlan, reader: Any, items: list[Item], report: BuildReport, seconds: list[float],
+    *, jobs: int, backend: str, scheduler: str | None, fail_fast: bool,
+    progress: bool | None, figures: bool,
+) -> None:  # fmt: skip
+    """The build proper, with the output's lock held: claim, clean, copy, build, finalise."""
+    from tqdm import tqdm
+
+    out_root = Path(plan.out_root)
     _claim_output(out_root, plan)
     remove_stray_temps(out_root)
     copied = _copy_files(reader, Path(reader.root), out_root)
-    provenance.create_store(
-        out_root, points_mode=pipeline.points, config_hash=pipeline.config_hash()
-    )
-    done = _finished_rows(out_root, items)
+    try:
+        provenance.create_store(
+            out_root, points_mode=plan.pipeline.points, config_hash=plan.pipeline.config_hash()
+        )
+    except OSError as exc:
+        raise write_error(out_root / provenance.STORE_NAME, exc) from exc
+    done = _finished_rows(out_root, Path(reader.root), items)
     todo = [i for i in items if i.item_id not in done]
-    report = BuildReport(out_root, items=len(items), built=0, skipped=len(done))
+    report.skipped = len(done)
     rows = dict(done)
-    seconds: list[float] = []
-    bar = tqdm(
-        total=len(todo),
-        unit="scan",
-        desc=f"{source} {pipeline.variant}",
-        disable=None if progress is None else not progress,
-    )
+    bar = tqdm(total=len(todo), unit="scan", desc=f"{plan.source} {plan.pipeline.variant}",
+               disable=None if progress is None else not progress)  # fmt: skip
     with bar:
         for row in _dispatch(todo, plan, jobs, backend, scheduler):
             seconds.append(row.pop("_seconds", 0.0))
@@ -277,18 +394,16 @@ def run_build(
             report.failed.append((row["item_id"], row["error"]))
             if fail_fast:
                 report.stopped_early = True
-                break
-    report.seconds = time.perf_counter() - start
-    if report.stopped_early:
+                return
+    report.foreign = finalise(out_root, plan, items, rows, copied, figures=figures)
+
+
+def _try_report(out_root: Path, report: BuildReport, seconds: list[float]) -> None:
+    """Write run_report.json if the disk still lets us (a full disk may not)."""
+    try:
         _write_report(out_root, report, seconds)
-        item_id, error = report.failed[0]
-        raise BuildError(
-            f"{item_id}: {error} (stopped by --fail-fast; fix it and run again to resume)"
-        )
-    finalise(out_root, plan, items, rows, copied, figures=figures)
-    report.seconds = time.perf_counter() - start
-    _write_report(out_root, report, seconds)
-    return report
+    except (OutputWriteError, OSError):
+        log.warning("%s: run_report.json could not be written", out_root)
 
 
 def _write_report(out_root: Path, report: BuildReport, seconds: list[float]) -> None:
@@ -302,6 +417,7 @@ def _write_report(out_root: Path, report: BuildReport, seconds: list[float]) -> 
         "seconds": round(report.seconds, 3),
         "frames_per_s": round(report.frames_per_s, 3),
         "peak_worker_rss_mb": round(report.peak_worker_rss_mb, 1),
+        "foreign_files": report.foreign,
         "item_seconds_median": round(sorted(seconds)[len(seconds) // 2], 4) if seconds else None,
     }
     atomic_write(out_root / RUN_REPORT, (json.dumps(data, indent=1) + "\n").encode())

@@ -16,8 +16,8 @@ from typing import Any
 
 from lads import correspondence, provenance
 from lads.config import PipelineConfig
-from lads.errors import LadsError
-from lads.files import atomic_write, sha256_bytes, sha256_file
+from lads.errors import LadsError, OutputWriteError
+from lads.files import atomic_write, sha256_bytes, sha256_file, write_error
 from lads.frame import Frame, Item
 from lads.readers import get_reader
 from lads.readers.base import EncodedFile, Reader
@@ -129,7 +129,9 @@ def process_item(item: Item, plan: BuildPlan) -> dict[str, Any]:
 
     The outputs and provenance are written first, the journal record last, so a record
     exists only for an item whose files are complete (a killed run redoes the rest).
-    A LadsError (bad input) or any other exception becomes a row with status "failed".
+    A LadsError (bad input) or any other exception becomes a row with status "failed",
+    except an OutputWriteError (disk full, read-only output): it stops the whole build,
+    since every later item would fail the same way.
     """
     start = time.perf_counter()
     out_root = Path(plan.out_root)
@@ -143,7 +145,9 @@ def process_item(item: Item, plan: BuildPlan) -> dict[str, Any]:
         }
         for f in files:
             atomic_write(out_root / f.relpath, f.payload)
-        provenance.write_item(out_root, item.relpath, item.item_id, source_index, outcome, n_source)
+        _write_provenance(out_root, item, source_index, outcome, n_source)
+    except OutputWriteError:
+        raise
     except LadsError as exc:
         row = _failed(item, f"{type(exc).__name__}: {exc}")
     except Exception as exc:  # noqa: BLE001 - one bad frame must not end a 23k-frame build
@@ -153,6 +157,14 @@ def process_item(item: Item, plan: BuildPlan) -> dict[str, Any]:
     # ru_maxrss is in KiB on Linux: the worker's peak resident memory so far.
     row["_peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     return row
+
+
+def _write_provenance(out_root: Path, item: Item, source_index: Any, outcome: Any, n: int) -> None:
+    """provenance.write_item, with a write failure of the store said in words."""
+    try:
+        provenance.write_item(out_root, item.relpath, item.item_id, source_index, outcome, n)
+    except OSError as exc:
+        raise write_error(out_root / provenance.STORE_NAME, exc) from exc
 
 
 def _failed(item: Item, message: str) -> dict[str, Any]:

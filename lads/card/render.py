@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import os
 import re
 from pathlib import Path
 from string import Template
@@ -10,6 +9,7 @@ from string import Template
 from lads.card import sections, tree_facts
 from lads.card.front_matter import render_front_matter
 from lads.card.sources import source_info
+from lads.files import atomic_write
 from lads.resources import card_template
 
 card_name = "README.md"
@@ -43,7 +43,5 @@ def write_card(out_root: Path, *, figures: list[str] | tuple[str, ...] = ()) -> 
     """Render the card and write OUT/README.md atomically (tmp + rename); SHA256SUMS is
     left alone (the runner writes the card first, then the checksums)."""
     path = Path(out_root) / card_name
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(render_card(out_root, figures=figures))
-    os.replace(tmp, path)
+    atomic_write(path, render_card(out_root, figures=figures).encode())
     return path

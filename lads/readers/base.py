@@ -9,6 +9,8 @@ expensive work (e.g. walking the nuScenes tables) belongs in `items()` only.
 
 from __future__ import annotations
 
+import errno
+import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Protocol
@@ -16,6 +18,10 @@ from typing import Protocol
 import numpy as np
 
 from lads.frame import Frame, Item
+
+# No automotive LiDAR measures beyond a few hundred metres: a coordinate beyond this is a
+# corrupt file, not a return (and would blow up every range image built from it).
+MAX_COORDINATE_M = 10_000.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -74,6 +80,34 @@ class Reader(Protocol):
         ...
 
 
+def entries_matching(folder: Path, suffix: str) -> list[Path]:
+    """Every entry of `folder` whose name ends with `suffix`, whatever it is: a file, but
+    also a directory, a dangling symbolic link or a link loop. Listing must not filter: a
+    name that cannot be read becomes a failed item with its reason, never a silent gap."""
+    try:
+        with os.scandir(folder) as it:
+            return sorted(Path(e.path) for e in it if e.name.endswith(suffix))
+    except FileNotFoundError:
+        return []
+
+
+def present(path: Path) -> bool:
+    """Whether a name exists at `path`, even as a dangling symbolic link (which then fails
+    loudly when read, instead of being skipped)."""
+    return os.path.lexists(path)
+
+
+def unreadable_reason(path: Path, exc: OSError) -> str:
+    """Why `path` cannot be read, in words a user can act on."""
+    if path.is_symlink() and exc.errno == errno.ELOOP:
+        return "a symbolic link loop"
+    if path.is_symlink() and not path.exists():
+        return f"a dangling symbolic link (to {os.readlink(path)})"
+    if path.is_dir():
+        return "a directory, not a file"
+    return exc.strerror or str(exc)
+
+
 def read_records(path: Path, dtype: np.dtype | type, columns: int, what: str) -> np.ndarray:
     """Read a headerless little-endian binary file of `columns` values per record.
 
@@ -90,8 +124,8 @@ def read_records(path: Path, dtype: np.dtype | type, columns: int, what: str) ->
         raw = np.fromfile(path, dtype=np.uint8)
     except OSError as exc:
         raise CorruptItemError(
-            f"{path}: cannot read {what} ({exc.strerror or exc}); check that the file exists "
-            "and is readable."
+            f"{path}: cannot read {what}: {unreadable_reason(path, exc)}. Check that the file "
+            "exists and is readable, or restore it from the dataset archive."
         ) from exc
     record = dt.itemsize * columns
     if len(raw) % record:
@@ -109,9 +143,16 @@ def read_records(path: Path, dtype: np.dtype | type, columns: int, what: str) ->
 
 
 def check_finite(points: np.ndarray, path: Path, columns: tuple[str, ...]) -> None:
-    """Raise CorruptItemError naming `path`, the first bad point and column on NaN/inf."""
+    """Raise CorruptItemError naming `path` when a scan is empty, or naming the first bad
+    point and column on NaN/inf or on a coordinate beyond `MAX_COORDINATE_M`."""
     from lads.errors import CorruptItemError
 
+    if points.shape[0] == 0:
+        raise CorruptItemError(
+            f"{path}: the scan holds no point (an empty file); a LiDAR sweep always has "
+            "returns, so this is a truncated copy. Re-extract it from the dataset archive, or "
+            "remove it from the source tree."
+        )
     bad = ~np.isfinite(points)
     if bad.any():
         rows, cols = np.nonzero(bad)
@@ -120,6 +161,14 @@ def check_finite(points: np.ndarray, path: Path, columns: tuple[str, ...]) -> No
             f"'{columns[cols[0]]}' = {points[rows[0], cols[0]]}); expected finite "
             f"{', '.join(columns)} values. The file is corrupt: re-extract it from the dataset "
             "archive (lads never drops points, since labels are matched by index)."
+        )
+    far = np.abs(points[:, :3]) > MAX_COORDINATE_M
+    if far.any():
+        rows, cols = np.nonzero(far)
+        raise CorruptItemError(
+            f"{path}: {rows.size} coordinates beyond {MAX_COORDINATE_M:g} m (first: point "
+            f"{rows[0]}, column '{columns[cols[0]]}' = {points[rows[0], cols[0]]:g} m); no LiDAR "
+            "measures that far, so the file is corrupt: re-extract it from the dataset archive."
         )
 
 

@@ -86,12 +86,13 @@ class NuScenesReader:
         root: the nuScenes dataroot (holds `samples/`, `lidarseg/`, `v1.0-*/`, `maps/`).
         version: table folder, e.g. "v1.0-mini"; None picks the only `v1.0-*` folder of root
             (ConfigError when there are several).
-        include_sweeps: also list the non-keyframe LIDAR_TOP sample_data whose files exist
-            (unlabelled items).
+        include_sweeps: also list the non-keyframe LIDAR_TOP sample_data (unlabelled
+            items).
 
-    Items: every LIDAR_TOP keyframe with a lidarseg record (all LIDAR_TOP keyframes whose
-    file exists when the version has no lidarseg.json, e.g. v1.0-test), plus sweeps on
-    request; relpath = sample_data filename, label_relpath = lidarseg filename, extra role
+    Items: every LIDAR_TOP keyframe with a lidarseg record (every LIDAR_TOP keyframe when
+    the version has no lidarseg.json, e.g. v1.0-test), plus the sweeps on request, whether
+    their files exist or not (a missing file fails its item at read time, naming it);
+    relpath = sample_data filename, label_relpath = lidarseg filename, extra role
     "panoptic" when a panoptic record exists, meta (("sample_data_token", token),).
 
     Frames: columns ("x", "y", "z", "intensity", "ring"); points (N, 5) float32; labels (N,)
@@ -179,12 +180,12 @@ class NuScenesReader:
             if sd["channel"] != CHANNEL:
                 continue
             token, filename = sd["token"], sd["filename"]
+            # Every record is an item, whether its file is there or not: a missing or broken
+            # file becomes a failed item with its reason, never a silent gap.
             if sd["is_key_frame"]:
                 if has_lidarseg and token not in lidarseg:
                     continue
-                if not has_lidarseg and not (self.root / filename).is_file():
-                    continue
-            elif not (self.include_sweeps and (self.root / filename).is_file()):
+            elif not self.include_sweeps:
                 continue
             extras = (("panoptic", panoptic[token]),) if token in panoptic else ()
             items.append(
@@ -212,7 +213,7 @@ class NuScenesReader:
             base = self.root / folder
             if base.is_dir():
                 out.extend(
-                    p.relative_to(self.root).as_posix() for p in base.rglob("*") if p.is_file()
+                    p.relative_to(self.root).as_posix() for p in base.rglob("*") if not p.is_dir()
                 )
         return sorted(out)
 

@@ -29,6 +29,8 @@ from lads.readers.base import (
     EncodedFile,
     check_finite,
     encode_scan_and_labels,
+    entries_matching,
+    present,
     read_labels,
     read_records,
 )
@@ -100,9 +102,7 @@ class NuScenesKittiReader:
         items = []
         for scene in self._selected():
             labelled = (self.root / scene / LABELS).is_dir()
-            for scan in (self.root / scene / SCANS).glob("*.bin"):
-                if not scan.is_file():
-                    continue
+            for scan in entries_matching(self.root / scene / SCANS, ".bin"):
                 label = f"{scene}/{LABELS}/{scan.stem}.label" if labelled else None
                 items.append(Item(self.name, f"{scene}/{SCANS}/{scan.name}", label))
         if not items:
@@ -115,7 +115,7 @@ class NuScenesKittiReader:
             f"{scene}/{name}"
             for scene in self._selected()
             for name in self.copied_names
-            if (self.root / scene / name).is_file()
+            if present(self.root / scene / name)
         )
 
     def read(self, item: Item) -> Frame:

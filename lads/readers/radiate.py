@@ -27,7 +27,15 @@ import numpy as np
 
 from lads.errors import CorruptItemError, DatasetNotFoundError
 from lads.frame import Frame, Item
-from lads.readers.base import EncodedFile, check_finite, normalize_sequences, select_sequences
+from lads.readers.base import (
+    EncodedFile,
+    check_finite,
+    entries_matching,
+    normalize_sequences,
+    present,
+    select_sequences,
+    unreadable_reason,
+)
 
 _FIELDS = 5
 _SCAN_DIR = "velo_lidar"
@@ -81,8 +89,7 @@ class RadiateReader:
         items = [
             Item(self.name, f"{prefix}{_SCAN_DIR}/{scan.name}")
             for prefix in self._prefixes()
-            for scan in (self.root / prefix / _SCAN_DIR).glob("*.csv")
-            if scan.is_file()
+            for scan in entries_matching(self.root / prefix / _SCAN_DIR, ".csv")
         ]
         if not items:
             raise DatasetNotFoundError(f"{self.root}: no scans found; expected {self._expected()}.")
@@ -93,7 +100,7 @@ class RadiateReader:
         out = []
         for prefix in self._prefixes():
             for name in ("velo_lidar.txt", "meta.json"):
-                if (self.root / prefix / name).is_file():
+                if present(self.root / prefix / name):
                     out.append(f"{prefix}{name}")
         return sorted(out)
 
@@ -102,10 +109,15 @@ class RadiateReader:
         path = self.root / item.relpath
         try:
             text = path.read_bytes().decode("ascii")
-        except (OSError, UnicodeDecodeError) as exc:
+        except OSError as exc:
             raise CorruptItemError(
-                f"{path}: cannot read RADIATE scan ({exc}); expected ASCII text lines "
-                "`x,y,z,intensity,ring`. Check the file exists and re-extract it."
+                f"{path}: cannot read RADIATE scan: {unreadable_reason(path, exc)}. Check that "
+                "the file exists and is readable, or re-extract it."
+            ) from exc
+        except UnicodeDecodeError as exc:
+            raise CorruptItemError(
+                f"{path}: not ASCII text ({exc}); expected lines `x,y,z,intensity,ring`. "
+                "Re-extract the file."
             ) from exc
         lines = text.split("\n")
         if lines[-1] == "":

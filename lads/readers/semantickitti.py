@@ -27,7 +27,9 @@ from lads.readers.base import (
     EncodedFile,
     check_finite,
     encode_scan_and_labels,
+    entries_matching,
     normalize_sequences,
+    present,
     read_labels,
     read_records,
     select_sequences,
@@ -86,9 +88,7 @@ class SemanticKittiReader:
         for seq in self._selected():
             base = f"sequences/{seq}"
             labelled = (self.root / base / "labels").is_dir()
-            for scan in (self.root / base / "velodyne").glob("*.bin"):
-                if not scan.is_file():
-                    continue
+            for scan in entries_matching(self.root / base / "velodyne", ".bin"):
                 label = f"{base}/labels/{scan.stem}.label" if labelled else None
                 items.append(Item(self.name, f"{base}/velodyne/{scan.name}", label))
         if not items:
@@ -104,7 +104,7 @@ class SemanticKittiReader:
         for seq in self._selected():
             for name in self.copied_names:
                 rel = f"sequences/{seq}/{name}"
-                if (self.root / rel).is_file():
+                if present(self.root / rel):
                     out.append(rel)
         return sorted(out)
 

@@ -12,6 +12,9 @@ sequence folders, `VoxelScape/dataset/` in the devkit README):
     SS/orig_labels/xyz_iom_NNNNNN.label       int32, N: the 32 raw Voxelscape classes
     SS/orig_labels/xyz_iom_NNNNNN_subl.label  int32, N: fine sub-labels
     SS/bboxs/xyz_iom_NNNNNN.pkl               boxes; not per point, copied byte for byte
+    SS/labels/xyz_iom_NNNNNN.label            int32, N: the devkit loaders' labels folder
+                                              (`sequences/SS/labels/`, read as int32 there);
+                                              carried point by point as role "devkit_labels"
 
 Each label kind is optional per sequence (decided by what the sequence's folders hold); when
 present, every scan needs its file and every file holds exactly N records. There is no
@@ -32,6 +35,7 @@ from lads.readers.base import (
     check_finite,
     encode_labels,
     encode_scan_and_labels,
+    entries_matching,
     normalize_sequences,
     read_labels,
     read_records,
@@ -39,7 +43,11 @@ from lads.readers.base import (
 )
 
 _SUBL = "_subl.label"
-EXTRA_DTYPES = {"orig_labels": np.dtype(np.int32), "orig_sublabels": np.dtype(np.int32)}
+EXTRA_DTYPES = {
+    "orig_labels": np.dtype(np.int32),
+    "orig_sublabels": np.dtype(np.int32),
+    "devkit_labels": np.dtype(np.int32),
+}
 
 
 def _sequence_names(folder: Path) -> list[str]:
@@ -99,15 +107,17 @@ class VoxelscapeReader:
             names = [p.name for p in orig_dir.glob("*.label")] if orig_dir.is_dir() else []
             has_orig = any(not n.endswith(_SUBL) for n in names)
             has_subl = any(n.endswith(_SUBL) for n in names)
-            for scan in (self.root / seq / "velodyne").glob("*.bin"):
-                if not scan.is_file():
-                    continue
+            # The devkit loaders' tree: never drop its labels, carry them with each point.
+            devkit = (self.root / seq / "labels").is_dir()
+            for scan in entries_matching(self.root / seq / "velodyne", ".bin"):
                 stem = scan.stem
                 extras = []
                 if has_orig:
                     extras.append(("orig_labels", f"{seq}/orig_labels/{stem}.label"))
                 if has_subl:
                     extras.append(("orig_sublabels", f"{seq}/orig_labels/{stem}{_SUBL}"))
+                if devkit:
+                    extras.append(("devkit_labels", f"{seq}/labels/{stem}.label"))
                 items.append(
                     Item(
                         self.name,
@@ -130,7 +140,7 @@ class VoxelscapeReader:
             boxes = self.root / seq / "bboxs"
             if boxes.is_dir():
                 out.extend(p.relative_to(self.root).as_posix() for p in boxes.rglob("*"))
-        return sorted(rel for rel in out if (self.root / rel).is_file())
+        return sorted(rel for rel in out if not (self.root / rel).is_dir())
 
     def read(self, item: Item) -> Frame:
         """Scan (N, 4) float32, kitti labels (N,) uint32, extras (N,) int32 each."""
@@ -155,7 +165,7 @@ class VoxelscapeReader:
                 n,
                 f"Voxelscape {role} (int32 per point)",
                 path,
-                why="this sequence's orig_labels/ folder holds such files",
+                why=f"this sequence's {rel.split('/')[-2]}/ folder holds such files",
             )
             for role, rel in item.extra_relpaths
         }

@@ -11,10 +11,12 @@ from collections.abc import Iterable
 from concurrent.futures import ThreadPoolExecutor, as_completed
 from pathlib import Path
 
+from lads.files import TMP_SUFFIX
+from lads.lock import LOCK_NAME
 from lads.verify.state import Verifier, entries
 
 SUMS = "SHA256SUMS"
-NOT_SUMMED = frozenset({SUMS, "run_report.json"})
+NOT_SUMMED = frozenset({SUMS, "run_report.json", LOCK_NAME})
 BUILD_STATE_DIR = ".lads-state"  # lads.worker.STATE_DIR, removed when a build finishes
 _SUM_LINE = re.compile(r"^([0-9a-fA-F]{64}) ([ *])(.+)$")
 
@@ -136,4 +138,7 @@ def check_sums(v: Verifier) -> None:
 
 
 def _is_temp(rel: str) -> bool:
-    return any(fnmatch.fnmatch(part, "*.tmp*") for part in rel.split("/"))
+    """A temp file of lads' atomic writes (`*.lads-tmp`) or of a tool's (`*.tmp*`)."""
+    return rel.endswith(TMP_SUFFIX) or any(
+        fnmatch.fnmatch(part, "*.tmp*") for part in rel.split("/")
+    )

@@ -9,8 +9,9 @@ from dataclasses import asdict, dataclass, field
 REBUILD = "rebuild the item (lads build resumes) or restore the file from the release"
 ADVICE = {
     "missing_output": REBUILD,
-    "extra_file": "remove it, or rebuild so that SHA256SUMS covers it",
-    "stray_temp_file": "an interrupted write left it: delete it and re-run the build",
+    "extra_file": "lads did not write it: move it out of the tree (a rebuild never adds a "
+    "file it did not write to SHA256SUMS)",
+    "stray_temp_file": "an interrupted run left it: re-run the build (it removes them)",
     "sums_invalid": "regenerate SHA256SUMS (GNU format, two spaces, sorted by path)",
     "unreadable_file": "fix its permissions or restore it",
     "checksum_mismatch": f"the file changed or is corrupt: {REBUILD}",

@@ -25,6 +25,7 @@ class Verifier:
         self.src_digests: dict[str, str | None] = {}
         self.files_checked = self.bytes_hashed = self.source_files_checked = 0
         self.regenerated = 0
+        self.holds_lock = False  # this verification holds the tree's lock (--regenerate)
 
     def add(self, path: str, kind: str, what: str) -> None:
         advice = ADVICE[kind]

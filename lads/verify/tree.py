@@ -2,9 +2,13 @@
 
 from __future__ import annotations
 
+import contextlib
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
+from lads import lock
+from lads.errors import BuildError
 from lads.verify import hashing, manifest_checks, provenance, source_checks
 from lads.verify.report import VerifyReport
 from lads.verify.state import Verifier
@@ -38,10 +42,12 @@ def verify_tree(
 
     Raises:
         ConfigError: unknown inventory name or subset.
+        OutputLockedError: `regenerate` asked while another lads process writes the tree.
     """
     start = time.perf_counter()
     v = Verifier(Path(out_root), None if source_root is None else Path(source_root), progress)
-    _run(v, regenerate=regenerate, seed=seed, inventory=inventory, source_items=source_items)
+    with _regenerate_lock(v, regenerate):
+        _run(v, regenerate=regenerate, seed=seed, inventory=inventory, source_items=source_items)
     return VerifyReport(
         out_root=str(out_root),
         problems=sorted(v.problems, key=lambda p: (p.path, p.kind, p.message)),
@@ -69,6 +75,7 @@ def _run(
     if v.src is not None and not v.src.is_dir():
         v.add(".", "source_unreadable", f"source root {v.src} is not a directory")
         v.src = None
+    _note_lock(v)
     v.walk()
     manifest_checks.load_metadata(v)
     hashing.hash_everything(v)
@@ -85,6 +92,42 @@ def _run(
     if inventory:
         source_checks.check_inventory(v, inventory)
     _check_card(v)
+
+
+@contextlib.contextmanager
+def _regenerate_lock(v: Verifier, regenerate: int) -> Iterator[None]:
+    """Hold the tree's lock while items are rebuilt for comparison, so that no build changes
+    the tree under them. A tree on read-only storage needs no lock (nobody can write it)."""
+    if regenerate <= 0 or not v.out.is_dir():
+        yield
+        return
+    try:
+        held = lock.acquire(v.out, "verify --regenerate")
+    except lock.OutputLockedError:
+        raise
+    except BuildError as exc:
+        v.notes.append(f"verified without the output lock: {exc}")
+        yield
+        return
+    v.holds_lock = True
+    try:
+        yield
+    finally:
+        lock.release(held)
+
+
+def _note_lock(v: Verifier) -> None:
+    """Say so when a build is writing the tree now, or left its lock file behind."""
+    owner = None if v.holds_lock else lock.holder(v.out)
+    if owner is not None:
+        v.notes.append(
+            f"{lock.describe(owner)} is writing this tree now: what follows describes a "
+            "moment of an unfinished build"
+        )
+    elif not v.holds_lock and (v.out / lock.LOCK_NAME).exists():
+        v.notes.append(
+            f"{lock.LOCK_NAME} was left by an interrupted run; the next build removes it"
+        )
 
 
 def _check_card(v: Verifier) -> None:

@@ -10,6 +10,7 @@ import io
 import pickle
 import shutil
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -577,8 +578,11 @@ def test_nuscenes_include_sweeps_adds_unlabelled_sweeps(tree):
     sweeps = [it for it in items if it.relpath.startswith("sweeps/")]
     assert len(items) == 5 and len(sweeps) == 2
     assert all(it.label_relpath is None and it.extra_relpaths == () for it in sweeps)
-    (root / sweeps[0].relpath).unlink()  # only sweeps whose files exist
-    assert len(reader.items()) == 4
+    # A record whose file is gone stays an item (never a silent gap) and fails when read.
+    (root / sweeps[0].relpath).unlink()
+    assert reader.items() == items
+    with pytest.raises(CorruptItemError, match="No such file"):
+        reader.read(sweeps[0])
 
 
 def test_nuscenes_copied_files_are_tables_and_maps(tree):
@@ -674,3 +678,85 @@ def test_nuscenes_output_tree_loads_with_the_devkit(tree, tmp_path):
     for rec in nusc.panoptic:
         got = load_bin_file(str(out / rec["filename"]), "panoptic")
         np.testing.assert_array_equal(got, load_bin_file(str(root / rec["filename"]), "panoptic"))
+
+
+# ----------------------------------------------------------------------------------------
+# names that cannot be read are items that fail, never silent gaps
+
+
+def _break(path, how: str) -> str:
+    """Replace the scan file at `path` by a broken entry; returns the expected reason."""
+    path.unlink()
+    if how == "directory":
+        path.mkdir()
+        return "a directory"
+    if how == "dangling":
+        path.symlink_to(path.with_name("gone.bin"))
+        return "dangling symbolic link"
+    if how == "self_loop":
+        path.symlink_to(path.name)
+        return "symbolic link loop"
+    other = path.with_name("other" + path.suffix)  # a two-link loop
+    other.symlink_to(path.name)
+    path.symlink_to(other.name)
+    return "symbolic link loop"
+
+
+FILE_READERS = ("semantickitti", "wads", "voxelscape", "radiate", "nuscenes-kitti")
+
+
+@pytest.mark.parametrize("name", FILE_READERS)
+@pytest.mark.parametrize("how", ["directory", "dangling", "self_loop", "two_link_loop"])
+def test_an_unreadable_scan_name_is_listed_and_fails_with_its_reason(tree, name, how):
+    reader, root = tree(name)
+    before = reader.items()
+    item = before[0]
+    reason = _break(root / item.relpath, how)
+    after = reader.items()
+    extra = 1 if how == "two_link_loop" else 0  # the loop's second name is a scan name too
+    assert len(after) == len(before) + extra and item in after
+    with pytest.raises(CorruptItemError, match=reason) as err:
+        reader.read(item)
+    assert str(root / item.relpath) in str(err.value)
+
+
+@pytest.mark.parametrize("name", FILE_READERS + ("nuscenes",))
+def test_an_empty_scan_is_a_corrupt_item(tree, name):
+    reader, root = tree(name)
+    item = reader.items()[0]
+    (root / item.relpath).write_bytes(b"")
+    with pytest.raises(CorruptItemError, match="holds no point"):
+        reader.read(item)
+
+
+@pytest.mark.parametrize("name", BINARY)
+def test_absurd_coordinates_are_a_corrupt_item(tree, name):
+    reader, root = tree(name)
+    item = reader.items()[0]
+    path = root / item.relpath
+    pts = np.fromfile(path, dtype="<f4").reshape(-1, len(reader.columns))
+    pts[3, 2] = 1e30
+    path.write_bytes(pts.tobytes())
+    with pytest.raises(CorruptItemError, match="point 3, column 'z' = 1e.30 m"):
+        reader.read(item)
+
+
+def test_voxelscape_devkit_loader_labels_are_carried_not_dropped(tree):
+    # The devkit loaders' tree: sequences/SS/velodyne + sequences/SS/labels (int32).
+    reader, root = tree("voxelscape", kitti_labels=False, orig_labels=False, sublabels=False)
+    for scan in sorted(root.glob("*/velodyne/*.bin")):
+        n = scan.stat().st_size // 16
+        labels = np.arange(n, dtype="<i4") - 1
+        (scan.parent.parent / "labels").mkdir(exist_ok=True)
+        (scan.parent.parent / "labels" / f"{scan.stem}.label").write_bytes(labels.tobytes())
+    item = reader.items()[0]
+    assert dict(item.extra_relpaths)["devkit_labels"].endswith(
+        f"labels/{Path(item.relpath).stem}.label"
+    )
+    frame = reader.read(item)
+    assert frame.extra_labels["devkit_labels"].dtype == np.int32
+    encoded = {e.role: e for e in reader.encode(frame)}
+    assert (
+        encoded["devkit_labels"].payload
+        == (root / dict(item.extra_relpaths)["devkit_labels"]).read_bytes()
+    )
