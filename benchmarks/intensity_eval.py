@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from benchmarks.common import SHARED_DATA, machine_info, write_result
+from lads.intensity.cache import role_split
 from lads.intensity.commands import evaluate_pair
 from lads.intensity.train_config import load_train_config
 
@@ -25,8 +26,8 @@ def main() -> dict[str, Any]:
         cfg = load_train_config(name, data_root=SHARED_DATA)
         for pair in cfg.pairs:
             key = f"{name}/{pair.key}"
-            if not pair.target.holdout:
-                results[key] = {"skipped": "no held-out target frame (see the model card)"}
+            if not role_split(pair.target, "test", key):
+                results[key] = {"skipped": "no test split (see the model card)"}
                 continue
             res = evaluate_pair(cfg, pair, name, FIGURES / name)  # the shipped weights
             results[key] = res

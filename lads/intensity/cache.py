@@ -32,7 +32,7 @@ import zarr
 from joblib import Parallel, delayed
 from tqdm.auto import tqdm
 
-from lads.errors import LadsError, TrainingError
+from lads.errors import ConfigError, LadsError, TrainingError
 from lads.frame import Frame, Item
 from lads.intensity.features import (
     FEATURE_VERSION,
@@ -42,13 +42,16 @@ from lads.intensity.features import (
     frame_image,
     label_set_for,
 )
+from lads.intensity.splits import split_frames
 from lads.intensity.train_config import DomainSpec, PairSpec, TrainConfig
 from lads.physics.projection import MIN_RANGE_M
 from lads.sensors.profile import SensorProfile, load_profile
 
 CACHE_NAME = "cache.zarr"
-# Bare nuScenes LIDAR_TOP .pcd.bin files under a root (no devkit tables, no labels).
+# Bare nuScenes LIDAR_TOP scans under a root (no devkit tables): `*.pcd.bin`, or
+# `points.bin` with `ground.bin` lidarseg labels beside it.
 RAW_NUSCENES = "nuscenes-scans"
+RAW_POINTS, RAW_LABELS = "points.bin", "ground.bin"
 ROLES = ("source", "target")
 
 
@@ -62,15 +65,18 @@ class CacheJob:
     frame: str
     kind: str
     range_exponent: float
+    tag: str = ""  # which dataset of the role ("" the domain itself, "also1", ...)
 
     @property
     def key(self) -> str:
         payload = {"job": asdict(self), "features": FEATURE_VERSION}
+        payload["job"]["domain"] = _hashed_domain(self.domain)
         return hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()[:20]
 
     @property
     def node(self) -> str:
-        return f"{self.pair}/{self.role}/{urllib.parse.quote(self.frame, safe='')}"
+        name = urllib.parse.quote(self.frame, safe="")
+        return f"{self.pair}/{self.role}/{self.tag + '~' if self.tag else ''}{name}"
 
 
 @dataclass(frozen=True, slots=True)
@@ -87,66 +93,92 @@ class CachedFrame:
     sensor: str
 
 
+def _hashed_domain(domain: DomainSpec) -> dict[str, Any]:
+    """What of a domain decides its frames' content (not where the data lives)."""
+    out = asdict(domain)
+    for d in (out, *out["also"]):
+        d.pop("data_root")
+    return out
+
+
 def list_jobs(cfg: TrainConfig) -> list[CacheJob]:
-    """Every training frame of every pair and role (held-out frames excluded).
+    """Every training frame of every pair and role: the train split of the role's domain
+    and of each of its `also` datasets.
 
     Raises:
-        TrainingError: a domain yields no frame, or a held-out path matches nothing.
+        TrainingError: a role yields no training frame, or a split pattern matches nothing.
     """
     jobs = []
     for pair in cfg.pairs:
         for role in ROLES:
             domain = pair.source if role == "source" else pair.target
-            frames = _frame_names(domain, f"pairs.{pair.key}.{role}")
-            jobs.extend(
-                CacheJob(pair.key, role, domain, f, cfg.kind, cfg.range_exponent) for f in frames
-            )
+            where = f"pairs.{pair.key}.{role}"
+            found = [
+                CacheJob(pair.key, role, d, f, cfg.kind, cfg.range_exponent, tag)
+                for tag, d in domain.members()
+                for f in _frame_names(d, where)
+            ]
+            if not found:
+                raise TrainingError(f"{where}: no training frame (every train split is empty).")
+            jobs.extend(found)
     return jobs
 
 
+def role_split(domain: DomainSpec, name: str, where: str) -> list[tuple[str, DomainSpec, str]]:
+    """(tag, dataset, frame) of one split over a role's domain and its `also` datasets."""
+    return [(tag, d, f) for tag, d in domain.members() for f in split_of(d, name, where)]
+
+
+def split_of(domain: DomainSpec, name: str, where: str) -> list[str]:
+    """The frames of one split ("train", "validation", "test") of a real domain; for
+    "train" at most `domain.frames` of them (0 = all)."""
+    try:
+        frames = split_frames(_all_frames(domain), domain.split, where)[name]
+    except ConfigError as exc:
+        raise TrainingError(str(exc)) from None
+    return frames[: domain.frames] if name == "train" and domain.frames else frames
+
+
 def _frame_names(domain: DomainSpec, where: str) -> list[str]:
+    """The training frames of one dataset of a role (synth: generated names)."""
     if domain.dataset == "synth":
         if domain.frames < 1:
             raise TrainingError(f"{where}: synth domains need frames >= 1.")
         return [f"synth-{i:06d}" for i in range(domain.frames)]
+    return split_of(domain, "train", where)
+
+
+def _all_frames(domain: DomainSpec) -> list[str]:
     if domain.dataset == RAW_NUSCENES:
-        names = _raw_scan_names(domain)
-    else:
-        names = [item.relpath for item in _reader(domain).items()]
-    missing = sorted(set(domain.holdout) - set(names))
-    if missing:
-        raise TrainingError(
-            f"{where}: held-out frames {missing} are not in {domain.root_path()}; fix the holdout "
-            "list "
-            "(paths as the reader names items, e.g. sequences/00/velodyne/000002.bin)."
-        )
-    kept = [n for n in names if n not in set(domain.holdout)]
-    if domain.frames:
-        kept = kept[: domain.frames]
-    if not kept:
-        raise TrainingError(
-            f"{where}: no training frame left in {domain.root_path()} after holdout."
-        )
-    return kept
+        return _raw_scan_names(domain)
+    return [item.relpath for item in _reader(domain).items()]
 
 
 def _raw_scan_names(domain: DomainSpec) -> list[str]:
     root = domain.root_path()
     if root is None or not root.is_dir():
         raise TrainingError(f"{root}: folder of nuScenes .pcd.bin scans not found.")
-    return sorted(p.relative_to(root).as_posix() for p in root.rglob("*.pcd.bin"))
+    found = [*root.rglob("*.pcd.bin"), *root.rglob(RAW_POINTS)]
+    return sorted(p.relative_to(root).as_posix() for p in found)
 
 
 def _raw_nuscenes_frame(domain: DomainSpec, relpath: str) -> Frame:
-    """A bare nuScenes LIDAR_TOP scan (x, y, z, intensity 0-255, ring), no labels: the
-    nuScenes reader needs the devkit tables, which a lone keyframe does not come with."""
+    """A bare nuScenes LIDAR_TOP scan (x, y, z, intensity 0-255, ring): a `.pcd.bin`, or a
+    `points.bin` with its lidarseg labels beside it in `ground.bin` (the layout of the
+    scene-0001 sample); the nuScenes reader needs the devkit tables, which lone scans lack."""
     path = domain.root_path() / relpath  # type: ignore[operator]
     raw = np.fromfile(path, dtype="<f4")
     if raw.size % 5:
         raise TrainingError(f"{path}: {raw.size} floats, not a multiple of 5 (x,y,z,i,ring).")
     points = raw.reshape(-1, 5).astype(np.float32)
-    item = Item(RAW_NUSCENES, relpath)
-    return Frame.from_source(item, "hdl32e", ("x", "y", "z", "intensity", "ring"), points, None)
+    labels = None
+    label_path = path.with_name(RAW_LABELS)
+    if path.name == RAW_POINTS and label_path.is_file():
+        labels = np.fromfile(label_path, dtype=np.uint8)
+        if labels.size != len(points):
+            raise TrainingError(f"{label_path}: {labels.size} labels for {len(points)} points.")
+    item = Item(RAW_NUSCENES, relpath, None if labels is None else RAW_LABELS)
+    return Frame.from_source(item, "hdl32e", ("x", "y", "z", "intensity", "ring"), points, labels)
 
 
 @functools.lru_cache(maxsize=4)
@@ -210,7 +242,8 @@ def read_domain_frame(domain: DomainSpec, relpath: str, *, weather_model: bool) 
         # Real weather recordings label their particles (WADS 110 = falling snow).
         particle = (frame.labels.astype(np.int64) & 0xFFFF) == reader.particle_label
     ring = frame.points[:, frame.columns.index("ring")] if "ring" in frame.columns else None
-    label_set = label_set_for(domain.dataset) if frame.labels is not None else None
+    raw_set = "nuscenes" if domain.dataset == RAW_NUSCENES else label_set_for(domain.dataset)
+    label_set = raw_set if frame.labels is not None else None
     profile = load_profile(domain.sensor or frame.sensor)
     return DomainFrame(frame, profile, label_set, ring, particle, extinction)
 

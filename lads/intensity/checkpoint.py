@@ -52,6 +52,10 @@ class TargetSpec:
             pixels; the generator predicts z = (ln(refl + floor) - log_mean) / log_std.
         floor: reflectivity floor (half a quantisation step of the target encoding).
         log_k: ln of the calibration constant k with refl ~ k I_P on the target data.
+        law: the physics law fitted to the target's training frames
+            (`lads.intensity.fitted_physics.FittedPhysics.to_json`, groups = material
+            indices) when the generator predicts a correction to it (z = G + z_law); None
+            when it predicts z outright.
     """
 
     sensor: str
@@ -59,6 +63,7 @@ class TargetSpec:
     log_std: float
     floor: float
     log_k: float
+    law: dict[str, Any] | None = None
 
 
 @dataclass(frozen=True, slots=True)

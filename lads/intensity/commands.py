@@ -20,17 +20,18 @@ from lads.intensity.train_config import (
 )
 
 
-def _frames_of(domain: DomainSpec, relpaths: list[str], kind: str) -> list[Any]:
-    """EvalFrames of some items of a (real) domain."""
+def frames_of(frames: list[tuple[str, DomainSpec, str]], kind: str) -> list[Any]:
+    """EvalFrames of (tag, dataset, frame) triples of a real role (`cache.role_split`);
+    frames of an `also` dataset are named "<tag>:<frame>"."""
     from lads.intensity.cache import read_domain_frame
     from lads.intensity.evaluate import EvalFrame
 
     out = []
-    for rel in relpaths:
+    for tag, domain, rel in frames:
         d = read_domain_frame(domain, rel, weather_model=kind == "weather")
         out.append(
             EvalFrame(
-                name=rel,
+                name=f"{tag}:{rel}" if tag else rel,
                 xyz=d.frame.xyz,
                 intensity=d.frame.intensity,
                 profile=d.profile,
@@ -44,31 +45,34 @@ def _frames_of(domain: DomainSpec, relpaths: list[str], kind: str) -> list[Any]:
     return out
 
 
-def training_relpaths(domain: DomainSpec) -> list[str]:
-    from lads.intensity.cache import _frame_names
-
-    return _frame_names(domain, "eval")
-
-
 def evaluate_pair(
-    cfg: TrainConfig, pair: PairSpec, model_path: str, out_dir: Path, *, figures: bool = True
-) -> dict[str, Any]:
-    """Held-out evaluation of one pair: generator against every baseline; writes the report
-    and figures under out_dir/<pair>/ and returns the JSON result."""
+    cfg: TrainConfig, pair: PairSpec, model_path: str, out_dir: Path, *, split: str = "test",
+    figures: bool = True,
+) -> dict[str, Any]:  # fmt: skip
+    """Evaluation of one pair on the target's `split` frames ("test", or "validation" while
+    choosing): the generator against every baseline fitted on the target's train split, and
+    the in-sample bound; writes the report and figures under out_dir/<pair>/ and returns
+    the JSON result."""
     from lads.intensity import eval_figures
+    from lads.intensity.baselines import InSampleBound, fit_baselines
+    from lads.intensity.cache import role_split
     from lads.intensity.checkpoint import resolve_model
-    from lads.intensity.evaluate import evaluate, fit_baselines, write_report
+    from lads.intensity.evaluate import BOUND_PREFIX, evaluate, write_report
     from lads.intensity.predict import predict_points
 
     target = pair.target
-    if not target.holdout:
+    where = f"{cfg.name}: pairs.{pair.key}.target"
+    chosen = role_split(target, split, where)
+    if not chosen:
         raise TrainingError(
-            f"{cfg.name}: pair {pair.key} holds out no target frame, so there is nothing to "
-            "evaluate on; add a holdout list to the config."
+            f"{where}: no {split} frame, so there is nothing to evaluate on; give the target "
+            f"a split ({split}: [frame patterns], chosen by place) in the config."
         )
-    heldout = _frames_of(target, list(target.holdout), cfg.kind)
-    reference = _frames_of(target, training_relpaths(target), cfg.kind)
+    heldout = frames_of(chosen, cfg.kind)
+    names = [f.name for f in heldout]
+    reference = frames_of(role_split(target, "train", where), cfg.kind)
     methods = fit_baselines(reference, range_exponent=cfg.range_exponent)
+    methods[f"{BOUND_PREFIX}in_sample"] = InSampleBound.of(heldout, cfg.range_exponent)
     model = resolve_model(model_path)
 
     def generator(frame: Any) -> np.ndarray:
@@ -82,10 +86,10 @@ def evaluate_pair(
     result = evaluate(heldout, methods)
     folder = out_dir / pair.key
     context = {
-        "model": model_path, "config": cfg.name, "pair": pair.key,
-        "heldout": list(target.holdout), "reference_frames": len(reference),
+        "model": model_path, "config": cfg.name, "pair": pair.key, "split": split,
+        "frames": names, "reference_frames": len(reference),
     }  # fmt: skip
-    write_report(result, folder, title=f"{cfg.name} / {pair.key}: held-out evaluation",
+    write_report(result, folder, title=f"{cfg.name} / {pair.key}: {split} split",
                  context=context)  # fmt: skip
     if figures:
         first = heldout[0]
@@ -147,20 +151,29 @@ def train_command(
                    "model of the config's name, else the config's output).")  # fmt: skip
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path),
               default=Path("eval-intensity"), show_default=True)  # fmt: skip
+@click.option("--split", type=click.Choice(["test", "validation"]), default="test",
+              show_default=True,
+              help="Which frames to score: test (report once per model) or validation "
+                   "(choose with it).")  # fmt: skip
 @click.option("--no-figures", is_flag=True)
 def eval_intensity_command(
-    config: str, data_root: Path | None, model_path: str | None, out_dir: Path, no_figures: bool
-) -> None:
-    """Evaluate a generator on the config's held-out real frames against the baselines."""
+    config: str, data_root: Path | None, model_path: str | None, out_dir: Path, split: str,
+    no_figures: bool,
+) -> None:  # fmt: skip
+    """Score a generator on the config's test (or validation) frames against the baselines
+    fitted on its train frames."""
     from lads.intensity.checkpoint import SHIPPED
 
     cfg = load_train_config(config, data_root=data_root)
     path = model_path or (cfg.name if cfg.name in SHIPPED else str(cfg.output_path()))
+    from lads.intensity.cache import role_split
+
     results = {}
     for pair in cfg.pairs:
-        if not pair.target.holdout:
-            click.echo(f"{pair.key}: no held-out frame in the config; skipped.")
+        if not role_split(pair.target, split, f"pairs.{pair.key}.target"):
+            click.echo(f"{pair.key}: no {split} split in the config; skipped.")
             continue
-        results[pair.key] = evaluate_pair(cfg, pair, path, out_dir, figures=not no_figures)
+        results[pair.key] = evaluate_pair(cfg, pair, path, out_dir, split=split,
+                                          figures=not no_figures)  # fmt: skip
     atomic_write(out_dir / "eval.json", json.dumps(results, indent=2, sort_keys=True).encode())
     click.echo(f"wrote {out_dir}/eval.json and per-pair reports")

@@ -2,18 +2,8 @@
 
 Pure computation on frames the caller has loaded (only `write_report` writes files). A
 *method* maps an `EvalFrame` to (N,) predicted intensity in the frame profile's encoding;
-the learned generator is one, wrapped by the caller. Four baselines are fitted here on
-*reference* frames, the real training frames of the same target domain (never held-out):
-
-    unchanged            what a physics simulator stores: rho cos(theta) exp(-2 alpha R),
-                         encoded; no fitting
-    physics_rescaled     k I_P, I_P = rho cos(theta) / R^n exp(-2 alpha R), with
-                         ln k = median(ln(refl_real + floor) - ln(I_P + 1e-6))
-    histogram_global     the frame's points ranked by I_P, ranks mapped to the quantiles of
-                         the pooled reference reflectivity
-    histogram_per_class  the same within each semantic class against that class's
-                         reference quantiles; classes with < 20 reference points (and
-                         unlabelled frames) keep the global value
+the learned generator is one, wrapped by the caller; the baselines are fitted on the target
+domain's training frames in `lads.intensity.baselines`.
 
 Metrics are computed on every point of a frame, per frame and pooled over frames (pooled
 = the same metric on the concatenated points, so big frames weigh more):
@@ -46,7 +36,7 @@ from scipy import stats
 
 from lads.errors import ConfigError, InputDataError, InvalidPointsError
 from lads.files import atomic_write
-from lads.intensity.features import PHYSICS_FLOOR, FrameImage, frame_image
+from lads.intensity.features import FrameImage, frame_image
 from lads.jsontypes import json_types
 from lads.physics.materials import LABEL_SETS, class_materials
 from lads.sensors.profile import SensorProfile
@@ -54,22 +44,18 @@ from lads.sensors.profile import SensorProfile
 FloatArray = npt.NDArray[np.float32]
 Method = Callable[["EvalFrame"], FloatArray]
 
-BASELINES: tuple[str, ...] = (
-    "unchanged", "physics_rescaled", "histogram_global", "histogram_per_class",
-)  # fmt: skip
 SUBJECT = "generator"
+# Methods fitted on the evaluated frames themselves (an in-sample upper bound of what some
+# inputs allow); reported beside the methods, never compared as one.
+BOUND_PREFIX = "bound_"
 RANGE_EDGES_M: tuple[float, ...] = (0.0, 5.0, 10.0, 20.0, 40.0, math.inf)
 COS_EDGES: tuple[float, ...] = (0.0, 0.25, 0.5, 0.75, 1.0)
 MIN_CELL_POINTS = 30
 MIN_RATIO_POINTS = 50
-MIN_CLASS_REFERENCE_POINTS = 20
 # A handful of sign-edge points would make the contrast mostly noise.
 MIN_RETRO_POINTS = 10
 RETRO_MATERIAL = "retroreflective_sheeting"
 ALL_CLASS = "all"
-# Above this many pooled reference values the quantile function is kept as this many exact
-# order statistics: the probability error is < 1e-5, the memory bounded.
-MAX_QUANTILES = 100_001
 # Label sets whose stored labels carry an instance id in the upper 16 bits (materials.yaml
 # `instance_bits`); their class is label & 0xFFFF.
 INSTANCE_BIT_SETS = frozenset({"semantickitti", "voxelscape", "wads"})
@@ -196,183 +182,6 @@ def unchanged_intensity(frame: EvalFrame, image: FrameImage | None = None) -> Fl
     if frame.extinction_per_m > 0:
         refl *= np.exp(-2.0 * frame.extinction_per_m * fi.range_m.astype(np.float64))
     return frame.profile.intensity.from_reflectivity(refl)
-
-
-class _LastImage:
-    """frame_image of the frame seen last. `evaluate` runs every method on one frame before
-    the next, so the baselines share one projection per frame instead of one each."""
-
-    def __init__(self, range_exponent: float) -> None:
-        self.range_exponent = range_exponent
-        self._frame: EvalFrame | None = None
-        self._image: FrameImage | None = None
-
-    def __call__(self, frame: EvalFrame) -> FrameImage:
-        if self._frame is not frame or self._image is None:
-            self._image = physics_image(frame, self.range_exponent)
-            self._frame = frame
-        return self._image
-
-
-@dataclass(frozen=True)
-class Quantiles:
-    """An empirical quantile function: `value[j]` is the quantile at `probability[j]`.
-
-    Attributes:
-        probability: (M,) float64 increasing in (0, 1), (j + 0.5) / count of order stats.
-        value: (M,) float64 non-decreasing reflectivity.
-        count: number of values it was built from.
-    """
-
-    probability: npt.NDArray[np.float64]
-    value: npt.NDArray[np.float64]
-    count: int
-
-    @classmethod
-    def of(cls, values: npt.ArrayLike) -> Quantiles:
-        ordered = np.sort(np.asarray(values, dtype=np.float64))
-        m = len(ordered)
-        j = np.arange(m)
-        if m > MAX_QUANTILES:
-            j = np.unique(np.linspace(0, m - 1, MAX_QUANTILES).round().astype(np.int64))
-        return cls((j + 0.5) / m, ordered[j], m)
-
-    def at(self, q: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
-        """Values at probabilities q in [0, 1], linear between order statistics."""
-        return np.interp(q, self.probability, self.value)
-
-
-def quantile_match(physics: npt.ArrayLike, table: Quantiles) -> npt.NDArray[np.float64]:
-    """Give the i-th smallest of n physics values the reference quantile at (i + 0.5) / n.
-
-    Ties keep input order (stable sort), so equal I_P still spread over the quantiles.
-    """
-    x = np.asarray(physics)
-    order = np.argsort(x, kind="stable")
-    q = np.empty(len(x), dtype=np.float64)
-    q[order] = (np.arange(len(x)) + 0.5) / max(len(x), 1)
-    return table.at(q)
-
-
-@dataclass(frozen=True)
-class Unchanged:
-    """Baseline: the simulator's own intensity, rho cos(theta) exp(-2 alpha R), encoded."""
-
-    images: _LastImage = field(repr=False)
-
-    def __call__(self, frame: EvalFrame) -> FloatArray:
-        return unchanged_intensity(frame, self.images(frame))
-
-
-@dataclass(frozen=True)
-class PhysicsRescaled:
-    """Baseline: k I_P encoded; k (unitless per m^-n) fitted on the reference frames."""
-
-    k: float
-    images: _LastImage = field(repr=False)
-
-    def __call__(self, frame: EvalFrame) -> FloatArray:
-        refl = self.k * self.images(frame).physics.astype(np.float64)
-        return frame.profile.intensity.from_reflectivity(refl)
-
-
-@dataclass(frozen=True)
-class HistogramGlobal:
-    """Baseline: I_P ranks mapped onto the pooled reference reflectivity quantiles."""
-
-    table: Quantiles = field(repr=False)
-    images: _LastImage = field(repr=False)
-
-    def __call__(self, frame: EvalFrame) -> FloatArray:
-        refl = quantile_match(self.images(frame).physics, self.table)
-        return frame.profile.intensity.from_reflectivity(refl)
-
-
-@dataclass(frozen=True)
-class HistogramPerClass:
-    """Baseline: quantile matching within each class against that class's reference.
-
-    Points of a class without a reference table (fewer than MIN_CLASS_REFERENCE_POINTS
-    reference points) keep the global baseline's value, i.e. their rank among all the
-    frame's points, which places them where their I_P sits in the scene.
-
-    Attributes:
-        table: global reference quantiles.
-        class_tables: (label set, class id) -> that class's reference quantiles.
-    """
-
-    table: Quantiles = field(repr=False)
-    class_tables: dict[tuple[str, int], Quantiles] = field(repr=False)
-    images: _LastImage = field(repr=False)
-
-    def __call__(self, frame: EvalFrame) -> FloatArray:
-        physics = self.images(frame).physics
-        refl = quantile_match(physics, self.table)
-        if frame.labels is not None and frame.label_set is not None:
-            cls = class_ids(frame.labels, frame.label_set)
-            for cid in np.unique(cls):
-                table = self.class_tables.get((frame.label_set, int(cid)))
-                if table is not None:
-                    members = np.flatnonzero(cls == cid)
-                    refl[members] = quantile_match(physics[members], table)
-        return frame.profile.intensity.from_reflectivity(refl)
-
-
-def fit_baselines(
-    reference: Iterable[EvalFrame], *, range_exponent: float = 1.0
-) -> dict[str, Method]:
-    """Fit the four baselines on real reference frames of the target domain.
-
-    Args:
-        reference: real training frames of the target domain (never the held-out frames).
-        range_exponent: n of I_P = rho cos(theta) / R^n exp(-2 alpha R).
-
-    Returns:
-        {name: method} for the names in BASELINES, in that order.
-
-    Raises:
-        InputDataError: no reference frames, or none with points.
-    """
-    frames = list(reference)
-    if not frames:
-        raise InputDataError(
-            "fit_baselines: no reference frames; pass the real training frames of the target "
-            "domain (not the held-out frames) to fit the baselines on."
-        )
-    log_ratio: list[npt.NDArray[np.float64]] = []
-    reflectivity: list[npt.NDArray[np.float64]] = []
-    by_class: dict[tuple[str, int], list[npt.NDArray[np.float64]]] = {}
-    for frame in frames:
-        if frame.n_points == 0:
-            continue
-        physics = physics_image(frame, range_exponent).physics.astype(np.float64)
-        encoding = frame.profile.intensity
-        refl = encoding.to_reflectivity(frame.intensity)
-        log_ratio.append(np.log(refl + encoding.detection_floor) - np.log(physics + PHYSICS_FLOOR))
-        reflectivity.append(refl)
-        if frame.labels is not None and frame.label_set is not None:
-            cls = class_ids(frame.labels, frame.label_set)
-            for cid in np.unique(cls):
-                by_class.setdefault((frame.label_set, int(cid)), []).append(refl[cls == cid])
-    if not reflectivity:
-        raise InputDataError(
-            f"fit_baselines: the {len(frames)} reference frames hold no points; pass frames "
-            "with returns (a loader that dropped everything?)."
-        )
-    k = float(np.exp(np.median(np.concatenate(log_ratio))))
-    table = Quantiles.of(np.concatenate(reflectivity))
-    class_tables = {
-        key: Quantiles.of(np.concatenate(parts))
-        for key, parts in by_class.items()
-        if sum(len(p) for p in parts) >= MIN_CLASS_REFERENCE_POINTS
-    }
-    images = _LastImage(range_exponent)
-    return {
-        "unchanged": Unchanged(images),
-        "physics_rescaled": PhysicsRescaled(k, images),
-        "histogram_global": HistogramGlobal(table, images),
-        "histogram_per_class": HistogramPerClass(table, class_tables, images),
-    }
 
 
 @dataclass(frozen=True)
@@ -722,7 +531,10 @@ def best_methods(table: Mapping[str, Mapping[str, Any]], metric: str) -> list[st
 
 
 def summarise(pooled: Mapping[str, Mapping[str, Any]], subject: str = SUBJECT) -> dict[str, Any]:
-    """Which other methods `subject` beats on the pooled SUMMARY_METRICS (missing = no)."""
+    """Which other methods `subject` beats on the pooled SUMMARY_METRICS (missing = no).
+    Bounds (methods named `BOUND_PREFIX...`, fitted on the evaluated frames themselves) are
+    reference points, not competitors: they are neither beaten nor best."""
+    pooled = {m: row for m, row in pooled.items() if not m.startswith(BOUND_PREFIX)}
     best = {metric: best_methods(pooled, metric) for metric in DIRECTIONS}
     if subject not in pooled:
         return {"subject": None, "metrics": list(SUMMARY_METRICS), "beats": {}, "best": best}

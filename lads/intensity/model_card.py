@@ -29,6 +29,10 @@ TERMS = {
     "radiate": "RADIATE (CC BY-NC-SA 4.0): non-commercial",
     "synth": "made by `lads synth` in this repository (no third-party terms)",
 }
+GENERATOR_FORM = {
+    True: "a correction to the physics law fitted on the target training frames",
+    False: "predicts the intensity outright",
+}
 NO_RAIN = (
     "No real rain recording is available here, so there is no rain style: the rain variant "
     "keeps the physics intensity until a user trains this config with their own rain data."
@@ -36,17 +40,24 @@ NO_RAIN = (
 
 
 def _domain_line(role: str, spec: Any) -> str:
-    where = spec.root or f"{spec.frames} frames, seed {spec.seed}, sensor {spec.sensor}"
-    extra = f"; physics weather first: {spec.weather}" if spec.weather else ""
-    held = f"; held out: {', '.join(spec.holdout)}" if spec.holdout else "; nothing held out"
-    return f"- {role}: `{spec.dataset}` ({where}){extra}{held}. Terms: {TERMS.get(spec.dataset)}."
+    lines = []
+    for tag, d in spec.members():
+        where = d.root or f"{d.frames} frames, seed {d.seed}, sensor {d.sensor}"
+        extra = f"; physics weather first: {d.weather}" if d.weather else ""
+        split = "; ".join(f"{k}: {', '.join(v)}" for k, v in d.split.items()) or "all frames train"
+        name = f"{role} ({tag})" if tag else role
+        lines.append(f"- {name}: `{d.dataset}` ({where}){extra}; split by place: {split}. "
+                     f"Terms: {TERMS.get(d.dataset)}.")  # fmt: skip
+    return "\n".join(lines)
 
 
 def _metrics_table(results: dict[str, Any]) -> list[str]:
     lines = []
     for key, res in results.items():
         pooled = res.get("pooled", {})
-        lines += [f"### {key} (held out: {', '.join(res['context']['heldout'])})", "",
+        frames = res["context"]["frames"]
+        shown = ", ".join(frames[:6]) + (f" and {len(frames) - 6} more" if len(frames) > 6 else "")
+        lines += [f"### {key}, {res['context']['split']} split ({shown})", "",
                   "| method | MAE (encoded) | MAE (reflectivity) | Pearson r | Spearman | "
                   "cell W1 (refl.) | cell KS | retro contrast pred / real |",
                   "|---|---|---|---|---|---|---|---|"]  # fmt: skip
@@ -73,6 +84,11 @@ def _metrics_table(results: dict[str, Any]) -> list[str]:
     return lines
 
 
+def _shares(shares: dict[str, float]) -> str:
+    return ", ".join(f"{k} {v:.0%}" for k, v in sorted(shares.items(), key=lambda kv: -kv[1])
+                     if v > 0) or "not recorded"  # fmt: skip
+
+
 def _f(value: Any) -> str:
     return "n/a" if value is None else f"{value:.4g}"
 
@@ -88,8 +104,14 @@ def render_card(cfg: TrainConfig, weights: Path, results: dict[str, Any]) -> str
         f"- kind: {cfg.kind}; targets: {', '.join(sorted(model.meta.targets))}; "
         f"generator parameters: {sum(p.numel() for p in model.generator.parameters())}",
         f"- made by: `make train` (`lads train {cfg.name} --data-root DATA`), seed {cfg.seed}, "
-        f"{training.get('steps')} steps, batch {cfg.batch}, crop {cfg.crop_width} px, lr {cfg.lr}",
-        f"- range exponent n = {cfg.range_exponent}; data hash {training.get('data_hash')}",
+        f"batch {cfg.batch}, crop {cfg.crop_width} px, lr {cfg.lr}; of {cfg.steps} steps the "
+        f"checkpoint at step {training.get('steps')} scored best on the validation frames "
+        "(paired MAE + cell W1) and is this file",
+        f"- generator: {GENERATOR_FORM[cfg.residual]}; "
+        f"range exponent n = {cfg.range_exponent}; data hash {training.get('data_hash')}",
+        f"- loss composition (share of the generator loss, last 100 steps before that "
+        f"checkpoint): {_shares(training.get('loss_shares', {}))}; supervised = identity "
+        "(labelled real targets), the rest unpaired",
         "", "## Training data", "",
     ]  # fmt: skip
     for pair in cfg.pairs:
@@ -103,20 +125,24 @@ def render_card(cfg: TrainConfig, weights: Path, results: dict[str, Any]) -> str
     ]  # fmt: skip
     if cfg.kind == "weather":
         lines += [NO_RAIN, ""]
-    lines += ["## Held-out metrics", "",
-              "Paired: the held-out real frame's geometry and labels are the input; the "
-              "prediction is compared with the real intensity of the same points. Cell "
-              "metrics: Wasserstein-1 and KS per class x range bin x incidence bin, weighted "
-              "by count. Produced by `lads eval-intensity` at the time of training.",
+    lines += ["## Test metrics", "",
+              "Paired: each test frame's geometry and labels are the input; the prediction "
+              "is compared with the real intensity of the same points. Cell metrics: "
+              "Wasserstein-1 and KS per class x range bin x incidence bin, weighted by count. "
+              "Baselines are fitted on the train split only; `bound_in_sample` is fitted on "
+              "the test points themselves (an upper bound for per-point features, not a "
+              "method). The test frames were scored once, after training, and chose nothing. "
+              "Produced by `python -m lads.intensity.model_card` (`lads eval-intensity`).",
               ""]  # fmt: skip
     if results:
         lines += _metrics_table(results)
     else:
-        lines += ["No target frame was held out, so there are no held-out metrics.", ""]
+        lines += ["The config has no test frames, so there are no test metrics.", ""]
     return "\n".join(lines) + "\n"
 
 
 def main(argv: list[str] | None = None) -> int:
+    from lads.intensity.cache import role_split
     from lads.intensity.commands import evaluate_pair
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -133,7 +159,7 @@ def main(argv: list[str] | None = None) -> int:
         out_dir = args.docs / cfg.name
         results = {}
         for pair in cfg.pairs:
-            if pair.target.holdout:
+            if role_split(pair.target, "test", f"pairs.{pair.key}.target"):
                 results[pair.key] = evaluate_pair(cfg, pair, str(weights), out_dir)
         atomic_write(out_dir / "eval.json", json.dumps(results, indent=2, sort_keys=True).encode())
         atomic_write(weights.with_suffix(".md"), render_card(cfg, weights, results).encode())

@@ -25,8 +25,9 @@ import numpy.typing as npt
 import torch
 
 from lads.errors import ModelError
-from lads.intensity.checkpoint import IntensityModel
+from lads.intensity.checkpoint import IntensityModel, TargetSpec
 from lads.intensity.features import PHYSICS_FLOOR, FrameImage, frame_image
+from lads.intensity.fitted_physics import FittedPhysics
 from lads.sensors.conformity import check_scan_of
 from lads.sensors.profile import SensorProfile
 
@@ -72,6 +73,22 @@ def predict_image(
     finally:
         torch.set_num_threads(threads)
     return z[0, 0].float().cpu().numpy()
+
+
+def law_z(spec: TargetSpec, fi: FrameImage, extinction_per_m: float) -> npt.NDArray[np.float32]:
+    """(H, W) the target's fitted law in the generator's z-space, on occupied pixels."""
+    names = fi.channels
+    x = {n: fi.inputs[names.index(n)].astype(np.float64)
+         for n in ("mask", "ln_range", "cos_incidence", "material")}  # fmt: skip
+    law = FittedPhysics.from_json(spec.law)  # type: ignore[arg-type]
+    material = np.rint(x["material"]).astype(np.int64) - 1
+    ln = law.ln_predict(
+        material.ravel(),
+        np.exp(x["ln_range"]).ravel(),
+        x["cos_incidence"].ravel(),
+        extinction_per_m,
+    ).reshape(material.shape)
+    return np.where(x["mask"] > 0, (ln - spec.log_mean) / spec.log_std, 0.0).astype(np.float32)
 
 
 def predict_points(
@@ -138,6 +155,8 @@ def predict_points(
         range_exponent=model.meta.range_exponent, extinction_per_m=extinction_per_m,
     )  # fmt: skip
     z = predict_image(model, fi, device=device)
+    if spec.law is not None:  # the generator predicts a correction to the fitted law
+        z = z + law_z(spec, fi, extinction_per_m)
     image = fi.image
     n = len(xyz_arr)
     ln_pixel = z[image.row, image.col].astype(np.float64) * spec.log_std + spec.log_mean

@@ -39,7 +39,7 @@ import torch
 from tqdm.auto import tqdm
 
 from lads.errors import LadsError, TrainingError
-from lads.files import atomic_write, atomic_write_figure
+from lads.files import atomic_copy, atomic_write, atomic_write_figure
 from lads.intensity.cache import (
     STATISTICS_VERSION,
     CachedFrame,
@@ -55,7 +55,13 @@ from lads.intensity.cache import (
     statistics_from_json,
     statistics_to_json,
 )
-from lads.intensity.checkpoint import MATERIAL_DIMS, ModelMeta, TargetSpec, save_model
+from lads.intensity.checkpoint import (
+    MATERIAL_DIMS,
+    IntensityModel,
+    ModelMeta,
+    TargetSpec,
+    save_model,
+)
 from lads.intensity.features import (
     FEATURE_VERSION,
     NORMALISED_CHANNELS,
@@ -63,8 +69,10 @@ from lads.intensity.features import (
     STYLES,
     channel_names,
 )
+from lads.intensity.law_reference import TorchLaw, fit_law
 from lads.intensity.losses import balanced_l1, masked_l1, masked_mse_to
 from lads.intensity.model import Discriminator, Generator
+from lads.intensity.selection import BEST, Selector, score, validation_frames
 from lads.intensity.train_config import PairSpec, TrainConfig
 from lads.physics.materials import material_names
 from lads.sensors.profile import load_profile
@@ -169,6 +177,24 @@ class Nets(torch.nn.Module):
             self.d_t[pair.key] = Discriminator(
                 names, ("ln_range", "cos_incidence", "reflectance"), cfg.disc_base
             )
+
+    def use_laws(
+        self, laws: dict[str, TorchLaw], zstats: dict[str, tuple[float, float, float]],
+        residual: bool,
+    ) -> None:  # fmt: skip
+        """The fitted law of each target, and whether G predicts a correction to it."""
+        self.laws, self.zstats, self.residual = laws, zstats, residual
+
+    def translate(
+        self, raw: torch.Tensor, mask: torch.Tensor, key: str, extinction: torch.Tensor
+    ) -> torch.Tensor:
+        """G_S2T in target `key`'s z-space: G's output, plus the target's fitted law when the
+        run is residual (`TrainConfig.residual`)."""
+        z = self.g(raw, mask)
+        if self.residual:
+            mean, std, _ = self.zstats[key]
+            z = z + (self.laws[key].ln_reference(raw, extinction) - mean) / std
+        return z
 
     def pick(
         self, raw: torch.Tensor, names: tuple[str, ...], **extra: torch.Tensor
@@ -373,7 +399,10 @@ def train(
 ) -> dict[str, Any]:
     """Prepare the cache, train (resuming a checkpoint), write the weights; returns a summary.
 
-    `max_steps` stops early (for tests and interrupted runs) without writing the weights.
+    The physics reference of L_phy is the law fitted to each target's training frames
+    (`law_reference`); every checkpoint is scored on the validation frames and the best one
+    becomes the weight file (`selection`). `max_steps` stops early (for tests and
+    interrupted runs) without writing the weights.
 
     Raises:
         TrainingError: unusable data, a checkpoint of another config, or a diverged run.
@@ -384,6 +413,11 @@ def train(
     channels = channel_names(cfg.kind == "weather")
     facts = run_statistics(run, cfg, jobs, channels)
     stats, labelled, mean_alpha = facts.stats, facts.labelled, facts.mean_alpha
+    laws = {}
+    for p in cfg.pairs:
+        target_jobs = [j for j in jobs if j.pair == p.key and j.role == "target"]
+        laws[p.key] = fit_law(iter_frames(run, target_jobs), stats.targets[p.key]["floor"])
+    torch_laws = {k: TorchLaw.of(law, channels) for k, law in laws.items()}
 
     torch.manual_seed(cfg.seed)
     rng = np.random.default_rng(cfg.seed)
@@ -406,11 +440,17 @@ def train(
 
     targets = {k: (v["log_mean"], v["log_std"], v["floor"]) for k, v in stats.targets.items()}
     log_k = {k: v["log_k"] for k, v in stats.targets.items()}
+    nets.use_laws(torch_laws, targets, cfg.residual)
+    record = {"laws": {k: law.to_json() for k, law in laws.items()}, "jobs": len(jobs),
+              "data_hash": cfg.data_hash()}  # fmt: skip
+    validation = validation_frames(cfg)
+    selector = Selector(run)
     end = cfg.steps if max_steps is None else min(cfg.steps, max_steps)
     bar = tqdm(range(start, end), initial=start, total=cfg.steps, desc=f"train {cfg.name}",
                unit="step", disable=not progress)  # fmt: skip
     for step in bar:
-        losses = _step(nets, cfg, sampler, targets, log_k, mean_alpha, opt_g, opt_d, device)
+        losses = _step(nets, cfg, sampler, targets, torch_laws, log_k, mean_alpha, opt_g, opt_d,
+                       device)  # fmt: skip
         if not all(math.isfinite(v) for v in losses.values()):
             raise TrainingError(
                 f"{cfg.name}: loss became NaN/inf at step {step} ({losses}); lower lr in the "
@@ -422,24 +462,56 @@ def train(
         if done % cfg.checkpoint_every == 0 or done == end:
             _checkpoint(ckpt_path, config_id, done, nets, opt_g, opt_d, rng, history)
             write_loss_figure(history, run / "loss.png", cfg.name)
+            meta = _meta(cfg, stats, channels, record, history, done)
+            nets.g.cpu().eval()
+            scores = score(IntensityModel(meta, nets.g, f"{cfg.name} step {done}"), validation)
+            selector.offer(done, meta, nets.g, scores)
+            nets.g.train().to(device)
     atomic_write(run / "history.json", json.dumps(history).encode())
-    summary: dict[str, Any] = {"run_dir": str(run), "steps_done": len(history)}
+    summary: dict[str, Any] = {"run_dir": str(run), "steps_done": len(history),
+                               "selection": selector.record.get("best")}  # fmt: skip
     if len(history) < cfg.steps:
         return summary
-    meta = ModelMeta(
+    weights = cfg.output_path(run)
+    best = selector.best_step
+    if best is None:  # no validation frames: the last step is the model
+        nets.g.cpu()
+        save_model(weights, _meta(cfg, stats, channels, record, history, len(history)), nets.g)
+    else:
+        atomic_copy(run / BEST, weights)
+    summary["weights"] = str(weights)
+    summary["selected_step"] = best if best is not None else len(history)
+    return summary
+
+
+def _meta(
+    cfg: TrainConfig, stats: Statistics, channels: tuple[str, ...], record: dict[str, Any],
+    history: list[dict[str, float]], step: int,
+) -> ModelMeta:  # fmt: skip
+    """The metadata of the generator at `step`."""
+    return ModelMeta(
         name=cfg.name, kind=cfg.kind, channels=channels, feature_version=FEATURE_VERSION,
         range_exponent=cfg.range_exponent, base=cfg.base, blocks=cfg.blocks,
-        targets={k: TargetSpec(**v) for k, v in stats.targets.items()},
+        targets={k: TargetSpec(**v, law=record["laws"][k] if cfg.residual else None)
+                 for k, v in stats.targets.items()},
         calibration=stats.calibration, materials=material_names(), material_dims=MATERIAL_DIMS,
-        training={"config": cfg.to_dict(), "data_hash": cfg.data_hash(), "steps": cfg.steps,
-                  "seed": cfg.seed, "final_losses": history[-1],
-                  "cache_frames": len(jobs)},
+        training={"config": cfg.to_dict(), "steps": step, "seed": cfg.seed,
+                  "final_losses": history[step - 1] if history else {},
+                  "loss_shares": _loss_shares(cfg, history[max(0, step - 100):step]),
+                  "physics_reference": record["laws"], "cache_frames": record["jobs"],
+                  "data_hash": record["data_hash"]},
     )  # fmt: skip
-    nets.g.cpu()
-    weights = cfg.output_path(run)
-    save_model(weights, meta, nets.g)
-    summary["weights"] = str(weights)
-    return summary
+
+
+def _loss_shares(cfg: TrainConfig, recent: list[dict[str, float]]) -> dict[str, float]:
+    """Each weighted generator term's share of the generator loss over `recent` steps."""
+    w = cfg.losses
+    weights = {"adversarial": w.adversarial, "cycle": w.cycle, "physics": w.physics,
+               "identity": w.identity, "style": w.style}  # fmt: skip
+    parts = {k: weights[k] * float(np.mean([h.get(k, 0.0) for h in recent])) if recent else 0.0
+             for k in weights}  # fmt: skip
+    total = sum(parts.values())
+    return {k: v / total for k, v in parts.items()} if total > 0 else parts
 
 
 def _step(
@@ -447,6 +519,7 @@ def _step(
     cfg: TrainConfig,
     sampler: Sampler,
     targets: dict[str, tuple[float, float, float]],
+    laws: dict[str, TorchLaw],
     log_k: dict[str, float],
     mean_alpha: dict[str, float],
     opt_g: torch.optim.Optimizer,
@@ -465,11 +538,10 @@ def _step(
         t = _to(sampler.batch(key, "target", cfg.batch, cfg.crop_width, targets[key]), device)
         if t.z is None:
             raise TrainingError(f"pair {key}: target frames carry no intensity.")
-        fake = nets.g(s.raw, s.mask) * s.mask
-        # Physics reference in the target's units and z-space.
-        phys = (torch.exp(s.raw[:, ch.index("ln_physics")][:, None]) - PHYSICS_FLOOR).clamp_min(0)
-        ref = (torch.log(phys * math.exp(log_k[key]) + floor) - mean) / std
-        l_phy = masked_l1(fake, ref, s.mask)
+        fake = nets.translate(s.raw, s.mask, key, s.extinction) * s.mask
+        # Physics reference: the law fitted to this target's training frames, in z-space.
+        ref = (laws[key].ln_reference(s.raw, s.extinction) - mean) / std
+        l_phy = masked_l1(fake, ref * s.mask, s.mask)
 
         d_t = nets.d_t[key]
         dt_names = nets.dt_channels[key]
@@ -489,11 +561,12 @@ def _step(
         rebuilt[:, ch.index("reflectance")] = rho_t[:, 0]
         rebuilt[:, ch.index("ln_physics")] = torch.log(rho_t * geometry + PHYSICS_FLOOR)[:, 0]
         rebuilt = rebuilt * t.mask
-        l_cyc = l_cyc + masked_l1(nets.g(rebuilt, t.mask), t.z, t.mask)
+        l_cyc = l_cyc + masked_l1(nets.translate(rebuilt, t.mask, key, t.extinction), t.z,
+                                  t.mask)  # fmt: skip
 
         l_id = torch.zeros((), device=device)
         if t.labelled:
-            l_id = balanced_l1(nets.g(t.raw, t.mask), t.z, t.mask,
+            l_id = balanced_l1(nets.translate(t.raw, t.mask, key, t.extinction), t.z, t.mask,
                                t.raw[:, ch.index("material")][:, None],
                                w.identity_balance)  # fmt: skip
 
@@ -562,7 +635,7 @@ def _style_term(
     for name in ("ln_physics", "ln_geometry"):
         swapped[:, ch.index(name)] = s.raw[:, ch.index(name)] + shift[:, 0]
     swapped = swapped * s.mask
-    fake_b = nets.g(swapped, s.mask)
+    fake_b = nets.translate(swapped, s.mask, other, alpha_b.view(-1))
     (ma, sa, _), (mb, sb, _) = targets[key], targets[other]
     lnq_a = fake * sa + ma - log_k[key]
     lnq_b = fake_b * sb + mb - log_k[other]

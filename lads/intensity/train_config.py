@@ -29,6 +29,7 @@ import yaml
 
 from lads.errors import ConfigError
 from lads.intensity.features import STYLES
+from lads.intensity.splits import SPLITS, merged_view
 from lads.resources import train_configs_dir
 
 KINDS = ("sensor", "weather")
@@ -43,35 +44,51 @@ class DomainSpec:
 
     Attributes:
         dataset: a reader name (`lads.readers.READERS`) or "synth" (made here, in memory).
-        root: dataset root (None for synth), absolute or relative to `data_root`.
+        root: dataset root (None for synth), absolute or relative to `data_root`; several
+            roots (a list) are merged into one view (`lads.intensity.splits.merged_view`).
         sensor: sensor profile of the frames (default: the reader's).
         frames: synth only: number of frames; readers: at most this many (0 = all).
         seed: synth street seed; also seeds the weather stage for weather sources.
-        holdout: relative paths (as the reader names items) never used for training.
+        split: {"train" | "validation" | "test": shell patterns of frame names}: which
+            frames train, which choose (validation) and which judge (test) a model
+            (`lads.intensity.splits`); empty = every frame trains.
         weather: for weather sources: the physics stage applied first, e.g.
             {"stage": "snow", "rate_mm_h": 2.5}.
         extinction_per_m: alpha assumed for target recordings in weather (1/m), used in
             their I_P; sources in weather take alpha from the physics stage.
         azimuth_bins: synth only: beams per ring (default the profile's width).
+        also: more datasets of the same sensor in this role, each with its own dataset,
+            root and split (e.g. a test scene recorded elsewhere, in another layout).
         data_root: the folder a relative `root` is taken from (set when the config is
             loaded, never in the YAML; not part of the data hash).
     """
 
     dataset: str
-    root: str | None = None
+    root: str | tuple[str, ...] | None = None
     sensor: str | None = None
     frames: int = 0
     seed: int = 0
-    holdout: tuple[str, ...] = ()
+    split: dict[str, tuple[str, ...]] = field(default_factory=dict)
     weather: dict[str, Any] = field(default_factory=dict)
     extinction_per_m: float = 0.0
     azimuth_bins: int | None = None
+    also: tuple[DomainSpec, ...] = ()
     data_root: str | None = None
 
+    def members(self) -> tuple[tuple[str, DomainSpec], ...]:
+        """(tag, domain) of this domain ("") and of each `also` dataset ("also1", ...)."""
+        return (("", self), *((f"also{i}", d) for i, d in enumerate(self.also, 1)))
+
     def root_path(self) -> Path | None:
+        """The dataset root (a merged view of several roots), None for synth."""
         if self.root is None:
             return None
-        p = Path(self.root).expanduser()
+        if isinstance(self.root, tuple):
+            return merged_view([self._resolve(r) for r in self.root])
+        return self._resolve(self.root)
+
+    def _resolve(self, root: str) -> Path:
+        p = Path(root).expanduser()
         if p.is_absolute() or self.data_root is None:
             return p
         return (Path(self.data_root) / p).resolve()
@@ -123,6 +140,9 @@ class TrainConfig:
         checkpoint_every: steps between resumable checkpoints.
         losses: LossWeights.
         workers: parallel jobs for building the cache.
+        residual: the generator predicts a correction, in log intensity, to the physics law
+            fitted on the target's training frames (and carries that law in its weights),
+            instead of the intensity outright.
     """
 
     name: str
@@ -143,6 +163,7 @@ class TrainConfig:
     losses: LossWeights = LossWeights()
     workers: int = 2
     description: str = ""
+    residual: bool = False
 
     def run_path(self, run_dir: Path | None = None) -> Path:
         """The run folder: `run_dir`, else `runs/<name>` under the working directory."""
@@ -161,8 +182,9 @@ class TrainConfig:
         """Hash of everything that decides the cached inputs (not the optimisation)."""
         pairs = [asdict(p) for p in self.pairs]
         for pair in pairs:  # where the data lives on this machine does not change them
-            pair["source"].pop("data_root")
-            pair["target"].pop("data_root")
+            for role in ("source", "target"):
+                for domain in (pair[role], *pair[role]["also"]):
+                    domain.pop("data_root")
         payload = {"pairs": pairs, "n": self.range_exponent}
         return hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()[:16]
 
@@ -170,7 +192,7 @@ class TrainConfig:
 _TOP = {
     "schema_version", "name", "kind", "description", "pairs", "output", "range_exponent",
     "steps", "batch", "crop_width", "lr", "betas", "base", "blocks", "disc_base", "seed",
-    "checkpoint_every", "losses", "workers",
+    "checkpoint_every", "losses", "workers", "residual",
 }  # fmt: skip
 _DOMAIN = set(DomainSpec.__dataclass_fields__) - {"data_root"}
 _LOSSES = set(LossWeights.__dataclass_fields__)
@@ -214,7 +236,11 @@ def resolve_roots(cfg: TrainConfig, data_root: Path | None, where: str) -> Train
     """`cfg` with `data_root` recorded in every domain whose root is relative."""
 
     def fix(domain: DomainSpec, ctx: str) -> DomainSpec:
-        if domain.root is None or Path(domain.root).expanduser().is_absolute():
+        if domain.also:
+            also = tuple(fix(d, f"{ctx}.also[{i}]") for i, d in enumerate(domain.also))
+            domain = replace(domain, also=also)
+        roots = domain.root if isinstance(domain.root, tuple) else (domain.root,)
+        if domain.root is None or all(Path(r).expanduser().is_absolute() for r in roots):
             return domain
         if data_root is None:
             raise ConfigError(
@@ -274,13 +300,29 @@ def parse_train_config(raw: Any, where: str) -> TrainConfig:
     return cfg
 
 
-def _domain(raw: Any, where: str) -> DomainSpec:
+def _domain(raw: Any, where: str, nested: bool = False) -> DomainSpec:
     if not isinstance(raw, dict) or "dataset" not in raw:
         raise ConfigError(f"{where}: expected a mapping with at least 'dataset'.")
+    if "holdout" in raw:
+        raise ConfigError(
+            f"{where}: 'holdout' is replaced by 'split' ({{train: [...], validation: [...], "
+            "test: [...]}}, frame-name patterns chosen by place); see pipelines/README.md."
+        )
     _reject(raw, _DOMAIN, where)
     values = dict(raw)
-    values["holdout"] = tuple(values.get("holdout", ()) or ())
+    if isinstance(values.get("root"), list):
+        values["root"] = tuple(str(r) for r in values["root"])
+    split = values.get("split") or {}
+    if not isinstance(split, dict) or set(split) - set(SPLITS):
+        raise ConfigError(
+            f"{where}: split must map some of {list(SPLITS)} to lists of frame-name patterns."
+        )
+    values["split"] = {k: tuple(str(p) for p in (v or ())) for k, v in split.items()}
     values["weather"] = dict(values.get("weather", {}) or {})
+    also = values.get("also") or []
+    if also and (nested or not isinstance(also, list)):
+        raise ConfigError(f"{where}: 'also' is a list of domains, and only one level deep.")
+    values["also"] = tuple(_domain(d, f"{where}.also[{i}]", True) for i, d in enumerate(also))
     spec = DomainSpec(**values)
     if spec.dataset != "synth" and spec.root is None:
         raise ConfigError(f"{where}: dataset {spec.dataset!r} needs a 'root'.")

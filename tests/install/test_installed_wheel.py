@@ -156,7 +156,8 @@ def test_train_and_evaluate_a_user_config(venv: Path, tmp_path: Path) -> None:
         "pairs": {"kitti": {
             "source": {"dataset": "synth", "sensor": "hdl64e", "frames": 2, "seed": 1},
             "target": {"dataset": "semantickitti", "root": "target",
-                       "holdout": ["sequences/00/velodyne/000002.bin"]},
+                       "split": {"train": ["sequences/00/velodyne/00000[01].bin"],
+                                 "test": ["sequences/00/velodyne/000002.bin"]}},
         }},
         "steps": 2, "base": 4, "blocks": 1, "batch": 1, "crop_width": 64, "workers": 1,
     }  # fmt: skip

@@ -17,13 +17,11 @@ import pytest
 
 from lads.errors import ConfigError, InputDataError, InvalidPointsError
 from lads.intensity import eval_figures
+from lads.intensity.baselines import BASELINES, MIN_CLASS_REFERENCE_POINTS, fit_baselines
 from lads.intensity.evaluate import (
-    BASELINES,
-    MIN_CLASS_REFERENCE_POINTS,
     EvalFrame,
     class_ids,
     evaluate,
-    fit_baselines,
     physics_image,
     retro_classes,
     write_report,
@@ -277,7 +275,7 @@ def test_an_empty_reference_cannot_fit_baselines():
     with pytest.raises(InputDataError, match="no reference frames"):
         fit_baselines([])
     empty = EvalFrame("empty", np.zeros((0, 3), np.float32), np.zeros(0, np.float32), HDL64)
-    with pytest.raises(InputDataError, match="hold no points"):
+    with pytest.raises(InputDataError, match="no reference frames with points"):
         fit_baselines([empty])
 
 

@@ -92,11 +92,11 @@ def _other_range_exponent(raw: dict) -> None:
     raw["range_exponent"] = 2.0
 
 
-def _no_holdout(raw: dict) -> None:
-    raw["pairs"]["kitti"]["target"]["holdout"] = []
+def _no_split(raw: dict) -> None:
+    raw["pairs"]["kitti"]["target"]["split"] = {}
 
 
-@pytest.mark.parametrize("change", [_more_source_frames, _other_range_exponent, _no_holdout])
+@pytest.mark.parametrize("change", [_more_source_frames, _other_range_exponent, _no_split])
 def test_another_cache_recomputes_the_statistics(target_tree, tmp_path, passes, change):
     raw = _config(target_tree, tmp_path / "w.pt")
     run = tmp_path / "run"

@@ -27,8 +27,9 @@ def _config(target_root: Path, output: Path, **changes) -> dict:
             "kitti": {
                 "source": {"dataset": "synth", "sensor": "hdl64e", "frames": 2, "seed": 4,
                            "azimuth_bins": 256},  # fmt: skip
-                "target": {"dataset": "semantickitti", "root": str(target_root),
-                           "holdout": ["sequences/00/velodyne/000002.bin"]},  # fmt: skip
+                "target": {"dataset": "semantickitti", "root": str(target_root), "split": {
+                    "train": ["sequences/00/velodyne/00000[01].bin"],
+                    "validation": ["sequences/00/velodyne/000002.bin"]}},  # fmt: skip
             }
         },
         "steps": 4, "batch": 2, "crop_width": 64, "base": 4, "blocks": 1, "disc_base": 4,
@@ -46,17 +47,28 @@ def target_tree(tmp_path_factory) -> Path:
     return root
 
 
-def test_held_out_frames_never_enter_the_cache(target_tree, tmp_path):
+def test_validation_and_test_frames_never_enter_the_cache(target_tree, tmp_path):
     cfg = parse_train_config(_config(target_tree, tmp_path / "w.pt"), "test")
     frames = {j.frame for j in list_jobs(cfg) if j.role == "target"}
     assert "sequences/00/velodyne/000002.bin" not in frames and len(frames) == 2
 
 
-def test_a_holdout_that_matches_nothing_is_an_error(target_tree, tmp_path):
+def test_a_split_pattern_that_matches_nothing_is_an_error(target_tree, tmp_path):
     raw = _config(target_tree, tmp_path / "w.pt")
-    raw["pairs"]["kitti"]["target"]["holdout"] = ["sequences/00/velodyne/999999.bin"]
+    raw["pairs"]["kitti"]["target"]["split"]["test"] = ["sequences/00/velodyne/999999.bin"]
     with pytest.raises(TrainingError, match="999999"):
         list_jobs(parse_train_config(raw, "test"))
+
+
+def test_overlapping_splits_and_the_old_holdout_key_are_refused(target_tree, tmp_path):
+    raw = _config(target_tree, tmp_path / "w.pt")
+    raw["pairs"]["kitti"]["target"]["split"]["test"] = ["sequences/00/velodyne/000001.bin"]
+    with pytest.raises(TrainingError, match="both split.train and split.test"):
+        list_jobs(parse_train_config(raw, "test"))
+    raw = _config(target_tree, tmp_path / "w.pt")
+    raw["pairs"]["kitti"]["target"]["holdout"] = ["sequences/00/velodyne/000002.bin"]
+    with pytest.raises(ConfigError, match="replaced by 'split'"):
+        parse_train_config(raw, "test")
 
 
 def test_unknown_keys_and_bad_weather_pairs_are_config_errors(target_tree, tmp_path):
@@ -85,7 +97,7 @@ def test_training_writes_weights_loss_figure_and_checkpoint(target_tree, tmp_pat
     assert summary["steps_done"] == 4
     model = load_model(tmp_path / "w.pt")
     assert model.meta.targets["kitti"].sensor == "hdl64e"
-    assert model.meta.training["steps"] == 4
+    assert model.meta.training["steps"] == summary["selected_step"]
     assert (tmp_path / "run" / "loss.png").read_bytes().startswith(PNG)
     assert (tmp_path / "run" / CHECKPOINT).is_file()
 
@@ -109,3 +121,54 @@ def test_a_checkpoint_of_another_config_is_refused(target_tree, tmp_path):
     changed = dataclasses.replace(cfg, lr=1e-3)
     with pytest.raises(TrainingError, match="another config"):
         train(changed, run_dir=tmp_path / "run", progress=False)
+
+
+def test_the_weights_are_the_checkpoint_that_scored_best_on_validation(target_tree, tmp_path):
+    import json
+
+    cfg = parse_train_config(_config(target_tree, tmp_path / "w.pt", steps=6), "test")
+    summary = train(cfg, run_dir=tmp_path / "run", progress=False)
+    record = json.loads((tmp_path / "run" / "selection.json").read_text())
+    assert [h["step"] for h in record["history"]] == [2, 4, 6]
+    best = min(record["history"], key=lambda h: h["score"])
+    assert summary["selected_step"] == best["step"] == record["best"]["step"]
+    assert (tmp_path / "w.pt").read_bytes() == (tmp_path / "run" / "best.pt").read_bytes()
+    assert load_model(tmp_path / "w.pt").meta.training["steps"] == best["step"]
+
+
+def test_evaluation_fits_baselines_on_train_frames_and_scores_only_its_split(
+    target_tree, tmp_path, monkeypatch
+):
+    from lads.intensity import baselines
+    from lads.intensity.commands import evaluate_pair
+
+    cfg = parse_train_config(_config(target_tree, tmp_path / "w.pt"), "test")
+    train(cfg, run_dir=tmp_path / "run", progress=False)
+    seen = {}
+    real_fit = baselines.fit_baselines
+
+    def spy(reference, **kwargs):
+        frames = list(reference)
+        seen["reference"] = [f.name for f in frames]
+        return real_fit(frames, **kwargs)
+
+    monkeypatch.setattr(baselines, "fit_baselines", spy)
+    result = evaluate_pair(cfg, cfg.pairs[0], str(tmp_path / "w.pt"), tmp_path / "ev",
+                           split="validation", figures=False)  # fmt: skip
+    assert seen["reference"] == ["sequences/00/velodyne/000000.bin",
+                                 "sequences/00/velodyne/000001.bin"]  # fmt: skip
+    assert result["frames"] == ["sequences/00/velodyne/000002.bin"]
+    assert "bound_in_sample" in result["methods"] and "per_class_median" in result["methods"]
+    with pytest.raises(TrainingError, match="no test frame"):
+        evaluate_pair(cfg, cfg.pairs[0], str(tmp_path / "w.pt"), tmp_path / "ev2")
+
+
+def test_a_residual_run_stores_the_law_fitted_on_its_training_frames(target_tree, tmp_path):
+    from lads.intensity.fitted_physics import FittedPhysics
+
+    cfg = parse_train_config(_config(target_tree, tmp_path / "w.pt", residual=True), "test")
+    summary = train(cfg, run_dir=tmp_path / "run", progress=False)
+    model = load_model(summary["weights"])
+    law = FittedPhysics.from_json(model.meta.targets["kitti"].law)
+    assert law.intercepts and -3.0 < law.b1 < 3.0
+    assert model.meta.training["physics_reference"]["kitti"]["points"] > 1000

@@ -27,12 +27,18 @@ def test_a_shipped_config_needs_a_data_root(monkeypatch):
 
 def test_relative_roots_are_taken_from_the_data_root_or_the_environment(tmp_path, monkeypatch):
     monkeypatch.delenv(DATA_ROOT_ENV, raising=False)
+    for data in (tmp_path, tmp_path / "elsewhere"):
+        for name in ("wads", "wads-more", "radiate"):
+            (data / name / "x").mkdir(parents=True)
+            (data / name / "x" / f"{name}.txt").write_text(str(data))
     cfg = load_train_config("weather", data_root=tmp_path)
-    roots = {p.key: p.target.root_path() for p in cfg.pairs}
-    assert roots == {"snow": tmp_path / "wads", "fog": tmp_path / "radiate"}
+    snow, fog = (p.target for p in cfg.pairs)
+    assert fog.root_path() == tmp_path / "radiate"
+    merged = snow.root_path()  # two roots, one view of symbolic links
+    assert (merged / "x" / "wads-more.txt").read_text() == str(tmp_path)
     monkeypatch.setenv(DATA_ROOT_ENV, str(tmp_path / "elsewhere"))
     moved = load_train_config("weather")
-    assert moved.pairs[0].target.root_path() == tmp_path / "elsewhere" / "wads"
+    assert moved.pairs[1].target.root_path() == tmp_path / "elsewhere" / "radiate"
     assert moved.data_hash() == cfg.data_hash()  # where the data lives is not what it is
 
 

@@ -1,0 +1,129 @@
+"""The fitted physics law, the baselines fitted on training frames, splits by place and the
+choice of a model on validation frames."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from lads.errors import ConfigError
+from lads.intensity import fitted_physics
+from lads.intensity.baselines import InSampleBound, fit_baselines
+from lads.intensity.evaluate import EvalFrame, class_ids, evaluate, physics_image
+from lads.intensity.features import channel_names, frame_image
+from lads.intensity.law_reference import TorchLaw
+from lads.intensity.splits import merged_view, split_frames
+from lads.sensors.profile import load_profile
+from lads.synth import synth_frame
+
+HDL64 = load_profile("hdl64e")
+TRUE = {"b1": 0.6, "b2": -0.4, "sigma": 0.5, "a": {40: -2.0, 50: -1.2, 70: -1.6}}
+
+
+def law_data(n: int, seed: int, noise: float = 0.05):
+    rng = np.random.default_rng(seed)
+    group = rng.choice(list(TRUE["a"]), n)
+    r = rng.uniform(3, 70, n)
+    cos = rng.uniform(0.05, 1.0, n)
+    a = np.array([TRUE["a"][g] for g in group])
+    ln = (a + TRUE["b1"] * np.log(r) + TRUE["b2"] * r / 10
+          + np.log(fitted_physics.oren_nayar(cos, TRUE["sigma"])))  # fmt: skip
+    refl = np.exp(ln + rng.laplace(0, noise, n)) - 0.005
+    return group, r, cos, np.maximum(refl, 0)
+
+
+def test_the_law_recovers_its_parameters_from_noisy_data():
+    group, r, cos, refl = law_data(20000, 0)
+    law = fitted_physics.fit(group, r, cos, refl, floor=0.005)
+    assert law.b1 == pytest.approx(TRUE["b1"], abs=0.03)
+    assert law.b2 == pytest.approx(TRUE["b2"], abs=0.03)
+    assert law.sigma_rad == pytest.approx(TRUE["sigma"], abs=0.1)
+    for g, a in TRUE["a"].items():
+        assert law.intercepts[g] == pytest.approx(a, abs=0.08)
+    again = fitted_physics.FittedPhysics.from_json(law.to_json())
+    assert np.allclose(again.predict(group, r, cos), law.predict(group, r, cos))
+
+
+def test_lambert_is_oren_nayar_without_roughness_and_rough_surfaces_stay_bright():
+    cos = np.linspace(0.01, 1, 50)
+    assert np.allclose(fitted_physics.oren_nayar(cos, 0.0), cos)
+    assert fitted_physics.oren_nayar(np.array([0.1]), 1.0)[0] > 0.1 * 3
+
+
+def test_rare_groups_take_the_pooled_intercept():
+    group, r, cos, refl = law_data(5000, 1)
+    group[:10] = 999  # ten points of a group: too few to fit on its own
+    law = fitted_physics.fit(group, r, cos, refl, floor=0.005)
+    assert 999 not in law.intercepts
+    assert law.ln_predict([999], [10.0], [0.5])[0] == pytest.approx(
+        law.pooled_intercept + law.b1 * np.log(10) + law.b2
+        + np.log(fitted_physics.oren_nayar(np.array([0.5]), law.sigma_rad))[0]
+    )  # fmt: skip
+
+
+def test_the_torch_law_equals_the_numpy_law_on_a_frame():
+    group, r, cos, refl = law_data(4000, 2)
+    law = fitted_physics.fit(group % 5, r, cos, refl, floor=0.005)  # groups as material ids
+    frame = synth_frame("hdl64e", frames=1, seed=1, index=0, azimuth_bins=256)
+    fi = frame_image(frame.xyz, HDL64, labels=frame.labels, label_set="semantickitti")
+    names = channel_names(False)
+    raw = torch.from_numpy(fi.inputs)[None]
+    torch_ln = TorchLaw.of(law, names).ln_reference(raw, torch.zeros(1))[0, 0].numpy()
+    occ = fi.inputs[names.index("mask")] > 0
+    x = {n: fi.inputs[names.index(n)][occ] for n in ("ln_range", "cos_incidence", "material")}
+    numpy_ln = law.ln_predict(np.rint(x["material"]).astype(int) - 1, np.exp(x["ln_range"]),
+                              x["cos_incidence"])  # fmt: skip
+    assert np.allclose(torch_ln[occ], numpy_ln, atol=1e-4)
+
+
+def _frame(name: str, seed: int) -> EvalFrame:
+    f = synth_frame("hdl64e", frames=1, seed=seed, index=0, azimuth_bins=256)
+    return EvalFrame(name, f.xyz, f.intensity, HDL64, f.labels, "semantickitti")
+
+
+def test_per_class_median_and_fitted_physics_are_fitted_on_the_reference_frames_only():
+    train, test = _frame("train", 1), _frame("test", 2)
+    methods = fit_baselines([train])
+    cls = class_ids(train.labels, "semantickitti")
+    refl = HDL64.intensity.to_reflectivity(train.intensity)
+    road = int(np.bincount(cls).argmax())
+    got = methods["per_class_median"](test)[class_ids(test.labels, "semantickitti") == road]
+    assert np.allclose(got, HDL64.intensity.from_reflectivity([np.median(refl[cls == road])]))
+    law = methods["fitted_physics"].law
+    assert law.points == train.n_points and set(law.intercepts) <= set(np.unique(cls).tolist())
+
+
+def test_the_in_sample_bound_beats_the_per_class_median_on_its_own_points():
+    frames = [_frame("a", 3), _frame("b", 4)]
+    methods = fit_baselines(frames)
+    methods["bound_in_sample"] = InSampleBound.of(frames)
+    result = evaluate(frames, methods)
+    mae = {m: row["mae_reflectivity"] for m, row in result.pooled.items()}
+    assert mae["bound_in_sample"] < mae["per_class_median"]
+    assert "bound_in_sample" not in result.summary["best"]["mae_reflectivity"]
+    assert physics_image(frames[0]).range_m.shape == (frames[0].n_points,)
+
+
+def test_splits_are_disjoint_and_every_pattern_matches():
+    names = [f"s/{i:02d}.bin" for i in range(10)]
+    split = {"train": ("s/0[0-5].bin",), "validation": ("s/0[6-7].bin",), "test": ("s/0[89].bin",)}
+    got = split_frames(names, split, "here")
+    assert [len(got[k]) for k in ("train", "validation", "test")] == [6, 2, 2]
+    assert split_frames(names, {}, "here")["train"] == names
+    with pytest.raises(ConfigError, match="matches no frame"):
+        split_frames(names, {"test": ("x/*.bin",)}, "here")
+    with pytest.raises(ConfigError, match="both split.train and split.test"):
+        split_frames(names, {"train": ("s/*",), "test": ("s/09.bin",)}, "here")
+
+
+def test_a_merged_view_links_every_root_and_refuses_collisions(tmp_path: Path):
+    for root, name in (("a", "x/1.bin"), ("b", "y/2.bin"), ("c", "x/1.bin")):
+        (tmp_path / root / name).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / root / name).write_text(root)
+    view = merged_view([tmp_path / "a", tmp_path / "b"])
+    assert (view / "x/1.bin").read_text() == "a" and (view / "y/2.bin").read_text() == "b"
+    with pytest.raises(ConfigError, match="two dataset roots"):
+        merged_view([tmp_path / "a", tmp_path / "c"])
