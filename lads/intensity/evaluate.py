@@ -36,6 +36,7 @@ from scipy import stats
 
 from lads.errors import ConfigError, InputDataError, InvalidPointsError
 from lads.files import atomic_write
+from lads.intensity import targets
 from lads.intensity.features import FrameImage, frame_image
 from lads.jsontypes import json_types
 from lads.physics.materials import LABEL_SETS, class_materials
@@ -209,7 +210,8 @@ class EvalResult:
         per_frame: frame -> method -> metrics (keys: see `METRIC_KEYS`).
         pooled: method -> metrics on all held-out points together.
         summary: {"subject", "metrics", "beats": {metric: {baseline: bool}}, "best":
-            {metric: [methods]}}; `beats` is empty when there is no subject method.
+            {metric: [methods]}, "targets": [rows of `targets.check`]}; `beats` and
+            `targets` are empty when there is no subject method.
         predictions: frame -> method -> (N,) float32 prediction in the frame's encoding.
         real: frame -> (N,) float32 measured intensity.
         classes: frame -> (N,) int32 index into `class_names` of every point.
@@ -308,12 +310,18 @@ def evaluate(
         m: _metrics(pooled_ctx, np.concatenate([predictions[f.name][m] for f in frames]), names)
         for m in methods
     }
+    counts = np.bincount(pooled_ctx.cls, minlength=len(names))
+    summary = summarise(pooled, subject)
+    summary["targets"] = targets.check(
+        pooled, {n: int(c) for n, c in zip(names, counts, strict=True)},
+        frames[0].profile.name, subject=subject, bound_prefix=BOUND_PREFIX,
+    )  # fmt: skip
     return EvalResult(
         methods=tuple(methods),
         frame_names=tuple(f.name for f in frames),
         per_frame=per_frame,
         pooled=pooled,
-        summary=summarise(pooled, subject),
+        summary=summary,
         predictions=predictions,
         real={f.name: f.intensity for f in frames},
         classes={f.name: c.cls.astype(np.int32) for f, c in zip(frames, contexts, strict=True)},
@@ -610,6 +618,9 @@ def markdown_report(result: EvalResult, *, title: str, context: Mapping[str, Any
     ]
     lines += _table(result.pooled)
     lines += ["", *verdicts(result.summary, result.pooled), ""]
+    if result.summary.get("targets"):
+        lines += ["## Targets (lads.intensity.targets)", ""]
+        lines += [*targets.lines(result.summary["targets"]), ""]
     lines += ["## Per frame: MAE (refl.) / cell W1 (refl.)", ""]
     lines.append("| frame | " + " | ".join(result.methods) + " |")
     lines.append("|---|" + "---|" * len(result.methods))

@@ -18,7 +18,10 @@ Fitted on training frames only: for each sigma of a grid, the linear parameters 
 iteratively reweighted least squares on |residual| (a least-absolute-deviation fit, whose
 prediction is the conditional median: the MAE-optimal point value); the sigma with the
 smallest mean absolute residual wins. Groups seen fewer than MIN_GROUP_POINTS times take
-the pooled intercept. Pure numpy, no I/O.
+the pooled intercept. Only returns beyond the near field (`NEAR_FIELD_M`, where ego-body
+and mounting-offset returns sit) are fitted, and the law is evaluated with the range clamped
+to the fitted support [range_min_m, range_max_m]: a power law in R extrapolated to a 0.1 m
+ego return would be several e-folds off. Pure numpy, no I/O.
 """
 
 from __future__ import annotations
@@ -28,6 +31,8 @@ from typing import Any
 
 import numpy as np
 import numpy.typing as npt
+
+from lads.sensors.conformity import NEAR_FIELD_M
 
 SIGMA_GRID_RAD: tuple[float, ...] = tuple(np.round(np.linspace(0.0, 1.2, 13), 3))
 MIN_GROUP_POINTS = 50
@@ -55,6 +60,8 @@ class FittedPhysics:
     b2: float
     sigma_rad: float
     floor: float
+    range_min_m: float = 1e-3
+    range_max_m: float = float("inf")
     mae_log: float = 0.0
     points: int = 0
     counts: dict[int, int] = field(default_factory=dict)
@@ -64,13 +71,20 @@ class FittedPhysics:
         extinction_per_m: float = 0.0,
     ) -> npt.NDArray[np.float64]:  # fmt: skip
         """(N,) predicted ln(I + floor) of points of the given groups, ranges and cosines."""
-        r = np.maximum(np.asarray(range_m, dtype=np.float64), 1e-3)
+        r = np.clip(np.asarray(range_m, dtype=np.float64), self.range_min_m, self.range_max_m)
         g = np.asarray(group, dtype=np.int64)
-        a = np.full(len(r), self.pooled_intercept)
-        for key, value in self.intercepts.items():
-            a[g == key] = value
+        a = self.intercept_of(g)
         incidence = np.log(oren_nayar(cos_theta, self.sigma_rad))
         return a + self.b1 * np.log(r) + self.b2 * r / 10.0 + incidence - 2.0 * extinction_per_m * r
+
+    def intercept_of(self, group: npt.NDArray[np.int64]) -> npt.NDArray[np.float64]:
+        """(N,) a_g of each point's group; the pooled intercept for groups not fitted."""
+        if not self.intercepts:
+            return np.full(len(group), self.pooled_intercept)
+        table = np.full(max(self.intercepts) + 1, self.pooled_intercept)
+        table[list(self.intercepts)] = list(self.intercepts.values())
+        known = (group >= 0) & (group < len(table))
+        return np.where(known, table[np.where(known, group, 0)], self.pooled_intercept)
 
     def predict(
         self, group: Any, range_m: Any, cos_theta: Any, extinction_per_m: float = 0.0
@@ -86,12 +100,14 @@ class FittedPhysics:
             intercepts={int(k): float(v) for k, v in raw["intercepts"].items()},
             pooled_intercept=float(raw["pooled_intercept"]), b1=float(raw["b1_ln_range"]),
             b2=float(raw["b2_per_10m"]), sigma_rad=float(raw["sigma_rad"]),
-            floor=float(raw["floor"]),
+            floor=float(raw["floor"]), range_min_m=float(raw["range_min_m"]),
+            range_max_m=float(raw["range_max_m"]),
         )  # fmt: skip
 
     def to_json(self) -> dict[str, Any]:
         return {"b1_ln_range": self.b1, "b2_per_10m": self.b2, "sigma_rad": self.sigma_rad,
                 "pooled_intercept": self.pooled_intercept, "floor": self.floor,
+                "range_min_m": self.range_min_m, "range_max_m": self.range_max_m,
                 "intercepts": {str(k): v for k, v in sorted(self.intercepts.items())},
                 "mae_log_train": self.mae_log, "points": self.points}  # fmt: skip
 
@@ -110,6 +126,9 @@ def fit(
     c = np.asarray(cos_theta, dtype=np.float64)
     alpha = np.broadcast_to(np.asarray(extinction_per_m, dtype=np.float64), r.shape)
     y = np.log(np.asarray(reflectivity, dtype=np.float64) + floor) + 2.0 * alpha * r
+    far = r >= NEAR_FIELD_M
+    if np.count_nonzero(far) >= MIN_GROUP_POINTS:  # else (toy data) every point is fitted
+        g, r, c, y = g[far], r[far], c[far], y[far]
     if len(y) < MIN_GROUP_POINTS:
         raise ValueError(f"{len(y)} training points; the law needs at least {MIN_GROUP_POINTS}.")
     if len(y) > MAX_FIT_POINTS:
@@ -134,7 +153,8 @@ def fit(
     return FittedPhysics(
         intercepts={int(k): float(v) for k, v in zip(kept, beta[: len(kept)], strict=True)},
         pooled_intercept=pooled, b1=float(beta[-2]), b2=float(beta[-1]), sigma_rad=float(sigma),
-        floor=float(floor), mae_log=float(loss), points=len(y),
+        floor=float(floor), range_min_m=float(r.min()), range_max_m=float(r.max()),
+        mae_log=float(loss), points=len(y),
         counts={int(k): int(n) for k, n in zip(keys, counts, strict=True)},
     )  # fmt: skip
 

@@ -51,29 +51,34 @@ def fit_law(frames: Iterable[CachedFrame], floor: float) -> fitted_physics.Fitte
 class TorchLaw:
     """A fitted law evaluated on raw input batches, (B, C, H, W) -> (B, 1, H, W) ln(I + f)."""
 
-    intercepts: torch.Tensor  # (materials,) by material index, pooled where unseen
+    intercepts: torch.Tensor  # (materials + 1,) by material index, pooled where unseen and last
     b1: float
     b2: float
     sigma_rad: float
+    range_m: tuple[float, float]  # the fitted support; ranges are clamped into it
     index: dict[str, int]  # channel name -> position in the raw batch
 
     @classmethod
     def of(cls, law: fitted_physics.FittedPhysics, channels: tuple[str, ...]) -> TorchLaw:
-        table = np.full(len(material_names()), law.pooled_intercept)
+        table = np.full(len(material_names()) + 1, law.pooled_intercept)
         for material, value in law.intercepts.items():
-            if 0 <= material < len(table):
+            if 0 <= material < len(table) - 1:
                 table[material] = value
         names = ("ln_range", "cos_incidence", "material")
         return cls(torch.tensor(table, dtype=torch.float32), law.b1, law.b2, law.sigma_rad,
+                   (law.range_min_m, law.range_max_m),
                    {n: channels.index(n) for n in names})  # fmt: skip
 
     def ln_reference(self, raw: torch.Tensor, extinction: torch.Tensor) -> torch.Tensor:
-        ln_r = raw[:, self.index["ln_range"]]
-        r = torch.exp(ln_r)
+        r = torch.exp(raw[:, self.index["ln_range"]]).clamp(*self.range_m)
+        ln_r = torch.log(r)
         cos = raw[:, self.index["cos_incidence"]].clamp(fitted_physics.COS_FLOOR, 1.0)
         s = self.sigma_rad**2
         a, b = 1.0 - 0.5 * s / (s + 0.33), 0.45 * s / (s + 0.09)
-        material = (raw[:, self.index["material"]].round().long() - 1).clamp(0)
+        material = raw[:, self.index["material"]].round().long() - 1
+        # No material (-1) or one beyond the table: the pooled intercept, as in numpy.
+        unknown = (material < 0) | (material >= len(self.intercepts) - 1)
+        material = torch.where(unknown, len(self.intercepts) - 1, material)
         table = self.intercepts.to(raw.device)
         ln = (table[material] + self.b1 * ln_r + self.b2 * r / 10.0
               + torch.log(a * cos + b * (1.0 - cos**2))

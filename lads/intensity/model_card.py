@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from lads.files import atomic_write, sha256_file
+from lads.intensity import targets
 from lads.intensity.checkpoint import load_model
 from lads.intensity.train_config import TrainConfig, load_train_config
 
@@ -80,6 +81,9 @@ def _metrics_table(results: dict[str, Any]) -> list[str]:
                 else:
                     lines.append(f"- {metric}: the generator beats {', '.join(won) or 'none'}; "
                                  f"does not beat {', '.join(lost)}.")  # fmt: skip
+        rows = res.get("summary", {}).get("targets", [])
+        if rows:
+            lines += ["", "Targets (`lads.intensity.targets`):", "", *targets.lines(rows)]
         lines.append("")
     return lines
 

@@ -76,19 +76,18 @@ def predict_image(
 
 
 def law_z(spec: TargetSpec, fi: FrameImage, extinction_per_m: float) -> npt.NDArray[np.float32]:
-    """(H, W) the target's fitted law in the generator's z-space, on occupied pixels."""
+    """(H, W) the target's fitted law in the generator's z-space, on occupied pixels (0
+    elsewhere); computed on the occupied pixels only."""
     names = fi.channels
-    x = {n: fi.inputs[names.index(n)].astype(np.float64)
-         for n in ("mask", "ln_range", "cos_incidence", "material")}  # fmt: skip
+    occupied = fi.inputs[names.index("mask")] > 0
+    x = {n: fi.inputs[names.index(n)][occupied].astype(np.float64)
+         for n in ("ln_range", "cos_incidence", "material")}  # fmt: skip
     law = FittedPhysics.from_json(spec.law)  # type: ignore[arg-type]
     material = np.rint(x["material"]).astype(np.int64) - 1
-    ln = law.ln_predict(
-        material.ravel(),
-        np.exp(x["ln_range"]).ravel(),
-        x["cos_incidence"].ravel(),
-        extinction_per_m,
-    ).reshape(material.shape)
-    return np.where(x["mask"] > 0, (ln - spec.log_mean) / spec.log_std, 0.0).astype(np.float32)
+    ln = law.ln_predict(material, np.exp(x["ln_range"]), x["cos_incidence"], extinction_per_m)
+    out = np.zeros(occupied.shape, dtype=np.float32)
+    out[occupied] = (ln - spec.log_mean) / spec.log_std
+    return out
 
 
 def predict_points(

@@ -62,6 +62,10 @@ def test_rare_groups_take_the_pooled_intercept():
         law.pooled_intercept + law.b1 * np.log(10) + law.b2
         + np.log(fitted_physics.oren_nayar(np.array([0.5]), law.sigma_rad))[0]
     )  # fmt: skip
+    # Unknown, negative (no material) and fitted groups side by side.
+    known = next(iter(law.intercepts))
+    a = law.intercept_of(np.array([-1, known, 999, 10**6]))
+    assert a.tolist() == [law.pooled_intercept, law.intercepts[known]] + [law.pooled_intercept] * 2
 
 
 def test_the_torch_law_equals_the_numpy_law_on_a_frame():
@@ -77,6 +81,29 @@ def test_the_torch_law_equals_the_numpy_law_on_a_frame():
     numpy_ln = law.ln_predict(np.rint(x["material"]).astype(int) - 1, np.exp(x["ln_range"]),
                               x["cos_incidence"])  # fmt: skip
     assert np.allclose(torch_ln[occ], numpy_ln, atol=1e-4)
+
+
+def test_ego_returns_neither_move_the_fit_nor_blow_up_near_the_sensor():
+    group, r, cos, refl = law_data(20000, 0)
+    group = np.vectorize({40: 3, 50: 5, 70: 7}.get)(group)  # as material indices
+    ego = 3000  # dark returns from the car body, 0.05-0.3 m from the sensor
+    group = np.concatenate([group, np.full(ego, 7)])
+    r = np.concatenate([r, np.linspace(0.05, 0.3, ego)])
+    cos, refl = np.concatenate([cos, np.full(ego, 0.4)]), np.concatenate([refl, np.full(ego, 0.02)])
+    law = fitted_physics.fit(group, r, cos, refl, floor=0.005)
+    assert law.b1 == pytest.approx(TRUE["b1"], abs=0.03)
+    assert law.range_min_m >= 3.0 and law.range_max_m <= 70.0
+    near = law.ln_predict([7, 7], [0.1, law.range_min_m], [0.4, 0.4])
+    assert near[0] == near[1]  # clamped to the fitted support, not extrapolated
+    # The torch law agrees with numpy there too, and on pixels without a material.
+    names = channel_names(False)
+    raw = torch.zeros(1, len(names), 1, 4)
+    raw[0, names.index("ln_range"), 0] = torch.log(torch.tensor([0.1, 5.0, 500.0, 20.0]))
+    raw[0, names.index("cos_incidence"), 0] = torch.tensor([0.4, 0.9, 0.5, 0.7])
+    raw[0, names.index("material"), 0] = torch.tensor([8.0, 0.0, 4.0, 999.0])
+    torch_ln = TorchLaw.of(law, names).ln_reference(raw, torch.zeros(1))[0, 0, 0].numpy()
+    numpy_ln = law.ln_predict([7, -1, 3, 998], [0.1, 5.0, 500.0, 20.0], [0.4, 0.9, 0.5, 0.7])
+    assert np.allclose(torch_ln, numpy_ln, atol=1e-4)
 
 
 def _frame(name: str, seed: int) -> EvalFrame:

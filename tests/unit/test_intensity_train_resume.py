@@ -11,10 +11,12 @@ import numpy as np
 import pytest
 import torch
 
+from lads.intensity import run_statistics as stats_module
 from lads.intensity import train as train_module
 from lads.intensity.cache import Statistics, build_cache, compute_statistics, iter_frames
 from lads.intensity.features import NORMALISED_CHANNELS, channel_names
-from lads.intensity.train import STATISTICS, PairFacts, RunStatistics, Sampler, train
+from lads.intensity.run_statistics import STATISTICS, PairFacts, RunStatistics
+from lads.intensity.train import Sampler, train
 from lads.intensity.train_config import DomainSpec, PairSpec, parse_train_config
 from tests.unit import test_intensity_training as training
 
@@ -37,7 +39,7 @@ class StatisticsPasses:
 @pytest.fixture
 def passes(monkeypatch) -> StatisticsPasses:
     counter = StatisticsPasses()
-    monkeypatch.setattr(train_module, "compute_statistics", counter)
+    monkeypatch.setattr(stats_module, "compute_statistics", counter)
     return counter
 
 
@@ -63,7 +65,7 @@ def test_a_second_start_reuses_the_stored_statistics(tiny, tmp_path, passes):
     assert passes.calls == 1 and (run / STATISTICS).is_file()
     _start(tiny, run)
     jobs = build_cache(run, tiny, progress=False)
-    stored = train_module.run_statistics(run, tiny, jobs, CHANNELS)
+    stored = stats_module.run_statistics(run, tiny, jobs, CHANNELS)
     assert passes.calls == 1  # neither the second start nor run_statistics re-read the cache
     fresh = PairFacts(tiny.pairs)
     stats = compute_statistics(fresh.observe(iter_frames(run, jobs)), CHANNELS, tiny.pairs)
@@ -79,7 +81,7 @@ def test_weights_are_the_same_bytes_with_stored_or_computed_statistics(tiny, tmp
     def no_pass(*args, **kwargs):
         raise AssertionError("the statistics pass ran although they were stored")
 
-    monkeypatch.setattr(train_module, "compute_statistics", no_pass)
+    monkeypatch.setattr(stats_module, "compute_statistics", no_pass)
     train(tiny, run_dir=tmp_path / "stored", progress=False)
     assert (tmp_path / "w.pt").read_bytes() == computed
 
@@ -122,7 +124,7 @@ def test_a_rebuilt_cache_frame_recomputes_the_statistics(tiny, tmp_path, passes)
 
 def test_a_new_feature_version_recomputes_the_statistics(tiny, tmp_path, passes, monkeypatch):
     _start(tiny, tmp_path / "run")
-    monkeypatch.setattr(train_module, "FEATURE_VERSION", train_module.FEATURE_VERSION + "-next")
+    monkeypatch.setattr(stats_module, "FEATURE_VERSION", stats_module.FEATURE_VERSION + "-next")
     _start(tiny, tmp_path / "run")
     assert passes.calls == 2
 
@@ -133,7 +135,7 @@ def test_an_edited_sensor_floor_recomputes_the_statistics(tiny, tmp_path, passes
     def floors(stats):
         return {sensor: 0.125 for sensor in stats.calibration}
 
-    monkeypatch.setattr(train_module, "_floors", floors)
+    monkeypatch.setattr(stats_module, "_floors", floors)
     _start(tiny, tmp_path / "run")
     assert passes.calls == 2
 
@@ -148,7 +150,7 @@ def _edit(text: str, change, *, redigest: bool) -> str:
     document = json.loads(text)
     change(document["content"])
     if redigest:
-        document["content_sha256"] = train_module._content_digest(document["content"])
+        document["content_sha256"] = stats_module._content_digest(document["content"])
     return json.dumps(document)
 
 
@@ -218,9 +220,9 @@ def test_stored_statistics_round_trip_exactly_with_nan_infinities_and_ints():
 # --- The sampler's frame cache ---------------------------------------------------------
 
 
-def _jobs(n: int) -> list[train_module.CacheJob]:
+def _jobs(n: int) -> list[stats_module.CacheJob]:
     domain = DomainSpec("synth", frames=n)
-    return [train_module.CacheJob("p", "source", domain, f"synth-{i:06d}", "sensor", 1.0)
+    return [stats_module.CacheJob("p", "source", domain, f"synth-{i:06d}", "sensor", 1.0)
             for i in range(n)]  # fmt: skip
 
 
