@@ -81,10 +81,12 @@ class FittedPhysics:
         """(N,) a_g of each point's group; the pooled intercept for groups not fitted."""
         if not self.intercepts:
             return np.full(len(group), self.pooled_intercept)
-        table = np.full(max(self.intercepts) + 1, self.pooled_intercept)
-        table[list(self.intercepts)] = list(self.intercepts.values())
-        known = (group >= 0) & (group < len(table))
-        return np.where(known, table[np.where(known, group, 0)], self.pooled_intercept)
+        keys = np.fromiter(self.intercepts, dtype=np.int64)
+        low = int(keys.min())  # group ids may be negative (an unlabelled class)
+        table = np.full(int(keys.max()) - low + 1, self.pooled_intercept)
+        table[keys - low] = list(self.intercepts.values())
+        known = (group >= low) & (group < low + len(table))
+        return np.where(known, table[np.where(known, group - low, 0)], self.pooled_intercept)
 
     def predict(
         self, group: Any, range_m: Any, cos_theta: Any, extinction_per_m: float = 0.0

@@ -156,13 +156,18 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--docs", type=Path, default=Path("docs/intensity"),
                         help="where the held-out figures go (<docs>/<name>/)")  # fmt: skip
     parser.add_argument("--data-root", type=Path, default=None)
+    parser.add_argument("--reuse-eval", action="store_true",
+                        help="render from <docs>/<name>/eval.json instead of scoring the test "
+                             "frames again (same weights)")  # fmt: skip
     args = parser.parse_args(argv)
     for name in args.configs:
         cfg = load_train_config(name, data_root=args.data_root)
         weights = (args.weights_dir / f"{cfg.name}.pt") if args.weights_dir else cfg.output_path()
         out_dir = args.docs / cfg.name
         results = {}
-        for pair in cfg.pairs:
+        if args.reuse_eval:
+            results = json.loads((out_dir / "eval.json").read_text())
+        for pair in cfg.pairs if not args.reuse_eval else ():
             if role_split(pair.target, "test", f"pairs.{pair.key}.target"):
                 results[pair.key] = evaluate_pair(cfg, pair, str(weights), out_dir)
         atomic_write(out_dir / "eval.json", json.dumps(results, indent=2, sort_keys=True).encode())

@@ -101,5 +101,5 @@ def lines(rows: list[dict[str, Any]]) -> list[str]:
         value = row["value"]
         text = "–" if value is None or not math.isfinite(value) else f"{value:.4g}"
         verdict = "met" if row["met"] else "MISSED"
-        out.append(f"- {row['target']}: {verdict} ({text} {row['relation']} {shown})")
+        out.append(f"- {row['target']}: {verdict}, {text} (needs {row['relation']} {shown})")
     return out

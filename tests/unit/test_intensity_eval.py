@@ -390,8 +390,8 @@ def test_write_report_writes_json_and_a_markdown_table(result, tmp_path):
     assert "- generator beats worse on MAE" in md
     assert "- generator does not beat oracle on cell W1" in md
     # The fixture's intensities follow the physics law exactly: the fitted law wins there.
-    assert "## Targets" in md and "- mae_vs_median: met" in md
-    assert "- mae_vs_fitted_law: MISSED" in md
+    assert "## Targets" in md and "- mae_vs_median: met, " in md
+    assert "- mae_vs_fitted_law: MISSED, " in md
     assert [r["target"] for r in data["summary"]["targets"]][:3] == [
         "mae_vs_median", "mae_vs_fitted_law", "cell_w1"]  # fmt: skip
 

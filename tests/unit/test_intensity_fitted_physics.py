@@ -66,6 +66,8 @@ def test_rare_groups_take_the_pooled_intercept():
     known = next(iter(law.intercepts))
     a = law.intercept_of(np.array([-1, known, 999, 10**6]))
     assert a.tolist() == [law.pooled_intercept, law.intercepts[known]] + [law.pooled_intercept] * 2
+    negative = fitted_physics.fit(group - 100, r, cos, refl, floor=0.005)  # ids below zero
+    assert negative.intercept_of(np.array([known - 100, -1000]))[0] == law.intercepts[known]
 
 
 def test_the_torch_law_equals_the_numpy_law_on_a_frame():
