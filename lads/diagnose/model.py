@@ -45,9 +45,9 @@ FTOL = 1e-7  # relative loss change to stop at (scipy default 2.2e-9): 1e-7 of ~
 # MIN_GAIN_NATS), and it halves the iterations of the slow per-ring fits
 # L-BFGS memory (scipy default 10). 64 ring gains or 20 class scales each touch a few % of
 # the rows, so the curvature spans orders of magnitude, and with 10 pairs such fits often
-# ran into MAX_ITER. With 30 a full-scan K1 diagnosis spent a third less time fitting, with
-# the same parameters to 4 digits (scratch run). Where the likelihood is flat (the encoding
-# of one nuScenes keyframe, README) the optimum reached can differ.
+# ran into MAX_ITER. A longer memory reaches the same optimum in fewer iterations where the
+# likelihood is well curved; where it is flat (e.g. an encoding fitted on one frame) the
+# optimum reached can differ.
 MAXCOR = 30
 BOUND_TOLERANCE = 0.01  # a parameter within 1 % of its range from a bound is "at the bound"
 # A bound binds when moving 5 % of the range inward costs more than 1e-6 nats per row (the

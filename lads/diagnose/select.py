@@ -25,11 +25,11 @@ MIN_GAIN_NATS = 0.002  # per row: below this an effect is not worth naming
 BASELINE_SHARE = 0.005  # ... nor below 0.5 % of the baseline's held-out deviance (§5.5 step 4)
 # Held-out directional score (model.directional_gain) needed to accept, in cluster standard
 # errors: two-sided 5 % with a Bonferroni correction over the ~20 candidates of a forward
-# step, so a null case rarely admits a chance winner. The score, not the held-out NLL gain,
-# is the test: the gain's z is about half the score's for the same effect (it also pays for
-# the new fit's own noise), so a bar of 3 on the gain was a bar of ~6 on the evidence and
-# missed an attenuation at 2.7 gain-SEs. The gain still decides among passing candidates
-# and must beat `gain_floor`.
+# step, so data without an effect rarely admit a chance winner. The score, not the held-out
+# NLL gain, is the test: the gain's z is about half the score's for the same effect (it also
+# pays for the new fit's own noise), so a bar of 3 on the gain would be a bar of ~6 on the
+# evidence and miss real effects. The gain still decides among passing candidates and must
+# beat `gain_floor`.
 Z_ACCEPT = 3.0
 # The stability resamples re-run the choice at a lower bar: the main selection has already
 # tested significance; a resample asks whether the *same* effect wins when the training
@@ -60,11 +60,11 @@ SCREEN_ROWS = 5000
 # A class whose held-out support has fewer than CROSSFIT_BELOW_GROUPS groups is also scored
 # on the training groups that hold it, each out of sample: the training groups are split in
 # CROSSFIT_FOLDS folds and both the incumbent and the candidate are refitted without each
-# fold (`crossfit_support`). A retro-reflecting sign in a K8 case lay in 8 held-out tiles,
-# gained 12.9 nats per sign beam there, t = 3.6 against the t(7) bar of 4.5 (z = 3), and
-# was chosen in 10 of 10 stability resamples; the training tiles held more signs that no
-# test read. Only candidates that already pass the resamples' bar on their held-out groups
-# are cross-fitted (the refits cost 2 x CROSSFIT_FOLDS fits each).
+# fold (`crossfit_support`). A class in a handful of held-out tiles (a few retro-reflecting
+# signs) can gain strongly there yet miss a t bar with so few degrees of freedom, while the
+# training tiles hold more of it that no test reads. Only candidates that already pass the
+# resamples' bar on their held-out groups are cross-fitted (the refits cost 2 x
+# CROSSFIT_FOLDS fits each).
 CROSSFIT_BELOW_GROUPS = 20
 CROSSFIT_FOLDS = 4
 SHORTLIST = 4
@@ -389,9 +389,8 @@ def _passes(
         return False
     if support is not None and support.delta <= 0.0:
         # A confined effect changes its own rows only: a gain over all rows with a loss on
-        # those is the refitted baseline's (gain, noise, return rate), not the effect's. A
-        # null case (K18, seed 8) took a 4 % "blockage" of a 60 degree sector at z 3.7 over
-        # all rows; on the sector's own tiles the gain was -3.5 SE.
+        # those is the refitted baseline's (gain, noise, return rate), not the effect's: a
+        # small sector effect can pass the z bar over all rows while losing on its own tiles.
         return False
     if c.z > z_accept and c.delta > floor:
         return True
@@ -545,8 +544,8 @@ def forward_backward(
                               base, current, jobs, warm)  # fmt: skip
             # Against the incumbent refitted on the same screening rows: against the one fitted
             # on all rows, the base parameters' own sampling noise (the return rate) moved
-            # every held-out group alike and gave every candidate of a null case the same
-            # gain, far beyond the z bar.
+            # every held-out group alike and could give every candidate the same gain, far
+            # beyond the z bar, with no effect present.
             screen_ref = fit(current.model, d, screen_w, current.theta)
             screen_inc = Incumbent.of(screen_ref, held_out)
             for cand, f in zip(remaining, fits, strict=True):
