@@ -18,7 +18,7 @@ from scipy import stats
 from lads.diagnose.design import Design, group_index
 from lads.diagnose.effects import Effect
 from lads.diagnose.model import Fit, Model, RowTerms, directional_gain, fit, initial_base
-from lads.diagnose.parallel import fit_models, fit_warm, map_fits, one_thread
+from lads.diagnose.parallel import fit_models, fit_warm
 
 K_MAX = 4
 MIN_GAIN_NATS = 0.002  # per row: below this an effect is not worth naming
@@ -34,10 +34,8 @@ Z_ACCEPT = 3.0
 # The stability resamples re-run the choice at a lower bar: the main selection has already
 # tested significance; a resample asks whether the *same* effect wins when the training
 # groups change, and the 70 % frequency rule is the error control there (stability
-# selection). Re-testing at z >= 3 left an effect at z = 3.1 in 4 of 10 resamples.
+# selection). Re-testing at z >= 3 would drop a real effect near the bar from most resamples.
 Z_RESAMPLE = 2.0
-TEST_SHARE = 0.2
-VALIDATION_SHARE = 0.5
 # dBIC is reported in the trace, not used to accept. docs/diagnose.md §5.5 asks for dBIC < -10
 # with n_eff from the Kish design effect; but the design effect measures correlation
 # *between* groups (object reflectance), while per-ring and per-class terms vary *within* a
@@ -71,59 +69,6 @@ SHORTLIST = 4
 SHORTLIST_CONFINED = 2
 CLAIM_FREQUENCY = 0.7
 POSSIBLE_FREQUENCY = 0.3
-
-
-@dataclass(frozen=True)
-class Split:
-    """Row indices of the train, validation and test groups (30/50/20 of the groups).
-
-    A fit reads at most `Settings.fit_rows` rows, which 30 % of the groups supply many times
-    over, while the cluster SE of a held-out gain shrinks with the number of validation
-    groups: 50 % of them there rather than docs/diagnose.md's 20 % halves the variance of every
-    accept/reject decision at no cost in fit quality."""
-
-    train: npt.NDArray[np.int64]
-    validation: npt.NDArray[np.int64]
-    test: npt.NDArray[np.int64]
-    n_groups: dict[str, int]
-
-
-def split_groups(d: Design, rng: np.random.Generator) -> Split:
-    """Assign whole groups to train / validation / test."""
-    groups = np.unique(d.group)
-    order = rng.permutation(groups)
-    n = len(order)
-    n_test = max(1, int(round(TEST_SHARE * n)))
-    n_val = max(1, int(round(VALIDATION_SHARE * n)))
-    test_g, val_g = order[:n_test], order[n_test : n_test + n_val]
-    in_test = np.isin(d.group, test_g)
-    in_val = np.isin(d.group, val_g)
-    rows = np.arange(len(d))
-    return Split(
-        train=rows[~in_test & ~in_val],
-        validation=rows[in_val],
-        test=rows[in_test],
-        n_groups={"train": n - n_test - n_val, "validation": n_val, "test": n_test},
-    )
-
-
-def fit_weights(
-    n: int,
-    rows: npt.NDArray[np.int64],
-    cap: int,
-    rng: np.random.Generator,
-    multiplicity: npt.NDArray[np.float64] | None = None,
-) -> npt.NDArray[np.float64]:
-    """(n,) weights: 1 on at most `cap` of `rows` (a uniform subsample), else 0.
-
-    `multiplicity` (n,) scales them (group bootstrap counts). Subsampling rows keeps every
-    group represented while bounding the cost of a fit."""
-    chosen = rows if len(rows) <= cap else rng.choice(rows, cap, replace=False)
-    w = np.zeros(n)
-    w[chosen] = 1.0
-    if multiplicity is not None:
-        w *= multiplicity
-    return w
 
 
 @dataclass(frozen=True)
@@ -605,79 +550,6 @@ def forward_backward(
     return sel
 
 
-def group_multiplicity(
-    d: Design, rows: npt.NDArray[np.int64], rng: np.random.Generator, by_scan: bool = False
-) -> npt.NDArray[np.float64]:
-    """(N,) bootstrap counts: the groups of `rows` resampled with replacement; `by_scan`:
-    in two stages, the scans with replacement, then each drawn scan's groups."""
-    groups, first = np.unique(d.group[rows], return_index=True)
-    if by_scan:
-        draw = _two_stage_draw(groups, d.scan.numpy()[rows[first]], rng)
-    else:
-        draw = rng.choice(groups, size=len(groups), replace=True)
-    uniq, counts = np.unique(draw, return_counts=True)
-    mult = np.zeros(len(d))
-    pos = np.searchsorted(uniq, d.group[rows])
-    pos = np.clip(pos, 0, len(uniq) - 1)
-    hit = uniq[pos] == d.group[rows]
-    mult[rows[hit]] = counts[pos[hit]]
-    return mult
-
-
-def _two_stage_draw(
-    groups: npt.NDArray[np.int64], scan_of: npt.NDArray[np.int64], rng: np.random.Generator
-) -> npt.NDArray[np.int64]:
-    """Groups drawn scan first (`scan_of`: each group's scan), then within each drawn scan."""
-    scans = np.unique(scan_of)
-    parts = []
-    for s in rng.choice(scans, size=len(scans), replace=True):
-        own = groups[scan_of == s]
-        parts.append(rng.choice(own, size=len(own), replace=True))
-    return np.concatenate(parts)
-
-
 def reference_levels(d: Design) -> tuple[float, float]:
     """(mean ln R, mean ln I_sim) of the design: the centre of the noise model."""
     return float(d.ln_range.mean()), float(d.ln_sim.mean())
-
-
-def bootstrap_weights(
-    d: Design,
-    rows: npt.NDArray[np.int64],
-    cap: int,
-    n: int,
-    rng: np.random.Generator,
-    by_scan: bool = False,
-) -> list[npt.NDArray[np.float64]]:
-    """`n` fit-weight vectors over group-bootstrap resamples of `rows` (drawn in order);
-    `by_scan`: scans first, then groups within them (`group_multiplicity`)."""
-    out = []
-    for _ in range(n):
-        mult = group_multiplicity(d, rows, rng, by_scan)
-        out.append(fit_weights(len(d), rows, cap, rng, mult))
-    return out
-
-
-def _refits(
-    d: Design, ws: list[npt.NDArray[np.float64]], _extra: Any, final: Fit
-) -> list[npt.NDArray[np.float64]]:
-    with one_thread():
-        return [fit(final.model, d, w, final.theta, max_iter=100).theta for w in ws]
-
-
-def bootstrap_params(
-    final: Fit,
-    d: Design,
-    rows: npt.NDArray[np.int64],
-    cap: int,
-    n_boot: int,
-    rng: np.random.Generator,
-    jobs: int = 1,
-) -> npt.NDArray[np.float64]:
-    """(n_boot, P) parameter vectors refitted on group-bootstrap resamples (warm start)."""
-    # Scans first: what varies between scans (their gain, their AGC level, their own
-    # objects) is fixed in a tile bootstrap, whose intervals then missed a scan-level AGC's
-    # beta and an attenuation by 2-3 bootstrap SDs. With one scan this is the tile bootstrap.
-    ws = bootstrap_weights(d, rows, cap, n_boot, rng, by_scan=True)
-    out = map_fits(_refits, d, ws, np.zeros(0, dtype=np.int64), jobs, final)
-    return np.array(out) if out else np.zeros((0, final.model.size))

@@ -13,14 +13,11 @@ from typing import Any
 
 from lads.errors import LadsError, TrainingError
 from lads.files import atomic_write
-from lads.intensity.cache import (
+from lads.intensity.cache import CachedFrame, CacheJob, cache_fingerprint, iter_frames
+from lads.intensity.cache_statistics import (
     STATISTICS_VERSION,
-    CachedFrame,
-    CacheJob,
     Statistics,
-    cache_fingerprint,
     compute_statistics,
-    iter_frames,
     number_from_json,
     number_to_json,
     statistics_from_json,

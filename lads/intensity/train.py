@@ -39,14 +39,8 @@ from tqdm.auto import tqdm
 
 from lads.errors import TrainingError
 from lads.files import atomic_copy, atomic_write, atomic_write_figure
-from lads.intensity.cache import (
-    CachedFrame,
-    CacheJob,
-    Statistics,
-    build_cache,
-    iter_frames,
-    read_frame,
-)
+from lads.intensity.cache import CachedFrame, CacheJob, build_cache, iter_frames, read_frame
+from lads.intensity.cache_statistics import Statistics
 from lads.intensity.checkpoint import (
     MATERIAL_DIMS,
     IntensityModel,

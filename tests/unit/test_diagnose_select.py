@@ -13,17 +13,17 @@ import numpy as np
 import pytest
 import torch
 
+from lads.diagnose.ambiguity import ground_only_rule, resample_swaps
 from lads.diagnose.analysis import (
     EffectReport,
     Settings,
     _ci,
-    _ground_only_rule,
     claim_with_sets,
     diagnose_design,
     effect_family,
     interval95,
-    resample_swaps,
 )
+from lads.diagnose.bootstrap import group_multiplicity
 from lads.diagnose.design import group_index, paired_design, sim_log_variance
 from lads.diagnose.effects import _one_class_scale, azimuth_spacing_deg, candidates, odd_rings
 from lads.diagnose.model import (
@@ -52,7 +52,6 @@ from lads.diagnose.select import (
     crossfit_support,
     domain_rows,
     gain_floor,
-    group_multiplicity,
     reference_levels,
     row_gains,
 )
@@ -599,17 +598,17 @@ def test_on_ground_only_data_exponent_incidence_ring_gains_and_gamma_are_one_amb
     table = make_table(7, group_sd=0.25, noise=0.1)
     ground_only = paired_design(table.take(table.is_ground))
     reasons: list[str] = []
-    sets = _ground_only_rule(ground_only, _selection_of(ground_only, ["C3"]), reasons)
+    sets = ground_only_rule(ground_only, _selection_of(ground_only, ["C3"]), reasons)
     assert [s["ids"] for s in sets] == [["C1", "C3", "C4", "C9"]]
     assert "off the ground" in reasons[0]
     # An encoding gamma scales ln I_sim, which on flat ground is a function of range too.
-    gamma = _ground_only_rule(ground_only, _selection_of(ground_only, ["C9"]), [])
+    gamma = ground_only_rule(ground_only, _selection_of(ground_only, ["C9"]), [])
     assert [s["ids"] for s in gamma] == [["C1", "C3", "C4", "C9"]]
     # With walls and objects in the data (half the groups here) the terms are separable,
     # and an effect outside the ground identities never raises the rule.
     mixed = paired_design(table)
-    assert _ground_only_rule(mixed, _selection_of(mixed, ["C3"]), []) == []
-    assert _ground_only_rule(ground_only, _selection_of(ground_only, ["C5"]), []) == []
+    assert ground_only_rule(mixed, _selection_of(mixed, ["C3"]), []) == []
+    assert ground_only_rule(ground_only, _selection_of(ground_only, ["C5"]), []) == []
 
 
 def test_parametrisations_of_one_effect_share_a_family_and_classes_do_not():

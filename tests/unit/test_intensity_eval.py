@@ -18,13 +18,13 @@ import pytest
 from lads.errors import ConfigError, InputDataError, InvalidPointsError
 from lads.intensity import eval_figures
 from lads.intensity.baselines import BASELINES, MIN_CLASS_REFERENCE_POINTS, fit_baselines
+from lads.intensity.eval_report import write_report
 from lads.intensity.evaluate import (
     EvalFrame,
     class_ids,
     evaluate,
     physics_image,
     retro_classes,
-    write_report,
 )
 from lads.physics.materials import LABEL_SETS, reflectance_for_labels
 from lads.sensors.profile import SensorProfile, load_profile

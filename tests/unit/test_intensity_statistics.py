@@ -10,12 +10,8 @@ import numpy as np
 import pytest
 
 from lads.errors import TrainingError
-from lads.intensity.cache import (
-    LOG_RATIO_BIN,
-    CachedFrame,
-    Statistics,
-    compute_statistics,
-)
+from lads.intensity.cache import CachedFrame
+from lads.intensity.cache_statistics import LOG_RATIO_BIN, Statistics, compute_statistics
 from lads.intensity.features import NORMALISED_CHANNELS, PHYSICS_FLOOR, channel_names
 from lads.intensity.train_config import DomainSpec, PairSpec
 from lads.sensors.profile import load_profile

@@ -13,7 +13,8 @@ import torch
 
 from lads.intensity import run_statistics as stats_module
 from lads.intensity import train as train_module
-from lads.intensity.cache import Statistics, build_cache, compute_statistics, iter_frames
+from lads.intensity.cache import build_cache, iter_frames
+from lads.intensity.cache_statistics import Statistics, compute_statistics
 from lads.intensity.features import NORMALISED_CHANNELS, channel_names
 from lads.intensity.run_statistics import STATISTICS, PairFacts, RunStatistics
 from lads.intensity.train import Sampler, train
