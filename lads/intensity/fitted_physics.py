@@ -45,9 +45,14 @@ MAX_FIT_POINTS = 400_000  # an even subsample beyond this: the fit has ~40 param
 def oren_nayar(cos_theta: npt.ArrayLike, sigma_rad: float) -> npt.NDArray[np.float64]:
     """Backscatter Oren-Nayar factor g(theta) = A cos + B sin^2, (N,) float64 in [0, 1]."""
     c = np.clip(np.asarray(cos_theta, dtype=np.float64), COS_FLOOR, 1.0)
-    s = sigma_rad**2
-    a, b = 1.0 - 0.5 * s / (s + 0.33), 0.45 * s / (s + 0.09)
+    a, b = oren_nayar_coefficients(sigma_rad)
     return a * c + b * (1.0 - c**2)
+
+
+def oren_nayar_coefficients(sigma_rad: float) -> tuple[float, float]:
+    """(A, B) of g(theta) = A cos + B sin^2 for roughness sigma (rad)."""
+    s = sigma_rad**2
+    return 1.0 - 0.5 * s / (s + 0.33), 0.45 * s / (s + 0.09)
 
 
 @dataclass(frozen=True)

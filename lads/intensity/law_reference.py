@@ -73,8 +73,7 @@ class TorchLaw:
         r = torch.exp(raw[:, self.index["ln_range"]]).clamp(*self.range_m)
         ln_r = torch.log(r)
         cos = raw[:, self.index["cos_incidence"]].clamp(fitted_physics.COS_FLOOR, 1.0)
-        s = self.sigma_rad**2
-        a, b = 1.0 - 0.5 * s / (s + 0.33), 0.45 * s / (s + 0.09)
+        a, b = fitted_physics.oren_nayar_coefficients(self.sigma_rad)
         material = raw[:, self.index["material"]].round().long() - 1
         # No material (-1) or one beyond the table: the pooled intercept, as in numpy.
         unknown = (material < 0) | (material >= len(self.intercepts) - 1)
