@@ -54,14 +54,37 @@ def predict_image(
     model: IntensityModel, fi: FrameImage, *, device: str = "cpu"
 ) -> npt.NDArray[np.float32]:
     """(H, W) float32 raw generator output (z-space) for one FrameImage."""
-    if fi.channels != model.meta.channels:
-        raise ModelError(
-            f"{model.path}: expects channels {list(model.meta.channels)}, the frame has "
-            f"{list(fi.channels)}."
-        )
-    raw = torch.from_numpy(np.ascontiguousarray(fi.inputs))[None]
+    return predict_images(model, [fi], device=device)[0]
+
+
+def predict_images(
+    model: IntensityModel, images: list[FrameImage], *, device: str = "cpu"
+) -> list[npt.NDArray[np.float32]]:
+    """(H, W) float32 raw generator output (z-space) of each FrameImage, in one forward
+    pass per run of equally shaped images (a batch: many frames per pass on a GPU)."""
+    for fi in images:
+        if fi.channels != model.meta.channels:
+            raise ModelError(
+                f"{model.path}: expects channels {list(model.meta.channels)}, the frame has "
+                f"{list(fi.channels)}."
+            )
+    out: list[npt.NDArray[np.float32]] = []
+    start = 0
+    while start < len(images):
+        end = start + 1
+        while end < len(images) and images[end].inputs.shape == images[start].inputs.shape:
+            end += 1
+        out.extend(_forward(model, [fi.inputs for fi in images[start:end]], device))
+        start = end
+    return out
+
+
+def _forward(
+    model: IntensityModel, inputs: list[npt.NDArray[np.float32]], device: str
+) -> list[npt.NDArray[np.float32]]:
+    raw = torch.from_numpy(np.ascontiguousarray(np.stack(inputs)))
     raw = raw.to(device=device, memory_format=torch.channels_last)
-    mask = raw[:, fi.channels.index("mask") : fi.channels.index("mask") + 1]
+    k = model.meta.channels.index("mask")
     # One thread: CPU convolutions split work by thread count, which changes float sums in
     # the last bits and can flip a quantisation step; a build worker and `lads verify
     # --regenerate` in the main process must produce the same bytes.
@@ -69,10 +92,11 @@ def predict_image(
     torch.set_num_threads(1)
     try:
         with torch.inference_mode():
-            z = model.generator(raw, mask)
+            z = model.generator.infer(raw, raw[:, k : k + 1])
     finally:
         torch.set_num_threads(threads)
-    return z[0, 0].float().cpu().numpy()
+    z = z[:, 0].float().cpu().numpy()
+    return [z[i] for i in range(len(inputs))]
 
 
 def law_z(spec: TargetSpec, fi: FrameImage, extinction_per_m: float) -> npt.NDArray[np.float32]:
@@ -88,6 +112,32 @@ def law_z(spec: TargetSpec, fi: FrameImage, extinction_per_m: float) -> npt.NDAr
     out = np.zeros(occupied.shape, dtype=np.float32)
     out[occupied] = (ln - spec.log_mean) / spec.log_std
     return out
+
+
+@dataclass(frozen=True, slots=True)
+class PointRequest:
+    """One frame's inputs to `predict_points` / `predict_points_batch` (see there)."""
+
+    xyz: npt.ArrayLike
+    profile: SensorProfile
+    output_profile: SensorProfile | None = None
+    target: str | None = None
+    labels: npt.ArrayLike | None = None
+    label_set: str | None = None
+    ring: npt.ArrayLike | None = None
+    outcome: npt.ArrayLike | None = None
+    particle: npt.ArrayLike | None = None
+    extinction_per_m: float = 0.0
+    where: str = "frame"
+
+
+@dataclass(frozen=True, slots=True)
+class _Prepared:
+    fi: FrameImage
+    spec: TargetSpec
+    out_profile: SensorProfile
+    shift: float
+    extinction_per_m: float
 
 
 def predict_points(
@@ -131,13 +181,31 @@ def predict_points(
         InvalidPointsError: bad points, or a frame that is clearly not a scan of `profile`
             (`lads.sensors.conformity.check_scan_of`).
     """
+    req = PointRequest(xyz, profile, output_profile, target, labels, label_set, ring, outcome,
+                       particle, extinction_per_m, where)  # fmt: skip
+    return predict_points_batch(model, [req], device=device)[0]
+
+
+def predict_points_batch(
+    model: IntensityModel, requests: list[PointRequest], *, device: str = "cpu"
+) -> list[Prediction]:
+    """`predict_points` for several frames with one forward pass per run of equally shaped
+    range images (the batched path for a GPU; on a CPU the same code, frame by frame in
+    effect). Each frame's result does not depend on the others in the batch."""
+    prepared = [_prepare(model, r) for r in requests]
+    z_maps = predict_images(model, [p.fi for p in prepared], device=device)
+    return [_finish(p, z) for p, z in zip(prepared, z_maps, strict=True)]
+
+
+def _prepare(model: IntensityModel, req: PointRequest) -> _Prepared:
+    """Checks, the output sensor's shift and the frame's model inputs."""
     from lads.sensors.profile import load_profile
 
-    xyz_arr = np.asarray(xyz)
-    check_scan_of(xyz_arr, profile, ring=ring, where=where)
-    key, spec = model.target(target)
+    xyz_arr = np.asarray(req.xyz)
+    check_scan_of(xyz_arr, req.profile, ring=req.ring, where=req.where)
+    key, spec = model.target(req.target)
     weather = model.meta.kind == "weather"
-    out_profile = output_profile or load_profile(spec.sensor)
+    out_profile = req.output_profile or load_profile(spec.sensor)
     shift = 0.0
     if out_profile.name != spec.sensor:
         cal = model.meta.calibration
@@ -149,15 +217,21 @@ def predict_points(
             )
         shift = cal[out_profile.name] - cal[spec.sensor]
     fi = frame_image(
-        xyz_arr, profile, labels=labels, label_set=label_set, ring=ring, outcome=outcome,
-        particle=particle, style=key if weather else None, styles=weather,
-        range_exponent=model.meta.range_exponent, extinction_per_m=extinction_per_m,
+        xyz_arr, req.profile, labels=req.labels, label_set=req.label_set, ring=req.ring,
+        outcome=req.outcome, particle=req.particle, style=key if weather else None,
+        styles=weather, range_exponent=model.meta.range_exponent,
+        extinction_per_m=req.extinction_per_m,
     )  # fmt: skip
-    z = predict_image(model, fi, device=device)
+    return _Prepared(fi, spec, out_profile, shift, req.extinction_per_m)
+
+
+def _finish(p: _Prepared, z: npt.NDArray[np.float32]) -> Prediction:
+    """Every point's value from the generator's map (owners) and the sharing rule."""
+    spec, fi = p.spec, p.fi
     if spec.law is not None:  # the generator predicts a correction to the fitted law
-        z = z + law_z(spec, fi, extinction_per_m)
+        z = z + law_z(spec, fi, p.extinction_per_m)
     image = fi.image
-    n = len(xyz_arr)
+    n = len(fi.range_m)
     ln_pixel = z[image.row, image.col].astype(np.float64) * spec.log_std + spec.log_mean
     owner_idx = image.index[image.row, image.col]
     owner = owner_idx == np.arange(n)
@@ -165,6 +239,6 @@ def predict_points(
     limit = np.log(MAX_SHARED_RATIO)
     ratio = np.clip(ln_phys - ln_phys[owner_idx], -limit, limit) if n else ln_phys
     ln_value = np.where(owner, ln_pixel, ln_pixel + ratio)
-    refl = np.maximum(np.exp(ln_value) - spec.floor, 0.0) * np.exp(shift)
+    refl = np.maximum(np.exp(ln_value) - spec.floor, 0.0) * np.exp(p.shift)
     refl32 = refl.astype(np.float32)
-    return Prediction(refl32, out_profile.intensity.from_reflectivity(refl32), owner)
+    return Prediction(refl32, p.out_profile.intensity.from_reflectivity(refl32), owner)

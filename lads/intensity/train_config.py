@@ -28,7 +28,6 @@ from typing import Any
 import yaml
 
 from lads.errors import ConfigError
-from lads.intensity.features import STYLES
 from lads.intensity.splits import SPLITS, merged_view
 from lads.resources import train_configs_dir
 
@@ -273,6 +272,8 @@ def parse_train_config(raw: Any, where: str) -> TrainConfig:
     pairs = []
     for key, entry in pairs_raw.items():
         ctx = f"{where}: pairs.{key}"
+        from lads.intensity.features import STYLES  # numba and scipy: not at CLI start-up
+
         if kind == "weather" and key not in STYLES:
             raise ConfigError(f"{ctx}: weather pairs are keyed by style, one of {STYLES}.")
         if not isinstance(entry, dict) or set(entry) != {"source", "target"}:
@@ -326,6 +327,8 @@ def _domain(raw: Any, where: str, nested: bool = False) -> DomainSpec:
     spec = DomainSpec(**values)
     if spec.dataset != "synth" and spec.root is None:
         raise ConfigError(f"{where}: dataset {spec.dataset!r} needs a 'root'.")
+    from lads.intensity.features import STYLES
+
     if spec.weather and spec.weather.get("stage") not in STYLES:
         raise ConfigError(f"{where}: weather.stage must be one of {STYLES}.")
     return spec

@@ -22,6 +22,7 @@ from __future__ import annotations
 import functools
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -29,14 +30,14 @@ from lads.config import StageConfig
 from lads.errors import ConfigError, LadsError, StageError
 from lads.files import sha256_file
 from lads.frame import Frame
-from lads.intensity.checkpoint import IntensityModel, resolve_model
-from lads.intensity.features import label_set_for
-from lads.intensity.predict import predict_points
 from lads.physics.projection import MIN_RANGE_M
 from lads.sensors.profile import load_profile
 
+if TYPE_CHECKING:  # torch is imported only where a learned stage runs (start-up time)
+    from lads.intensity.checkpoint import IntensityModel
+
 # Bump when the stage's output bytes change for the same input and weights.
-INTENSITY_STAGE_VERSION = "1"
+INTENSITY_STAGE_VERSION = "2"  # 2: one azimuth wrap per pass (float rounding)
 
 
 @functools.lru_cache(maxsize=8)
@@ -46,6 +47,8 @@ def _weights_hash(path: str) -> str:
 
 @functools.lru_cache(maxsize=8)
 def _model(name_or_path: str, device: str) -> IntensityModel:
+    from lads.intensity.checkpoint import resolve_model
+
     return resolve_model(name_or_path, device=device)
 
 
@@ -81,6 +84,9 @@ class IntensityStage:
         return replace(stage, version=f"{INTENSITY_STAGE_VERSION}+{_weights_hash(model.path)}")
 
     def __call__(self, frame: Frame, rng: np.random.Generator) -> Frame:
+        from lads.intensity.features import label_set_for
+        from lads.intensity.predict import predict_points
+
         where = frame.item.item_id
         try:
             model = _model(self.model, self.device)

@@ -341,3 +341,42 @@ def test_a_residual_generator_adds_its_correction_to_the_fitted_law(tmp_path, st
     unclipped = (preds["plain"].reflectivity[own] > 0) & (preds["residual"].reflectivity[own] > 0)
     assert unclipped.mean() > 0.9
     assert np.allclose(shift[unclipped], (ln_law - spec.log_mean)[unclipped], atol=1e-3)
+
+
+@pytest.mark.parametrize("blocks", [1, 2, 3])
+@pytest.mark.parametrize("width", [16, 96, 256])
+def test_inference_wraps_once_and_equals_the_training_forward(blocks, width):
+    """`infer` pads azimuth once by the generator's margin instead of in every layer; the
+    map must be the same, seam columns included, and narrow images fall back to forward."""
+    torch.manual_seed(blocks * 1000 + width)
+    meta = _meta(blocks=blocks, base=4)
+    gen = build_generator(meta).double().eval()
+    with torch.no_grad():
+        for p in gen.parameters():
+            p.normal_(0, 0.3)
+        raw = torch.rand(2, len(meta.channels), 8, width, dtype=torch.float64)
+        k = meta.channels.index("mask")
+        raw[:, k] = (raw[:, k] > 0.2).double()
+        m = meta.channels.index("material")
+        raw[:, m] = torch.randint(0, len(material_names()) + 1, raw[:, m].shape).double()
+        raw = raw * raw[:, k : k + 1]
+        expected = gen(raw, raw[:, k : k + 1])
+        got = gen.infer(raw, raw[:, k : k + 1])
+    torch.testing.assert_close(got, expected, rtol=0, atol=1e-10)
+
+
+def test_a_batch_of_frames_gives_each_frame_the_bytes_it_gets_alone(tmp_path, street):
+    """The batched path (many frames per forward pass, as on a GPU) changes no output byte."""
+    from lads.intensity.predict import PointRequest, predict_points_batch
+
+    model = load_model(tiny_model(tmp_path))
+    other = synth_frame("hdl64e", frames=2, seed=5, index=1, azimuth_bins=512)
+    frames = [street, other, street]
+    requests = [PointRequest(f.xyz, HDL64, labels=f.labels, label_set="semantickitti",
+                             ring=f.ring) for f in frames]  # fmt: skip
+    batched = predict_points_batch(model, requests)
+    for f, b in zip(frames, batched, strict=True):
+        alone = predict_points(model, f.xyz, HDL64, labels=f.labels, label_set="semantickitti",
+                               ring=f.ring)  # fmt: skip
+        np.testing.assert_array_equal(b.encoded, alone.encoded)
+        np.testing.assert_array_equal(b.reflectivity, alone.reflectivity)
