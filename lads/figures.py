@@ -99,8 +99,9 @@ def variant_figure(
     bins = np.linspace(0.0, float(max(src[:, 3].max(), 1e-3)), 60)
     for r, (name, pts, outcome) in enumerate(trees):
         bev = fig.add_subplot(grid[r, 0])
-        bev.imshow(_bev_raster(pts[:, :2], outcome, extent_m), origin="lower",
-                   extent=(-extent_m, extent_m, -extent_m, extent_m), interpolation="nearest")  # fmt: skip
+        box = (-extent_m, extent_m, -extent_m, extent_m)
+        bev.imshow(_bev_raster(pts[:, :2], outcome, extent_m), origin="lower", extent=box,
+                   interpolation="nearest")  # fmt: skip
         bev.set(xlim=(-extent_m, extent_m), ylim=(-extent_m, extent_m), aspect="equal")
         counts = np.bincount(outcome, minlength=4)
         bev.set_title(f"{name}\n{pts.shape[0]:,} pts · particle {counts[2]:,}", fontsize=9)
