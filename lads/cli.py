@@ -239,6 +239,11 @@ def variants() -> None:
 @click.option("--version", "nuscenes_version", help="nuScenes table version, e.g. v1.0-trainval.")
 @click.option("--include-sweeps", is_flag=True, help="nuScenes: transform sweeps too.")
 @click.option("--jobs", type=int, default=1, show_default=True, help="Worker processes (loky).")
+@click.option(
+    "--batch", type=click.IntRange(min=1),
+    help="Frames per task; the learned stage runs them in one forward pass (default: 8 with "
+    "--device cuda, else 1). Output bytes do not depend on it.",
+)  # fmt: skip
 @click.option("--backend", type=click.Choice(["loky", "dask"]), default="loky", show_default=True)
 @click.option("--scheduler", help="Dask scheduler address (with --backend dask).")
 @click.option("--fail-fast", is_flag=True, help="Stop at the first bad item.")
@@ -257,8 +262,8 @@ def build(
     seed: int, rate_mm_h: float | None, visibility_m: float | None, mode: str | None,
     points: str | None, particle_label: int | None, intensity_model: str | None,
     device: str | None, sequences: str | None, nuscenes_version: str | None,
-    include_sweeps: bool, jobs: int, backend: str, scheduler: str | None, fail_fast: bool,
-    wait: bool, limit: int | None, figures: bool,
+    include_sweeps: bool, jobs: int, batch: int | None, backend: str, scheduler: str | None,
+    fail_fast: bool, wait: bool, limit: int | None, figures: bool,
 ) -> None:  # fmt: skip
     """Build a variant tree: one output item per source item, same format and layout."""
     from lads.config import find_pipeline, load_pipeline
@@ -283,7 +288,7 @@ def build(
     report = run_build(
         source, source_root, out_root, pipeline, seed=seed, reader_options=options, jobs=jobs,
         backend=backend, scheduler=scheduler, fail_fast=fail_fast, progress=None, limit=limit,
-        figures=figures, wait=wait,
+        figures=figures, wait=wait, batch=batch,
     )  # fmt: skip
     click.echo(report.summary_text())
     if not report.complete:

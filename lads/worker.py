@@ -67,20 +67,64 @@ def reader_for(plan: BuildPlan) -> Reader:
     return _reader(plan.source, plan.source_root, plan.reader_options)
 
 
-def transform(item: Item, plan: BuildPlan) -> tuple[Frame, list[EncodedFile], dict[str, Any], Any]:
+class _Clock:
+    """Adds the milliseconds since the previous lap to `timings[name]` (None: no timing)."""
+
+    def __init__(self, timings: dict[str, float] | None) -> None:
+        self.timings = timings
+        self.last = time.perf_counter()
+
+    def lap(self, name: str) -> None:
+        now = time.perf_counter()
+        if self.timings is not None:
+            self.timings[name] = self.timings.get(name, 0.0) + (now - self.last) * 1e3
+        self.last = now
+
+
+@dataclass(frozen=True, slots=True)
+class Partial:
+    """An item already read and run through its first `next_stage` stages (batched path)."""
+
+    source: Frame
+    frame: Frame
+    next_stage: int
+
+
+def _rng(plan: BuildPlan, item: Item, stage: Stage) -> Any:
+    return rng_for(plan.seed, item.item_id, plan.pipeline.variant, stage.name)
+
+
+def transform(
+    item: Item,
+    plan: BuildPlan,
+    timings: dict[str, float] | None = None,
+    partial: Partial | None = None,
+) -> tuple[Frame, list[EncodedFile], dict[str, Any], Any]:
     """Compute one item's output in memory (no writes).
+
+    `timings`, when given, receives milliseconds per step: read, stage:NAME, encode
+    (correspondence included). `partial` continues an item the batched path has taken
+    through its first stages.
 
     Returns:
         (frame to encode, encoded files, manifest fields without outputs, (source_index,
         outcome, n_source) for provenance).
     """
     reader = reader_for(plan)
-    source = reader.read(item)
-    frame = source
+    clock = _Clock(timings)
+    if partial is None:
+        source = reader.read(item)
+        frame, first = source, 0
+        clock.lap("read")
+    else:
+        source, frame, first = partial.source, partial.frame, partial.next_stage
     stage_rows = []
-    for spec, stage in zip(plan.pipeline.stages, stages_for(plan.pipeline), strict=True):
+    stages = zip(plan.pipeline.stages, stages_for(plan.pipeline), strict=True)
+    for k, (spec, stage) in enumerate(stages):
         entropy = seed_entropy(plan.seed, item.item_id, plan.pipeline.variant, stage.name)
-        frame = stage(frame, rng_for(plan.seed, item.item_id, plan.pipeline.variant, stage.name))
+        if k >= first:
+            frame = stage(frame, _rng(plan, item, stage))
+            clock.lap(f"stage:{stage.name}")
         stage_rows.append(
             {"name": stage.name, "version": stage.version, "params_hash": spec.params_hash(),
              "seed_entropy": entropy}
@@ -95,6 +139,7 @@ def transform(item: Item, plan: BuildPlan) -> tuple[Frame, list[EncodedFile], di
         )
         encoded_frame, source_index, outcome = correspondence.physical(frame, label)
     files = reader.encode(encoded_frame)
+    clock.lap("encode")
     fields = {
         "item_id": item.item_id,
         "points": correspondence.outcome_counts(source.n_source, outcome, frame.lost_index.size),
@@ -124,7 +169,55 @@ def state_path(out_root: Path, item_id: str) -> Path:
     return out_root / STATE_DIR / "items" / (sha256_bytes(item_id.encode())[:32] + ".json")
 
 
-def process_item(item: Item, plan: BuildPlan) -> dict[str, Any]:
+def process_items(items: list[Item], plan: BuildPlan) -> list[dict[str, Any]]:
+    """`process_item` for a batch: a stage with `call_batch` (the learned intensity stage)
+    runs once for all the items (many frames per forward pass on a GPU); the other steps
+    run item by item. Every item gets the files and row it gets alone: an item that fails
+    before the batched stage, or a batch whose stage call fails, is redone item by item,
+    so a bad frame fails alone."""
+    stages = stages_for(plan.pipeline)
+    first = next((k for k, s in enumerate(stages) if hasattr(s, "call_batch")), None)
+    if first is None or len(items) < 2:
+        return [process_item(item, plan) for item in items]
+    timings: dict[str, dict[str, float]] = {i.item_id: {} for i in items}
+    ready: dict[str, tuple[Frame, Frame]] = {}
+    for item in items:
+        clock = _Clock(timings[item.item_id])
+        try:
+            source = frame = reader_for(plan).read(item)
+            clock.lap("read")
+            for stage in stages[:first]:
+                frame = stage(frame, _rng(plan, item, stage))
+                clock.lap(f"stage:{stage.name}")
+        except Exception:  # noqa: BLE001 - redone alone below, where its error is recorded
+            continue
+        ready[item.item_id] = (source, frame)
+    batch = [i for i in items if i.item_id in ready]
+    partials: dict[str, Partial] = {}
+    start = time.perf_counter()
+    try:
+        stage = stages[first]
+        frames = stage.call_batch(  # type: ignore[attr-defined]
+            [ready[i.item_id][1] for i in batch], [_rng(plan, i, stage) for i in batch]
+        )
+    except Exception:  # noqa: BLE001 - one bad frame fails the batch: redo item by item
+        frames = []
+    share_ms = (time.perf_counter() - start) * 1e3 / max(len(batch), 1)
+    for item, frame in zip(batch, frames, strict=False):
+        partials[item.item_id] = Partial(ready[item.item_id][0], frame, first + 1)
+        timings[item.item_id][f"stage:{stages[first].name}"] = share_ms
+    return [
+        process_item(item, plan, partials.get(item.item_id), timings[item.item_id])
+        for item in items
+    ]
+
+
+def process_item(
+    item: Item,
+    plan: BuildPlan,
+    partial: Partial | None = None,
+    timings: dict[str, float] | None = None,
+) -> dict[str, Any]:
     """Build one item and return its manifest row; never raises for a bad item.
 
     The outputs and provenance are written first, the journal record last, so a record
@@ -135,25 +228,35 @@ def process_item(item: Item, plan: BuildPlan) -> dict[str, Any]:
     """
     start = time.perf_counter()
     out_root = Path(plan.out_root)
+    timings = {} if timings is None else timings
     try:
-        _, files, fields, (source_index, outcome, n_source) = transform(item, plan)
+        _, files, fields, (source_index, outcome, n_source) = transform(
+            item, plan, timings, partial
+        )
+        clock = _Clock(timings)
         row: dict[str, Any] = {
             **fields,
             "status": "ok",
             "source": _source_rows(item, reader_for(plan).root),
             "outputs": _output_rows(files),
         }
+        clock.lap("hash")
         for f in files:
             atomic_write(out_root / f.relpath, f.payload)
+        clock.lap("write")
         _write_provenance(out_root, item, source_index, outcome, n_source)
+        clock.lap("provenance")
     except OutputWriteError:
         raise
     except LadsError as exc:
         row = _failed(item, f"{type(exc).__name__}: {exc}")
     except Exception as exc:  # noqa: BLE001 - one bad frame must not end a 23k-frame build
         row = _failed(item, f"internal error {type(exc).__name__}: {exc} (please report this)")
+    clock = _Clock(timings)
     atomic_write(state_path(out_root, item.item_id), json.dumps(row, sort_keys=True).encode())
+    clock.lap("journal")
     row["_seconds"] = time.perf_counter() - start
+    row["_step_ms"] = timings
     # ru_maxrss is in KiB on Linux: the worker's peak resident memory so far.
     row["_peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     return row

@@ -35,6 +35,7 @@ from lads.sensors.profile import load_profile
 
 if TYPE_CHECKING:  # torch is imported only where a learned stage runs (start-up time)
     from lads.intensity.checkpoint import IntensityModel
+    from lads.intensity.predict import PointRequest
 
 # Bump when the stage's output bytes change for the same input and weights.
 INTENSITY_STAGE_VERSION = "2"  # 2: one azimuth wrap per pass (float rounding)
@@ -84,42 +85,68 @@ class IntensityStage:
         return replace(stage, version=f"{INTENSITY_STAGE_VERSION}+{_weights_hash(model.path)}")
 
     def __call__(self, frame: Frame, rng: np.random.Generator) -> Frame:
+        return self.call_batch([frame], [rng])[0]
+
+    def call_batch(self, frames: list[Frame], rngs: list[np.random.Generator]) -> list[Frame]:
+        """The stage on several frames with one forward pass per run of equally shaped
+        range images (the batched path for a GPU). Each frame's output is the one it gets
+        alone; a bad frame raises StageError naming it (the runner then retries the frames
+        one by one, so the others still build)."""
+        from lads.intensity.predict import predict_points_batch
+
+        requests, valids = [], []
+        for frame in frames:
+            request, valid = self._request(frame)
+            requests.append(request)
+            valids.append(valid)
+        try:
+            predictions = predict_points_batch(
+                _model(self.model, self.device), requests, device=self.device
+            )
+        except LadsError as exc:
+            where = frames[0].item.item_id if len(frames) == 1 else f"{len(frames)} frames"
+            raise StageError(f"{where}: intensity stage ({self.model}): {exc}") from None
+        out = []
+        for frame, valid, prediction in zip(frames, valids, predictions, strict=True):
+            points = frame.points.copy()
+            points[:, 3] = 0.0
+            points[valid, 3] = prediction.encoded
+            out.append(replace(frame, points=points))
+        return out
+
+    def _request(self, frame: Frame) -> tuple[PointRequest, np.ndarray]:
+        """The generator's inputs for one frame, and the (N,) mask of points it predicts
+        (every point not at zero range)."""
         from lads.intensity.features import label_set_for
-        from lads.intensity.predict import predict_points
+        from lads.intensity.predict import PointRequest
 
         where = frame.item.item_id
         try:
             model = _model(self.model, self.device)
-            weather = model.meta.kind == "weather"
-            target = self.target
-            if weather and target is None:
-                style = frame.condition("style")
-                if style is None:
-                    raise StageError(
-                        f"{where}: the weather intensity model '{self.model}' needs the weather "
-                        "stage before it (none recorded a style); fix the pipeline."
-                    )
-                target = str(style)
-            profile = load_profile(frame.sensor)
-            xyz = frame.xyz
-            valid = np.linalg.norm(xyz.astype(np.float64), axis=1) > MIN_RANGE_M
-            labels = None if frame.labels is None else frame.labels[valid]
-            label_set = label_set_for(frame.item.dataset) if labels is not None else None
-            ring = None
-            if "ring" in frame.columns:
-                ring = frame.points[valid, frame.columns.index("ring")]
-            output = profile if weather else None
-            prediction = predict_points(
-                model, xyz[valid], profile, output_profile=output, target=target,
-                labels=labels, label_set=label_set, ring=ring, outcome=frame.outcome[valid],
-                extinction_per_m=float(frame.condition("extinction_per_m", 0.0) or 0.0),  # type: ignore[arg-type]
-                device=self.device, where=where,
-            )  # fmt: skip
-        except StageError:
-            raise
         except LadsError as exc:
             raise StageError(f"{where}: intensity stage ({self.model}): {exc}") from None
-        points = frame.points.copy()
-        points[:, 3] = 0.0
-        points[valid, 3] = prediction.encoded
-        return replace(frame, points=points)
+        weather = model.meta.kind == "weather"
+        target = self.target
+        if weather and target is None:
+            style = frame.condition("style")
+            if style is None:
+                raise StageError(
+                    f"{where}: the weather intensity model '{self.model}' needs the weather "
+                    "stage before it (none recorded a style); fix the pipeline."
+                )
+            target = str(style)
+        profile = load_profile(frame.sensor)
+        xyz = frame.xyz
+        valid = np.linalg.norm(xyz.astype(np.float64), axis=1) > MIN_RANGE_M
+        labels = None if frame.labels is None else frame.labels[valid]
+        label_set = label_set_for(frame.item.dataset) if labels is not None else None
+        ring = None
+        if "ring" in frame.columns:
+            ring = frame.points[valid, frame.columns.index("ring")]
+        extinction = float(frame.condition("extinction_per_m", 0.0) or 0.0)  # type: ignore[arg-type]
+        request = PointRequest(
+            xyz[valid], profile, output_profile=profile if weather else None, target=target,
+            labels=labels, label_set=label_set, ring=ring, outcome=frame.outcome[valid],
+            extinction_per_m=extinction, where=where,
+        )  # fmt: skip
+        return request, valid
