@@ -171,12 +171,15 @@ class Generator(nn.Module):
         return 8 * len(self.mid) + 8
 
     def infer(self, raw: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-        """The same map as `forward` (to float rounding), faster: for inference.
+        """The same map as `forward` (to float rounding), for inference.
 
-        `forward` wraps azimuth inside every convolution, which costs copies of narrow
-        bands per layer; here the input is wrapped once by `margin()` columns on each side,
-        every convolution zero-pads (the fast path), and the margins are cropped at the end.
-        Widths below the margin fall back to `forward`.
+        `forward` wraps azimuth inside every convolution by redoing the few seam columns
+        from narrow bands, on another convolution path whose float sums change with the
+        batch size. Here the input is wrapped once by `margin()` columns on each side,
+        every convolution zero-pads, and the margins are cropped at the end: one path, so
+        a frame's values are bit-identical alone or in a batch (the batched GPU path keeps
+        CPU bytes). Same speed as `forward` on one core, within this machine's noise
+        (benchmarks/results/intensity_speed.json). Widths below the margin use `forward`.
         """
         w, m = raw.shape[-1], self.margin()
         if w < m:

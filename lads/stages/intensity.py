@@ -38,7 +38,7 @@ if TYPE_CHECKING:  # torch is imported only where a learned stage runs (start-up
     from lads.intensity.predict import PointRequest
 
 # Bump when the stage's output bytes change for the same input and weights.
-INTENSITY_STAGE_VERSION = "2"  # 2: one azimuth wrap per pass (float rounding)
+INTENSITY_STAGE_VERSION = "2"  # 2: one azimuth wrap per pass (float rounding), batch-invariant
 
 
 @functools.lru_cache(maxsize=8)
