@@ -6,17 +6,23 @@ disjoint nodes and any output point can be traced to its source point.
 
 from __future__ import annotations
 
+import functools
+import json
+import shutil
 import urllib.parse
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
-import zarr
 
 from lads.errors import ManifestError
+from lads.files import atomic_write
 
 STORE_NAME = "provenance.zarr"
 SCHEMA_VERSION = 1
+BLOSC_CNAME = "zstd"
+BLOSC_LEVEL = 3
 
 
 def node_name(relpath: str) -> str:
@@ -27,6 +33,8 @@ def node_name(relpath: str) -> str:
 def create_store(out_root: Path, *, points_mode: str, config_hash: str) -> None:
     """Create (or reopen, if it matches) the store at the root of the output tree."""
     path = out_root / STORE_NAME
+    import zarr  # here, not at module level: build workers only write (`write_item`)
+
     group = zarr.open_group(path, mode="a", zarr_format=3)
     attrs = {
         "schema_version": SCHEMA_VERSION,
@@ -45,28 +53,69 @@ def write_item(
     outcome: npt.NDArray[np.uint8],
     n_source: int,
 ) -> None:
-    """Write one item's provenance (overwriting a partial earlier attempt)."""
-    group = zarr.open_group(out_root / STORE_NAME / node_name(relpath), mode="w", zarr_format=3)
-    group.attrs.put(
-        {
-            "item_id": item_id,
-            "relpath": relpath,
-            "n_source": int(n_source),
-            "n_output": int(source_index.size),
-        }
-    )
-    n = max(int(source_index.size), 1)
-    for name, values in (("source_index", source_index.astype(np.int64)), ("outcome", outcome)):
-        if values.size:  # created and written in one call: a quarter less time than two
-            group.create_array(name, data=values, chunks=(n,), fill_value=0)
-        else:
-            group.create_array(name, shape=(0,), chunks=(1,), dtype=values.dtype, fill_value=0)
+    """Write one item's provenance (overwriting a partial earlier attempt).
+
+    The group is a plain Zarr v3 group (read back with zarr, `read_item`), but written here
+    directly as its five files: zarr's own writer spent ~12 ms of event-loop round trips per
+    item whatever the data size, up to half of a physics-only frame's cost. Chunks are one
+    per array, Blosc zstd with bit-shuffle (the sorted source indices shrink ~15x against
+    zstd alone).
+    """
+    group = out_root / STORE_NAME / node_name(relpath)
+    if group.exists():
+        shutil.rmtree(group)
+    attrs = {"item_id": item_id, "relpath": relpath, "n_source": int(n_source),
+             "n_output": int(source_index.size)}  # fmt: skip
+    for name, values in (("source_index", source_index.astype("<i8")), ("outcome", outcome)):
+        folder = group / name
+        atomic_write(folder / "zarr.json", _json(_array_metadata(values)))
+        if values.size:
+            atomic_write(folder / "c" / "0", _blosc().encode(values))
+    atomic_write(group / "zarr.json", _json(
+        {"attributes": attrs, "zarr_format": 3, "node_type": "group"}))  # fmt: skip
+
+
+def _json(value: dict[str, Any]) -> bytes:
+    return json.dumps(value, indent=2).encode()
+
+
+@functools.lru_cache(maxsize=1)
+def _blosc() -> Any:
+    """numcodecs' Blosc (zarr's own codec); its typesize is the encoded array's itemsize."""
+    from numcodecs import Blosc
+
+    return Blosc(cname=BLOSC_CNAME, clevel=BLOSC_LEVEL, shuffle=Blosc.BITSHUFFLE, blocksize=0)
+
+
+def _array_metadata(values: npt.NDArray[Any]) -> dict[str, Any]:
+    """Zarr v3 metadata of a 1-D array stored as one chunk (at least 1 long)."""
+    itemsize = values.dtype.itemsize
+    bytes_codec: dict[str, Any] = {"name": "bytes"}
+    if itemsize > 1:
+        bytes_codec["configuration"] = {"endian": "little"}
+    blosc = {"name": "blosc", "configuration": {"typesize": itemsize, "cname": BLOSC_CNAME,
+             "clevel": BLOSC_LEVEL, "shuffle": "bitshuffle", "blocksize": 0}}  # fmt: skip
+    return {
+        "shape": [int(values.size)],
+        "data_type": values.dtype.name,
+        "chunk_grid": {"name": "regular",
+                       "configuration": {"chunk_shape": [max(int(values.size), 1)]}},
+        "chunk_key_encoding": {"name": "default", "configuration": {"separator": "/"}},
+        "fill_value": 0,
+        "codecs": [bytes_codec, blosc],
+        "attributes": {},
+        "zarr_format": 3,
+        "node_type": "array",
+        "storage_transformers": [],
+    }  # fmt: skip
 
 
 def read_item(
     out_root: Path, relpath: str
 ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.uint8], dict]:
     """(source_index (M,) int64, outcome (M,) uint8, attrs) of one item."""
+    import zarr
+
     path = out_root / STORE_NAME / node_name(relpath)
     try:
         group = zarr.open_group(path, mode="r", zarr_format=3)

@@ -272,18 +272,19 @@ def _dispatch(  # type: ignore[no-untyped-def]
 
     if backend == "dask":
         try:
-            from distributed import Client
+            from distributed import Client, as_completed
         except ImportError as exc:
             raise BuildError(
                 "--backend dask needs dask.distributed: pip install 'lads[dask]'."
             ) from exc
         client = Client(scheduler) if scheduler else Client(processes=False)
         try:
-            with parallel_config(backend="dask"):
-                for rows in Parallel(n_jobs=-1, return_as="generator_unordered")(
-                    delayed(process_items)(task, plan) for task in tasks
-                ):
-                    yield from rows
+            # Plain futures: joblib's dask backend kept the client process busy, which on a
+            # small machine took a core from the workers (2 workers ran slower than 1).
+            shared = client.scatter(plan, broadcast=True)
+            futures = client.map(process_items, tasks, plan=shared, pure=False)
+            for future in as_completed(futures):
+                yield from future.result()
         finally:
             client.close()
         return
