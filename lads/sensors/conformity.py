@@ -32,6 +32,7 @@ NEAR_FIELD_M = 3.0
 FOV_MARGIN_DEG = 2.0
 MAX_OUTSIDE_FOV = 0.05
 MIN_JUDGED_POINTS = 200
+MAX_SAMPLED_POINTS = 32768
 # A ring is judged when it holds at least this many returns beyond the near field; the frame
 # is refused when more than MAX_MISPLACED_RINGS of the judged rings sit off their channel.
 MIN_RING_POINTS = 20
@@ -59,13 +60,18 @@ def check_scan_of(
         ring: optional (N,) ring (channel) ids, 0 = lowest beam.
         where: the frame's name for the message.
     """
-    p = np.asarray(xyz, dtype=np.float64)
+    # An even stride over at most MAX_SAMPLED_POINTS returns: the shares and per-ring
+    # medians judged here are as clear on a sample as on the whole frame, at a quarter of
+    # the cost of a 64-beam scan.
+    step = max(1, -(-len(xyz) // MAX_SAMPLED_POINTS))
+    p = np.asarray(xyz)[::step].astype(np.float64)
     far = np.linalg.norm(p, axis=1) > NEAR_FIELD_M
     if int(far.sum()) < MIN_JUDGED_POINTS:
         return
     elevation = elevation_deg(p[far])
     if ring is not None:
-        _check_rings(np.asarray(ring, dtype=np.float64), far, elevation, profile, where)
+        rings = np.asarray(ring, dtype=np.float64)[::step]
+        _check_rings(rings, far, elevation, profile, where)
         return
     low, high = profile.vertical_fov_deg
     outside = (elevation < low - FOV_MARGIN_DEG) | (elevation > high + FOV_MARGIN_DEG)
