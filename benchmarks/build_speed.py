@@ -33,7 +33,13 @@ from typing import Any
 
 import numpy as np
 
-from benchmarks.common import KITTI_SCANS, SHARED_DATA, machine_info, write_result
+from benchmarks.common import (
+    KITTI_SCANS,
+    SHARED_DATA,
+    machine_info,
+    reference_workload_ms,
+    write_result,
+)
 from lads.config import PipelineConfig, find_pipeline, load_pipeline
 from lads.runner import run_build
 
@@ -198,6 +204,8 @@ def dask_runs(tmp: Path, source: Path, reference: str) -> dict[str, Any]:
                         pipeline_of("snow"), **kwargs)  # fmt: skip
             out = tmp / f"dask_out{workers}"
             row = timed_build(source, out, pipeline_of("snow"), **kwargs)
+            row["jobs"] = None
+            row["dask_workers"] = workers
             row["same_bytes_as_jobs_1"] = _digest(out) == reference
             rows[f"workers_{workers}"] = row
             shutil.rmtree(out)
@@ -277,6 +285,7 @@ def main() -> dict[str, Any]:
         "end to end; snow = the default pipeline with the learned intensity stage",
         "command": "python -m benchmarks.build_speed",
         "machine": machine_info(),
+        "reference_workload": reference_workload_ms(),
         "frames": FRAMES,
         "variants": variants,
         "command_wall_clock": walls,

@@ -54,3 +54,38 @@ def write_result(name: str, payload: dict[str, Any], out_dir: Path | None = None
     tmp.write_text(json.dumps(payload, indent=2) + "\n")
     tmp.replace(path)
     return path
+
+
+def reference_workload_ms(repeats: int = 7) -> dict[str, float]:
+    """Milliseconds of two fixed workloads on one core (min of `repeats`): a numpy one (sort
+    and exp of 2M float64) and a torch one (a 3 x 3 convolution, 16 -> 16 channels, on a
+    64 x 2048 map). This shared machine's speed drifts by 2x between sessions; reported
+    beside each timing so results from different days can be compared."""
+    import time
+
+    import torch
+
+    rng = np.random.default_rng(0)
+    values = rng.random(2_000_000)
+    conv = torch.nn.Conv2d(16, 16, 3, padding=1)
+    image = torch.from_numpy(rng.random((1, 16, 64, 2048), dtype=np.float32))
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+
+    def best(fn: Any) -> float:
+        fn()
+        times = []
+        for _ in range(repeats):
+            start = time.perf_counter()
+            fn()
+            times.append((time.perf_counter() - start) * 1e3)
+        return round(min(times), 2)
+
+    try:
+        with torch.inference_mode():
+            return {
+                "numpy_sort_exp_ms": best(lambda: (np.sort(values), np.exp(values))),
+                "torch_conv_ms": best(lambda: conv(image)),
+            }
+    finally:
+        torch.set_num_threads(threads)

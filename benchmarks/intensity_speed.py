@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from benchmarks.common import machine_info, write_result
+from benchmarks.common import machine_info, reference_workload_ms, write_result
 from lads.intensity.checkpoint import resolve_model
 from lads.intensity.features import frame_image
 from lads.intensity.predict import predict_image, predict_points
@@ -93,6 +93,7 @@ def main() -> dict[str, Any]:
         "target_frame_ms": TARGET_MS,
         "meets_target": float(np.median([r["frame_ms"] for r in rows])) <= TARGET_MS,
         "machine": machine_info(),
+        "reference_workload": reference_workload_ms(),
     }
     path = write_result("intensity_speed.json", result)
     sys.stdout.write(
