@@ -37,7 +37,33 @@ def _lads_errors(func: Callable[..., Any]) -> Callable[..., Any]:
     return wrapper
 
 
-@click.group()
+class _LazyGroup(click.Group):
+    """A click group whose heavier subcommands are imported only when run or listed in help:
+    `lads build` starts without loading the training and synthesis modules."""
+
+    LAZY = {
+        "synth": ("lads.synth.command", "synth_command", False),
+        "train": ("lads.intensity.commands", "train_command", True),
+        "eval-intensity": ("lads.intensity.commands", "eval_intensity_command", True),
+    }
+
+    def list_commands(self, ctx: click.Context) -> list[str]:
+        return sorted([*super().list_commands(ctx), *self.LAZY])
+
+    def get_command(self, ctx: click.Context, cmd_name: str) -> click.Command | None:
+        if cmd_name not in self.LAZY:
+            return super().get_command(ctx, cmd_name)
+        import importlib
+
+        module, name, wrap = self.LAZY[cmd_name]
+        command = getattr(importlib.import_module(module), name)
+        if wrap and not getattr(command, "_lads_wrapped", False):
+            command.callback = _lads_errors(command.callback)
+            command._lads_wrapped = True  # type: ignore[attr-defined]
+        return command
+
+
+@click.group(cls=_LazyGroup)
 @click.version_option(package_name="lads")
 def main() -> None:
     """LADS: the same LiDAR scene under another sensor or another weather."""
@@ -350,26 +376,6 @@ def card(out_root: Path) -> None:
     from lads.finalise import refresh_card
 
     click.echo(f"wrote {refresh_card(out_root)}")
-
-
-def _register_synth() -> None:
-    from lads.synth.command import synth_command
-
-    main.add_command(synth_command)
-
-
-_register_synth()
-
-
-def _register_intensity() -> None:
-    from lads.intensity.commands import eval_intensity_command, train_command
-
-    for command in (train_command, eval_intensity_command):
-        command.callback = _lads_errors(command.callback)  # type: ignore[arg-type]
-        main.add_command(command)
-
-
-_register_intensity()
 
 
 @main.command()

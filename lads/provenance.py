@@ -31,18 +31,20 @@ def node_name(relpath: str) -> str:
 
 
 def create_store(out_root: Path, *, points_mode: str, config_hash: str) -> None:
-    """Create (or reopen, if it matches) the store at the root of the output tree."""
-    path = out_root / STORE_NAME
-    import zarr  # here, not at module level: build workers only write (`write_item`)
-
-    group = zarr.open_group(path, mode="a", zarr_format=3)
+    """Create (or reopen, if it matches) the store at the root of the output tree: its root
+    group's zarr.json, written directly like the items' groups (`write_item`)."""
+    path = out_root / STORE_NAME / "zarr.json"
     attrs = {
         "schema_version": SCHEMA_VERSION,
         "points_mode": points_mode,
         "config_hash": config_hash,
     }
-    if dict(group.attrs) != attrs:
-        group.attrs.put(attrs)
+    try:
+        if json.loads(path.read_text()).get("attributes") == attrs:
+            return
+    except (OSError, ValueError, AttributeError):
+        pass  # missing or damaged: written anew
+    atomic_write(path, _json({"attributes": attrs, "zarr_format": 3, "node_type": "group"}))
 
 
 def write_item(
@@ -114,7 +116,7 @@ def read_item(
     out_root: Path, relpath: str
 ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.uint8], dict]:
     """(source_index (M,) int64, outcome (M,) uint8, attrs) of one item."""
-    import zarr
+    import zarr  # here, not at module level: a build only writes (`write_item`)
 
     path = out_root / STORE_NAME / node_name(relpath)
     try:

@@ -11,9 +11,9 @@ is shipped as a table. Above size parameter x = pi D / lambda = 3000 the Mie ser
 from __future__ import annotations
 
 import functools
+import importlib.metadata
 import math
 
-import miepython
 import numpy as np
 import numpy.typing as npt
 
@@ -65,6 +65,8 @@ def efficiencies(
             f"Mie series requested for x > {MIE_MAX_SIZE_PARAMETER:g}; use "
             "extinction_efficiency(), which switches to the large-sphere asymptote."
         )
+    import miepython  # on first use: it pulls in scipy.special, a tenth of a second at start
+
     qext, _qsca, qback, _g = miepython.efficiencies(_index(material), d, wavelength_nm * 1e-6)
     return np.asarray(qext, dtype=np.float64), np.asarray(qback, dtype=np.float64)
 
@@ -75,7 +77,7 @@ def _qext_table(material: str, wavelength_nm: float) -> tuple[np.ndarray, np.nda
     d = np.geomspace(1e-4, d_max, MIE_TABLE_SIZES)
     # ~1.5 s of Mie series per table: kept on disk so each build worker does not redo it.
     key = (f"{_index(material)!r} {wavelength_nm!r} {d_max!r} {MIE_TABLE_SIZES} "
-           f"miepython {miepython.__version__}")  # fmt: skip
+           f"miepython {importlib.metadata.version('miepython')}")  # fmt: skip
     q = cached_array("mie-qext", key, lambda: efficiencies(material, d, wavelength_nm)[0])
     if q.shape != d.shape:
         q = efficiencies(material, d, wavelength_nm)[0]
