@@ -83,8 +83,14 @@ def _json(value: dict[str, Any]) -> bytes:
 
 @functools.lru_cache(maxsize=1)
 def _blosc() -> Any:
-    """numcodecs' Blosc (zarr's own codec); its typesize is the encoded array's itemsize."""
-    from numcodecs import Blosc
+    """numcodecs' Blosc (zarr's own codec); its typesize is the encoded array's itemsize.
+
+    Single-threaded, as zarr sets it: multi-threaded Blosc (numcodecs' default in a main
+    thread) compresses to other bytes than single-threaded Blosc (a Dask worker's thread),
+    and a tree's bytes must not depend on the backend."""
+    from numcodecs import Blosc, blosc
+
+    blosc.use_threads = False
 
     return Blosc(cname=BLOSC_CNAME, clevel=BLOSC_LEVEL, shuffle=Blosc.BITSHUFFLE, blocksize=0)
 
