@@ -169,25 +169,28 @@ def state_path(out_root: Path, item_id: str) -> Path:
     return out_root / STATE_DIR / "items" / (sha256_bytes(item_id.encode())[:32] + ".json")
 
 
-# glibc malloc: arrays up to this size come from the heap and are reused between frames.
-MMAP_THRESHOLD_BYTES = 64 << 20
+# glibc's own ceiling for its adaptive mmap threshold on 64-bit Linux (4 MiB x sizeof(long)).
+MMAP_THRESHOLD_BYTES = 32 << 20
 
 
 @functools.lru_cache(maxsize=1)
 def tune_allocator() -> bool:
-    """Keep a frame's arrays on the reused heap, once per worker process (Linux, glibc).
+    """Give a worker started with glibc malloc tuning in its environment (Dask's nanny sets
+    MALLOC_TRIM_THRESHOLD_) the heap reuse glibc would otherwise adapt to by itself.
 
-    Dask's nanny starts workers with MALLOC_TRIM_THRESHOLD_ set, which switches off glibc's
-    adaptive mmap threshold: every array over 128 kB was then mapped fresh and page-faulted
-    in, and a Dask worker spent most of its time in the kernel (3x slower per frame than a
-    loky worker). Raising the mmap and trim thresholds restores heap reuse; memory stays
-    bounded by a frame's peak. Returns whether the setting took (False off glibc).
+    Setting any such variable switches off glibc's adaptive mmap threshold: every array over
+    128 kB was then mapped fresh and page-faulted in, and a Dask worker spent most of its
+    time in the kernel (3x slower per frame than a loky worker). Here the thresholds are set
+    to where glibc's adaptation ends (mmap 32 MiB, trim twice that). Workers without such a
+    variable (loky, --jobs) are left alone. Returns whether a setting was made.
     """
     import ctypes
     import ctypes.util
+    import os
     import sys
 
-    if not sys.platform.startswith("linux"):
+    tuned = any(k.startswith("MALLOC_") and k.endswith("_") for k in os.environ)
+    if not (tuned and sys.platform.startswith("linux")):
         return False
     try:
         libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")

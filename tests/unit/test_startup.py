@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 
@@ -55,3 +56,18 @@ def test_an_unwritable_cache_only_costs_the_recomputation(tmp_path, monkeypatch)
     monkeypatch.setenv(user_cache.CACHE_ENV, str(blocker / "cache"))
     value = user_cache.cached_array("table", "k", lambda: np.ones(3))
     np.testing.assert_array_equal(value, np.ones(3))
+
+
+def test_workers_started_with_malloc_tuning_get_heap_reuse_back():
+    """Dask's nanny starts workers with MALLOC_TRIM_THRESHOLD_ set (glibc then stops adapting
+    and maps every large array afresh); such a worker re-tunes, any other is left alone."""
+    code = "from lads.worker import tune_allocator; print(tune_allocator())"
+    env = {k: v for k, v in os.environ.items() if not k.startswith("MALLOC_")}
+    plain = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                           check=True, env=env)  # fmt: skip
+    assert plain.stdout.strip() == "False"
+    nanny_env = {**env, "MALLOC_TRIM_THRESHOLD_": "65536"}
+    dask_like = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                               check=True, env=nanny_env)  # fmt: skip
+    expected = "True" if sys.platform.startswith("linux") else "False"
+    assert dask_like.stdout.strip() == expected
