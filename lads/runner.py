@@ -268,8 +268,6 @@ def _dispatch(  # type: ignore[no-untyped-def]
         for task in tasks:
             yield from process_items(task, plan)
         return
-    from joblib import Parallel, delayed, parallel_config
-
     if backend == "dask":
         try:
             from distributed import Client, as_completed
@@ -288,6 +286,8 @@ def _dispatch(  # type: ignore[no-untyped-def]
         finally:
             client.close()
         return
+    from joblib import Parallel, delayed, parallel_config
+
     # One thread per worker: the workers are the parallelism, and a fixed thread count
     # keeps float reductions in a fixed order.
     with parallel_config(backend=backend, n_jobs=jobs, inner_max_num_threads=1):

@@ -3,8 +3,8 @@
 Each build worker is a new process; without this, every worker recomputed the same tables
 (the Mie extinction table took ~1.5 s per process) before its first frame. Entries are
 `.npy` files named by a hash of everything the value depends on, written atomically, and
-recomputed when missing, unreadable or of the wrong shape, so a stale or damaged cache
-can never change a result. Folder: $LADS_CACHE_DIR, else $XDG_CACHE_HOME/lads, else
+recomputed when missing or unreadable (callers check the shape they expect), so a stale
+or damaged cache cannot change a result. Folder: $LADS_CACHE_DIR, else $XDG_CACHE_HOME/lads, else
 ~/.cache/lads; an unwritable folder only costs the recomputation.
 """
 

@@ -94,6 +94,16 @@ def _rng(plan: BuildPlan, item: Item, stage: Stage) -> Any:
     return rng_for(plan.seed, item.item_id, plan.pipeline.variant, stage.name)
 
 
+def _run_stages(
+    item: Item, plan: BuildPlan, frame: Frame, stages: tuple[Stage, ...], clock: _Clock
+) -> Frame:
+    """`frame` through `stages` in order, each with its own rng; one lap per stage."""
+    for stage in stages:
+        frame = stage(frame, _rng(plan, item, stage))
+        clock.lap(f"stage:{stage.name}")
+    return frame
+
+
 def transform(
     item: Item,
     plan: BuildPlan,
@@ -118,13 +128,11 @@ def transform(
         clock.lap("read")
     else:
         source, frame, first = partial.source, partial.frame, partial.next_stage
+    stages = stages_for(plan.pipeline)
+    frame = _run_stages(item, plan, frame, stages[first:], clock)
     stage_rows = []
-    stages = zip(plan.pipeline.stages, stages_for(plan.pipeline), strict=True)
-    for k, (spec, stage) in enumerate(stages):
+    for spec, stage in zip(plan.pipeline.stages, stages, strict=True):
         entropy = seed_entropy(plan.seed, item.item_id, plan.pipeline.variant, stage.name)
-        if k >= first:
-            frame = stage(frame, _rng(plan, item, stage))
-            clock.lap(f"stage:{stage.name}")
         stage_rows.append(
             {"name": stage.name, "version": stage.version, "params_hash": spec.params_hash(),
              "seed_entropy": entropy}
@@ -217,11 +225,9 @@ def process_items(items: list[Item], plan: BuildPlan) -> list[dict[str, Any]]:
     for item in items:
         clock = _Clock(timings[item.item_id])
         try:
-            source = frame = reader_for(plan).read(item)
+            source = reader_for(plan).read(item)
             clock.lap("read")
-            for stage in stages[:first]:
-                frame = stage(frame, _rng(plan, item, stage))
-                clock.lap(f"stage:{stage.name}")
+            frame = _run_stages(item, plan, source, stages[:first], clock)
         except Exception:  # noqa: BLE001 - redone alone below, where its error is recorded
             continue
         ready[item.item_id] = (source, frame)
@@ -239,8 +245,11 @@ def process_items(items: list[Item], plan: BuildPlan) -> list[dict[str, Any]]:
     for item, frame in zip(batch, frames, strict=False):
         partials[item.item_id] = Partial(ready[item.item_id][0], frame, first + 1)
         timings[item.item_id][f"stage:{stages[first].name}"] = share_ms
+    # An item redone alone starts its timings afresh, so no step is counted twice.
     return [
-        process_item(item, plan, partials.get(item.item_id), timings[item.item_id])
+        process_item(item, plan, partials[item.item_id], timings[item.item_id])
+        if item.item_id in partials
+        else process_item(item, plan)
         for item in items
     ]
 
