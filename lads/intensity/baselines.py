@@ -14,9 +14,10 @@ A baseline maps an `EvalFrame` to (N,) predicted intensity in the frame's encodi
     per_class_median     the median reference reflectivity of the point's class (the
                          MAE-optimal constant per class; unseen classes and unlabelled
                          frames take the pooled median)
-    fitted_physics       per-class reflectance x a fitted range law x Oren-Nayar incidence
-                         (`lads.intensity.fitted_physics`), the physics `lads diagnose`
-                         finds on real scans, fitted to the reference frames
+    fitted_physics       per-class reflectance x a fitted range law (shared, and per laser)
+                         x Oren-Nayar incidence (`lads.intensity.fitted_physics`), the
+                         physics `lads diagnose` finds on real scans plus each laser's own
+                         calibration, fitted to the reference frames
 
 Pure computation, no I/O.
 """
@@ -210,7 +211,8 @@ class FittedPhysicsBaseline:
         cls = point_classes(frame) if frame.label_set == self.label_set else None
         if cls is None:
             cls = np.full(frame.n_points, UNLABELLED, dtype=np.int64)
-        refl = self.law.predict(cls, image.range_m, image.cos_incidence, frame.extinction_per_m)
+        refl = self.law.predict(cls, image.range_m, image.cos_incidence, frame.extinction_per_m,
+                                image.elevation_deg)  # fmt: skip
         return frame.profile.intensity.from_reflectivity(refl)
 
 
@@ -258,6 +260,7 @@ def fit_baselines(
         np.concatenate([p["cos"] for p in parts]), refl,
         floor=frames[0].profile.intensity.detection_floor,
         extinction_per_m=np.concatenate([[f.extinction_per_m] * f.n_points for f in frames]),
+        elevation_deg=np.concatenate([p["elevation"] for p in parts]),
     )  # fmt: skip
     return {
         "unchanged": Unchanged(images),
@@ -276,7 +279,7 @@ def _reference_points(frame: EvalFrame, images: _LastImage) -> dict[str, Any]:
     physics = image.physics.astype(np.float64)
     return {
         "refl": refl, "cls": point_classes(frame), "range": image.range_m.astype(np.float64),
-        "cos": image.cos_incidence.astype(np.float64),
+        "cos": image.cos_incidence.astype(np.float64), "elevation": image.elevation_deg,
         "log_ratio": np.log(refl + encoding.detection_floor) - np.log(physics + PHYSICS_FLOOR),
     }  # fmt: skip
 

@@ -93,6 +93,9 @@ class FrameImage:
         reflectance: (N,) float32 material reflectance of every point.
         cos_incidence: (N,) float32 cosine of every point.
         range_m: (N,) float32 range of every point.
+        elevation_deg: (N,) float32 table elevation of every point's beam (its channel in
+            the frame's profile), degrees.
+        material: (N,) int64 index of every point's material in `material_names()`.
     """
 
     inputs: FloatArray
@@ -104,6 +107,8 @@ class FrameImage:
     reflectance: FloatArray
     cos_incidence: FloatArray
     range_m: FloatArray
+    elevation_deg: FloatArray
+    material: npt.NDArray[np.int64]
 
     @property
     def mask(self) -> npt.NDArray[np.bool_]:
@@ -234,6 +239,8 @@ def frame_image(
         reflectance=rho.astype(np.float32),
         cos_incidence=cos.astype(np.float32),
         range_m=r.astype(np.float32),
+        elevation_deg=np.asarray(profile.elevation_deg, dtype=np.float32)[chan],
+        material=material,
     )
 
 

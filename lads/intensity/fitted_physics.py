@@ -1,6 +1,6 @@
 """A parametric physics model of a sensor's intensity, fitted from its own real frames.
 
-    ln(I + f) = a_g + b1 ln(R / 1 m) + b2 R / 10 m + ln g(theta; sigma) - 2 alpha R
+    ln(I + f) = a_g + b1 ln(R / 1 m) + b2 R / 10 m + s_l(ln R) + ln g(theta; sigma) - 2 alpha R
 
 with I the reflectivity (encoded / full scale), f the encoding's detection floor, a_g the
 log reflectance (times the sensor's gain) of group g (a semantic class, or a material),
@@ -14,14 +14,26 @@ directions coincide, so with A = 1 - 0.5 s/(s + 0.33), B = 0.45 s/(s + 0.09), s 
 (sigma = 0 is Lambert's cos theta; rough surfaces stay bright towards grazing incidence).
 alpha is the frame's known extinction (weather), not fitted.
 
-Fitted on training frames only: for each sigma of a grid, the linear parameters by
+s_l is the range response of laser l, the beam that measured the point: a multi-beam
+spinning LiDAR calibrates the intensity of each of its lasers on its own (the HDL-64E's
+per-laser calibration carries a gain and a range-dependent focal compensation per laser,
+`focal_distance` / `focal_slope`; docs/physics.md §11, effects E2 and E4), so one laser reads a surface
+brighter than its neighbour, and differently near than far. s_l is piecewise linear in
+ln R with knots at LASER_KNOTS_M (clamped to the fitted support), one curve per laser, a
+deviation from the shared range law that a ridge penalty pulls towards zero: a laser with
+few points keeps the shared law. A laser is keyed by its elevation in degrees (the
+channel's table elevation of the fitting sensor), so the law applies to any frame whose
+beam elevations are known, the nearest laser answering; without elevations s_l is 0.
+
+Fitted on training frames only: for each sigma of a grid, the shared parameters by
 iteratively reweighted least squares on |residual| (a least-absolute-deviation fit, whose
 prediction is the conditional median: the MAE-optimal point value); the sigma with the
-smallest mean absolute residual wins. Groups seen fewer than MIN_GROUP_POINTS times take
-the pooled intercept. Only returns beyond the near field (`NEAR_FIELD_M`, where ego-body
-and mounting-offset returns sit) are fitted, and the law is evaluated with the range clamped
-to the fitted support [range_min_m, range_max_m]: a power law in R extrapolated to a 0.1 m
-ego return would be several e-folds off. Pure numpy, no I/O.
+smallest mean absolute residual wins, and at that sigma the per-laser curves are fitted with
+the shared parameters in one sparse least-absolute-deviation fit. Groups seen fewer than
+MIN_GROUP_POINTS times take the pooled intercept. Only returns beyond the near field
+(`NEAR_FIELD_M`, where ego-body and mounting-offset returns sit) are fitted, and the law is
+evaluated with the range clamped to the fitted support [range_min_m, range_max_m]: a power
+law in R extrapolated to a 0.1 m ego return would be several e-folds off. Pure numpy, no I/O.
 """
 
 from __future__ import annotations
@@ -31,6 +43,7 @@ from typing import Any
 
 import numpy as np
 import numpy.typing as npt
+from scipy import sparse
 
 from lads.sensors.conformity import NEAR_FIELD_M
 
@@ -40,6 +53,14 @@ IRLS_STEPS = 12
 IRLS_FLOOR = 1e-3  # |residual| below which a point's weight stops growing
 COS_FLOOR = 1e-3
 MAX_FIT_POINTS = 400_000  # an even subsample beyond this: the fit has ~40 parameters
+# Knots of the per-laser range curves: denser near, where the focal compensation bends.
+LASER_KNOTS_M: tuple[float, ...] = (3.0, 5.0, 8.0, 12.0, 20.0, 35.0, 60.0, 120.0)
+# Ridge strength of the per-laser curves, in points: a knot of a laser seen by about this
+# many (IRLS-weighted) points is pulled halfway to the shared law. Chosen on the validation
+# frames of the KITTI, nuScenes and WADS training configs: weaker shrinkage scored the same
+# there, stronger worse (a laser's own calibration is real, not noise).
+LASER_PRIOR_POINTS = 3.0
+MIN_LASER_POINTS = 50  # a laser with fewer fitting points gets no curve of its own
 
 
 def oren_nayar(cos_theta: npt.ArrayLike, sigma_rad: float) -> npt.NDArray[np.float64]:
@@ -57,7 +78,9 @@ def oren_nayar_coefficients(sigma_rad: float) -> tuple[float, float]:
 
 @dataclass(frozen=True)
 class FittedPhysics:
-    """The fitted law. Attributes as in the module doc; `intercepts` maps group -> a_g."""
+    """The fitted law. Attributes as in the module doc; `intercepts` maps group -> a_g;
+    `laser_elevation_deg` (L,) the elevation of each laser with a curve of its own and
+    `laser_curves` (L, K) its values s_l at the knots `laser_knots_ln` (ln of m)."""
 
     intercepts: dict[int, float]
     pooled_intercept: float
@@ -70,17 +93,34 @@ class FittedPhysics:
     mae_log: float = 0.0
     points: int = 0
     counts: dict[int, int] = field(default_factory=dict)
+    laser_elevation_deg: tuple[float, ...] = ()
+    laser_knots_ln: tuple[float, ...] = ()
+    laser_curves: tuple[tuple[float, ...], ...] = ()
 
     def ln_predict(
         self, group: npt.ArrayLike, range_m: npt.ArrayLike, cos_theta: npt.ArrayLike,
-        extinction_per_m: float = 0.0,
+        extinction_per_m: float = 0.0, elevation_deg: npt.ArrayLike | None = None,
     ) -> npt.NDArray[np.float64]:  # fmt: skip
-        """(N,) predicted ln(I + floor) of points of the given groups, ranges and cosines."""
+        """(N,) predicted ln(I + floor) of points of the given groups, ranges, cosines and
+        (optional) beam elevations in degrees."""
         r = np.clip(np.asarray(range_m, dtype=np.float64), self.range_min_m, self.range_max_m)
         g = np.asarray(group, dtype=np.int64)
         a = self.intercept_of(g)
         incidence = np.log(oren_nayar(cos_theta, self.sigma_rad))
-        return a + self.b1 * np.log(r) + self.b2 * r / 10.0 + incidence - 2.0 * extinction_per_m * r
+        shared = a + self.b1 * np.log(r) + self.b2 * r / 10.0 + incidence
+        return shared + self.laser_term(r, elevation_deg) - 2.0 * extinction_per_m * r
+
+    def laser_term(
+        self, range_m: npt.NDArray[np.float64], elevation_deg: npt.ArrayLike | None
+    ) -> npt.NDArray[np.float64]:
+        """(N,) s_l(ln R) of each point's nearest laser by elevation; 0 without elevations
+        or per-laser curves. range_m must already be clamped to the fitted support."""
+        if elevation_deg is None or not self.laser_curves:
+            return np.zeros(np.shape(range_m))
+        laser = nearest_laser(self.laser_elevation_deg, elevation_deg)
+        basis, cols = hat_basis(np.log(range_m), np.asarray(self.laser_knots_ln))
+        curves = np.asarray(self.laser_curves, dtype=np.float64)
+        return (curves[laser[:, None], cols] * basis).sum(axis=1)
 
     def intercept_of(self, group: npt.NDArray[np.int64]) -> npt.NDArray[np.float64]:
         """(N,) a_g of each point's group; the pooled intercept for groups not fitted."""
@@ -94,36 +134,75 @@ class FittedPhysics:
         return np.where(known, table[np.where(known, group - low, 0)], self.pooled_intercept)
 
     def predict(
-        self, group: Any, range_m: Any, cos_theta: Any, extinction_per_m: float = 0.0
-    ) -> npt.NDArray[np.float64]:
+        self, group: Any, range_m: Any, cos_theta: Any, extinction_per_m: float = 0.0,
+        elevation_deg: Any = None,
+    ) -> npt.NDArray[np.float64]:  # fmt: skip
         """(N,) predicted reflectivity (>= 0)."""
-        ln = self.ln_predict(group, range_m, cos_theta, extinction_per_m)
+        ln = self.ln_predict(group, range_m, cos_theta, extinction_per_m, elevation_deg)
         return np.maximum(np.exp(ln) - self.floor, 0.0)
 
     @classmethod
     def from_json(cls, raw: dict[str, Any]) -> FittedPhysics:
         """Read back `to_json` (the fitted law, without its training tallies)."""
+        lasers = raw.get("lasers") or {}
         return cls(
             intercepts={int(k): float(v) for k, v in raw["intercepts"].items()},
             pooled_intercept=float(raw["pooled_intercept"]), b1=float(raw["b1_ln_range"]),
             b2=float(raw["b2_per_10m"]), sigma_rad=float(raw["sigma_rad"]),
             floor=float(raw["floor"]), range_min_m=float(raw["range_min_m"]),
             range_max_m=float(raw["range_max_m"]),
+            laser_elevation_deg=tuple(float(v) for v in lasers.get("elevation_deg", ())),
+            laser_knots_ln=tuple(float(v) for v in lasers.get("knots_ln_m", ())),
+            laser_curves=tuple(tuple(float(v) for v in row) for row in lasers.get("curves", ())),
         )  # fmt: skip
 
     def to_json(self) -> dict[str, Any]:
-        return {"b1_ln_range": self.b1, "b2_per_10m": self.b2, "sigma_rad": self.sigma_rad,
-                "pooled_intercept": self.pooled_intercept, "floor": self.floor,
-                "range_min_m": self.range_min_m, "range_max_m": self.range_max_m,
-                "intercepts": {str(k): v for k, v in sorted(self.intercepts.items())},
-                "mae_log_train": self.mae_log, "points": self.points}  # fmt: skip
+        out = {"b1_ln_range": self.b1, "b2_per_10m": self.b2, "sigma_rad": self.sigma_rad,
+               "pooled_intercept": self.pooled_intercept, "floor": self.floor,
+               "range_min_m": self.range_min_m, "range_max_m": self.range_max_m,
+               "intercepts": {str(k): v for k, v in sorted(self.intercepts.items())},
+               "mae_log_train": self.mae_log, "points": self.points}  # fmt: skip
+        if self.laser_curves:
+            out["lasers"] = {"elevation_deg": list(self.laser_elevation_deg),
+                             "knots_ln_m": list(self.laser_knots_ln),
+                             "curves": [list(row) for row in self.laser_curves]}  # fmt: skip
+        return out
+
+
+def nearest_laser(
+    table_deg: tuple[float, ...] | npt.ArrayLike, elevation_deg: npt.ArrayLike
+) -> npt.NDArray[np.int64]:
+    """(N,) index into the increasing elevation table of each elevation's nearest entry."""
+    table = np.asarray(table_deg, dtype=np.float64)
+    e = np.asarray(elevation_deg, dtype=np.float64)
+    right = np.clip(np.searchsorted(table, e), 1, max(len(table) - 1, 1))
+    left = right - 1
+    if len(table) == 1:
+        return np.zeros(e.shape, dtype=np.int64)
+    return np.where(np.abs(e - table[left]) <= np.abs(table[right] - e), left, right)
+
+
+def hat_basis(
+    x: npt.NDArray[np.float64], knots: npt.NDArray[np.float64]
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.int64]]:
+    """Piecewise-linear (hat) basis at increasing knots, x clamped to [knots[0], knots[-1]]:
+    (N, 2) weights and (N, 2) knot indices, the two neighbouring knots of each x."""
+    if len(knots) == 1:
+        return np.ones((len(x), 2)) * [1.0, 0.0], np.zeros((len(x), 2), dtype=np.int64)
+    xc = np.clip(x, knots[0], knots[-1])
+    j = np.clip(np.searchsorted(knots, xc, side="right") - 1, 0, len(knots) - 2)
+    t = (xc - knots[j]) / (knots[j + 1] - knots[j])
+    return np.stack([1.0 - t, t], axis=1), np.stack([j, j + 1], axis=1)
 
 
 def fit(
     group: npt.ArrayLike, range_m: npt.ArrayLike, cos_theta: npt.ArrayLike,
     reflectivity: npt.ArrayLike, *, floor: float, extinction_per_m: npt.ArrayLike | float = 0.0,
+    elevation_deg: npt.ArrayLike | None = None,
 ) -> FittedPhysics:  # fmt: skip
-    """Fit the law to (N,) training points: group ids, ranges (m), cosines, reflectivity.
+    """Fit the law to (N,) training points: group ids, ranges (m), cosines, reflectivity,
+    and optionally each point's beam elevation in degrees (then per-laser curves are fitted;
+    one laser per distinct elevation).
 
     Raises:
         ValueError: fewer than MIN_GROUP_POINTS points.
@@ -131,24 +210,29 @@ def fit(
     g = np.asarray(group, dtype=np.int64)
     r = np.maximum(np.asarray(range_m, dtype=np.float64), 1e-3)
     c = np.asarray(cos_theta, dtype=np.float64)
+    e = None if elevation_deg is None else np.asarray(elevation_deg, dtype=np.float64)
     alpha = np.broadcast_to(np.asarray(extinction_per_m, dtype=np.float64), r.shape)
     y = np.log(np.asarray(reflectivity, dtype=np.float64) + floor) + 2.0 * alpha * r
-    far = r >= NEAR_FIELD_M
-    if np.count_nonzero(far) >= MIN_GROUP_POINTS:  # else (toy data) every point is fitted
-        g, r, c, y = g[far], r[far], c[far], y[far]
-    if len(y) < MIN_GROUP_POINTS:
-        raise ValueError(f"{len(y)} training points; the law needs at least {MIN_GROUP_POINTS}.")
-    if len(y) > MAX_FIT_POINTS:
-        keep = np.linspace(0, len(y) - 1, MAX_FIT_POINTS).round().astype(np.int64)
-        g, r, c, y = g[keep], r[keep], c[keep], y[keep]
+    keep = r >= NEAR_FIELD_M
+    if np.count_nonzero(keep) < MIN_GROUP_POINTS:  # toy data: every point is fitted
+        keep = np.ones(len(r), dtype=bool)
+    idx = np.flatnonzero(keep)
+    if len(idx) < MIN_GROUP_POINTS:
+        raise ValueError(f"{len(idx)} training points; the law needs at least {MIN_GROUP_POINTS}.")
+    if len(idx) > MAX_FIT_POINTS:
+        idx = idx[np.linspace(0, len(idx) - 1, MAX_FIT_POINTS).round().astype(np.int64)]
+    g, r, c, y = g[idx], r[idx], c[idx], y[idx]
+    e = None if e is None else e[idx]
     keys, counts = np.unique(g, return_counts=True)
     kept = keys[counts >= MIN_GROUP_POINTS]
     column = np.searchsorted(kept, g)
     member = (column < len(kept)) & (kept[np.minimum(column, len(kept) - 1)] == g)
-    design = np.zeros((len(y), len(kept) + 3))
-    design[np.flatnonzero(member), column[member]] = 1.0
-    design[~member, len(kept)] = 1.0  # the pooled intercept of rare groups
-    design[:, -2], design[:, -1] = np.log(r), r / 10.0
+    # Columns: one intercept per kept group, the pooled intercept of rare groups, ln R, R/10.
+    n, p = len(y), len(kept) + 3
+    cols = np.concatenate([np.where(member, column, len(kept)), np.full(n, p - 2),
+                           np.full(n, p - 1)])  # fmt: skip
+    values = np.concatenate([np.ones(n), np.log(r), r / 10.0])
+    design = sparse.csr_matrix((values, (np.tile(np.arange(n), 3), cols)), shape=(n, p))
     best = None
     for sigma in SIGMA_GRID_RAD:
         target = y - np.log(oren_nayar(c, sigma))
@@ -156,22 +240,70 @@ def fit(
         if best is None or loss < best[2]:
             best = (sigma, beta, loss)
     sigma, beta, loss = best  # type: ignore[misc]
+    lasers = _fit_lasers(design, y - np.log(oren_nayar(c, sigma)), r, e, beta)
+    if lasers is not None:
+        beta, loss = lasers["beta"], lasers["loss"]
     pooled = float(beta[len(kept)]) if (~member).any() else float(np.median(beta[: len(kept)]))
     return FittedPhysics(
         intercepts={int(k): float(v) for k, v in zip(kept, beta[: len(kept)], strict=True)},
-        pooled_intercept=pooled, b1=float(beta[-2]), b2=float(beta[-1]), sigma_rad=float(sigma),
-        floor=float(floor), range_min_m=float(r.min()), range_max_m=float(r.max()),
-        mae_log=float(loss), points=len(y),
+        pooled_intercept=pooled, b1=float(beta[len(kept) + 1]), b2=float(beta[len(kept) + 2]),
+        sigma_rad=float(sigma), floor=float(floor), range_min_m=float(r.min()),
+        range_max_m=float(r.max()), mae_log=float(loss), points=len(y),
         counts={int(k): int(n) for k, n in zip(keys, counts, strict=True)},
+        **({} if lasers is None else lasers["law"]),
     )  # fmt: skip
 
 
-def _lad(design: npt.NDArray[np.float64], y: npt.NDArray[np.float64]):  # type: ignore[no-untyped-def]
-    """Least-absolute-deviation fit by IRLS: (coefficients, mean |residual|)."""
-    weight = np.ones(len(y))
-    beta = np.zeros(design.shape[1])
+def _fit_lasers(
+    design: sparse.csr_matrix, y: npt.NDArray[np.float64], r: npt.NDArray[np.float64],
+    elevation: npt.NDArray[np.float64] | None, start: npt.NDArray[np.float64],
+) -> dict[str, Any] | None:  # fmt: skip
+    """The shared parameters and the per-laser curves in one sparse LAD fit (None without
+    elevations or without a laser of MIN_LASER_POINTS points)."""
+    if elevation is None:
+        return None
+    table, laser, counts = np.unique(elevation, return_inverse=True, return_counts=True)
+    if not (counts >= MIN_LASER_POINTS).any():
+        return None
+    knots = np.log(np.clip(LASER_KNOTS_M, r.min(), r.max()))
+    knots = np.unique(knots)
+    basis, cols = hat_basis(np.log(r), knots)
+    k = len(knots)
+    n, p = design.shape
+    rows = np.repeat(np.arange(n), 2)
+    laser_x = sparse.csr_matrix(
+        (basis.ravel(), (rows, (laser[:, None] * k + cols).ravel())), shape=(n, len(table) * k)
+    )  # fmt: skip
+    x = sparse.hstack([design, laser_x], format="csr")
+    # A laser with too few points is held at the shared law by an overwhelming ridge.
+    strength = np.where(np.repeat(counts, k) >= MIN_LASER_POINTS, 1.0, 1e6) * LASER_PRIOR_POINTS
+    beta, loss = _lad(x, y, start=np.r_[start, np.zeros(len(table) * k)],
+                      ridge_points=np.r_[np.zeros(p), strength])  # fmt: skip
+    curves = beta[p:].reshape(len(table), k)
+    law = {"laser_elevation_deg": tuple(float(v) for v in table),
+           "laser_knots_ln": tuple(float(v) for v in knots),
+           "laser_curves": tuple(tuple(float(v) for v in row) for row in curves)}  # fmt: skip
+    return {"beta": beta[:p], "loss": loss, "law": law}
+
+
+def _lad(
+    x: sparse.csr_matrix, y: npt.NDArray[np.float64], *,
+    start: npt.NDArray[np.float64] | None = None,
+    ridge_points: npt.NDArray[np.float64] | None = None,
+) -> tuple[npt.NDArray[np.float64], float]:  # fmt: skip
+    """Least-absolute-deviation fit by IRLS on a sparse design: (coefficients, mean
+    |residual|). Each step solves the weighted normal equations, plus a ridge of
+    `ridge_points` x the mean weight on each coefficient (0: none), from `start` if given."""
+    ridge = np.zeros(x.shape[1]) if ridge_points is None else ridge_points
+    beta = np.zeros(x.shape[1]) if start is None else start
+    weight = np.ones(len(y)) if start is None else _irls_weight(y - x @ beta)
     for _ in range(IRLS_STEPS):
-        root = np.sqrt(weight)
-        beta, *_ = np.linalg.lstsq(design * root[:, None], y * root, rcond=None)
-        weight = 1.0 / np.maximum(np.abs(y - design @ beta), IRLS_FLOOR)
-    return beta, float(np.mean(np.abs(y - design @ beta)))
+        xtw = x.T.multiply(weight).tocsr()
+        gram = (xtw @ x).toarray() + np.diag(ridge * float(weight.mean()) + 1e-9)
+        beta = np.linalg.solve(gram, xtw @ y)
+        weight = _irls_weight(y - x @ beta)
+    return beta, float(np.mean(np.abs(y - x @ beta)))
+
+
+def _irls_weight(residual: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+    return 1.0 / np.maximum(np.abs(residual), IRLS_FLOOR)

@@ -7,7 +7,10 @@ material, to the occupied pixels of that pair's *target training* frames in the 
 same frames the identity term sees; validation and test frames are never cached), and
 evaluated on any frame's raw input channels:
 
-    ln(I_ref + f) = a_material + b1 ln R + b2 R / 10 m + ln g(theta; sigma) - 2 alpha R
+    ln(I_ref + f) = a_material + b1 ln R + b2 R / 10 m + s_l(ln R) + ln g(theta; sigma)
+                    - 2 alpha R
+
+(s_l: the range response of the pixel's laser, looked up by the row's elevation channel)
 
 with f the target's z-space floor, so the reference lives in the generator's own output
 space. Materials the target frames do not show take the pooled intercept.
@@ -23,63 +26,58 @@ import torch
 
 from lads.intensity import fitted_physics
 from lads.intensity.cache import CachedFrame
-from lads.intensity.features import channel_names
-from lads.physics.materials import material_names
+from lads.intensity.features import ELEVATION_SCALE_DEG, channel_names
 
 
 def fit_law(frames: Iterable[CachedFrame], floor: float) -> fitted_physics.FittedPhysics:
     """The law of one target, from its cached training frames (occupied pixels only)."""
-    parts: dict[str, list[np.ndarray]] = {k: [] for k in ("mat", "r", "cos", "refl", "alpha")}
+    parts: dict[str, list[np.ndarray]] = {
+        k: [] for k in ("mat", "r", "cos", "refl", "alpha", "elev")
+    }
     for f in frames:
         if f.target is None:
             continue
         names = channel_names(f.inputs.shape[0] != len(channel_names(False)))
         x = {n: f.inputs[names.index(n)] for n in ("mask", "ln_range", "cos_incidence",
-                                                    "material")}  # fmt: skip
+                                                    "material", "elevation")}  # fmt: skip
         occ = x["mask"] > 0
         parts["mat"].append(np.rint(x["material"][occ]).astype(np.int64) - 1)
         parts["r"].append(np.exp(x["ln_range"][occ].astype(np.float64)))
         parts["cos"].append(x["cos_incidence"][occ].astype(np.float64))
         parts["refl"].append(f.target[occ].astype(np.float64))
         parts["alpha"].append(np.full(int(occ.sum()), f.extinction_per_m))
+        parts["elev"].append(x["elevation"][occ].astype(np.float64) * ELEVATION_SCALE_DEG)
     cat = {k: np.concatenate(v) for k, v in parts.items()}
     return fitted_physics.fit(cat["mat"], cat["r"], cat["cos"], cat["refl"], floor=floor,
-                              extinction_per_m=cat["alpha"])  # fmt: skip
+                              extinction_per_m=cat["alpha"],
+                              elevation_deg=cat["elev"])  # fmt: skip
 
 
 @dataclass
 class TorchLaw:
-    """A fitted law evaluated on raw input batches, (B, C, H, W) -> (B, 1, H, W) ln(I + f)."""
+    """A fitted law evaluated on raw input batches, (B, C, H, W) -> (B, 1, H, W) ln(I + f).
 
-    intercepts: torch.Tensor  # (materials + 1,) by material index, pooled where unseen and last
-    b1: float
-    b2: float
-    sigma_rad: float
-    range_m: tuple[float, float]  # the fitted support; ranges are clamped into it
+    The law is a fixed reference (no gradient flows into it), so it is evaluated by the
+    numpy law itself on the batch's pixels: one implementation, numpy and torch agree."""
+
+    law: fitted_physics.FittedPhysics
     index: dict[str, int]  # channel name -> position in the raw batch
 
     @classmethod
     def of(cls, law: fitted_physics.FittedPhysics, channels: tuple[str, ...]) -> TorchLaw:
-        table = np.full(len(material_names()) + 1, law.pooled_intercept)
-        for material, value in law.intercepts.items():
-            if 0 <= material < len(table) - 1:
-                table[material] = value
-        names = ("ln_range", "cos_incidence", "material")
-        return cls(torch.tensor(table, dtype=torch.float32), law.b1, law.b2, law.sigma_rad,
-                   (law.range_min_m, law.range_max_m),
-                   {n: channels.index(n) for n in names})  # fmt: skip
+        names = ("ln_range", "cos_incidence", "material", "elevation")
+        return cls(law, {n: channels.index(n) for n in names})
 
     def ln_reference(self, raw: torch.Tensor, extinction: torch.Tensor) -> torch.Tensor:
-        r = torch.exp(raw[:, self.index["ln_range"]]).clamp(*self.range_m)
-        ln_r = torch.log(r)
-        cos = raw[:, self.index["cos_incidence"]].clamp(fitted_physics.COS_FLOOR, 1.0)
-        a, b = fitted_physics.oren_nayar_coefficients(self.sigma_rad)
-        material = raw[:, self.index["material"]].round().long() - 1
-        # No material (-1) or one beyond the table: the pooled intercept, as in numpy.
-        unknown = (material < 0) | (material >= len(self.intercepts) - 1)
-        material = torch.where(unknown, len(self.intercepts) - 1, material)
-        table = self.intercepts.to(raw.device)
-        ln = (table[material] + self.b1 * ln_r + self.b2 * r / 10.0
-              + torch.log(a * cos + b * (1.0 - cos**2))
-              - 2.0 * extinction.to(raw.device)[:, None, None] * r)  # fmt: skip
-        return ln[:, None]
+        x = raw.detach().to("cpu", torch.float64).numpy()
+        b, _, h, w = x.shape
+        alpha = np.broadcast_to(extinction.detach().cpu().double().numpy()[:, None, None],
+                                (b, h, w))  # fmt: skip
+        pick = {n: x[:, i].ravel() for n, i in self.index.items()}
+        # No material (0 in the channel, -1 here) takes the pooled intercept, as in numpy.
+        material = np.rint(pick["material"]).astype(np.int64) - 1
+        r = np.clip(np.exp(pick["ln_range"]), self.law.range_min_m, self.law.range_max_m)
+        ln = self.law.ln_predict(material, r, pick["cos_incidence"], 0.0,
+                                 pick["elevation"] * ELEVATION_SCALE_DEG)  # fmt: skip
+        ln = ln - 2.0 * alpha.ravel() * r
+        return torch.from_numpy(ln.reshape(b, 1, h, w)).to(raw.device, raw.dtype)

@@ -99,19 +99,14 @@ def _forward(
     return [z[i] for i in range(len(inputs))]
 
 
-def law_z(spec: TargetSpec, fi: FrameImage, extinction_per_m: float) -> npt.NDArray[np.float32]:
-    """(H, W) the target's fitted law in the generator's z-space, on occupied pixels (0
-    elsewhere); computed on the occupied pixels only."""
-    names = fi.channels
-    occupied = fi.inputs[names.index("mask")] > 0
-    x = {n: fi.inputs[names.index(n)][occupied].astype(np.float64)
-         for n in ("ln_range", "cos_incidence", "material")}  # fmt: skip
+def law_points(
+    spec: TargetSpec, fi: FrameImage, extinction_per_m: float
+) -> npt.NDArray[np.float64]:
+    """(N,) the target's fitted law, ln(I + f), at every point of the frame (its material,
+    range, incidence and beam elevation)."""
     law = FittedPhysics.from_json(spec.law)  # type: ignore[arg-type]
-    material = np.rint(x["material"]).astype(np.int64) - 1
-    ln = law.ln_predict(material, np.exp(x["ln_range"]), x["cos_incidence"], extinction_per_m)
-    out = np.zeros(occupied.shape, dtype=np.float32)
-    out[occupied] = (ln - spec.log_mean) / spec.log_std
-    return out
+    return law.ln_predict(fi.material, fi.range_m, fi.cos_incidence, extinction_per_m,
+                          fi.elevation_deg)  # fmt: skip
 
 
 @dataclass(frozen=True, slots=True)
@@ -228,16 +223,20 @@ def _prepare(model: IntensityModel, req: PointRequest) -> _Prepared:
 def _finish(p: _Prepared, z: npt.NDArray[np.float32]) -> Prediction:
     """Every point's value from the generator's map (owners) and the sharing rule."""
     spec, fi = p.spec, p.fi
-    if spec.law is not None:  # the generator predicts a correction to the fitted law
-        z = z + law_z(spec, fi, p.extinction_per_m)
     image = fi.image
     n = len(fi.range_m)
-    ln_pixel = z[image.row, image.col].astype(np.float64) * spec.log_std + spec.log_mean
     owner_idx = image.index[image.row, image.col]
     owner = owner_idx == np.arange(n)
-    ln_phys = np.log(fi.physics.astype(np.float64) + PHYSICS_FLOOR)
+    if spec.law is not None:  # the generator predicts a correction to the fitted law
+        ln_ref = law_points(spec, fi, p.extinction_per_m)
+        law_map = np.zeros(z.shape, dtype=np.float32)
+        law_map[image.row[owner], image.col[owner]] = (ln_ref[owner] - spec.log_mean) / spec.log_std
+        z = z + law_map
+    else:
+        ln_ref = np.log(fi.physics.astype(np.float64) + PHYSICS_FLOOR)
+    ln_pixel = z[image.row, image.col].astype(np.float64) * spec.log_std + spec.log_mean
     limit = np.log(MAX_SHARED_RATIO)
-    ratio = np.clip(ln_phys - ln_phys[owner_idx], -limit, limit) if n else ln_phys
+    ratio = np.clip(ln_ref - ln_ref[owner_idx], -limit, limit) if n else ln_ref
     ln_value = np.where(owner, ln_pixel, ln_pixel + ratio)
     refl = np.maximum(np.exp(ln_value) - spec.floor, 0.0) * np.exp(p.shift)
     refl32 = refl.astype(np.float32)

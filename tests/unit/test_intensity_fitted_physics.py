@@ -72,16 +72,21 @@ def test_rare_groups_take_the_pooled_intercept():
 
 def test_the_torch_law_equals_the_numpy_law_on_a_frame():
     group, r, cos, refl = law_data(4000, 2)
-    law = fitted_physics.fit(group % 5, r, cos, refl, floor=0.005)  # groups as material ids
+    elevation = np.asarray(HDL64.elevation_deg)[::8][np.arange(len(r)) % 8]  # 8 of its lasers
+    law = fitted_physics.fit(
+        group % 5, r, cos, refl, floor=0.005, elevation_deg=elevation
+    )  # groups as material ids; fmt: skip
+    assert law.laser_curves
     frame = synth_frame("hdl64e", frames=1, seed=1, index=0, azimuth_bins=256)
     fi = frame_image(frame.xyz, HDL64, labels=frame.labels, label_set="semantickitti")
     names = channel_names(False)
     raw = torch.from_numpy(fi.inputs)[None]
     torch_ln = TorchLaw.of(law, names).ln_reference(raw, torch.zeros(1))[0, 0].numpy()
     occ = fi.inputs[names.index("mask")] > 0
-    x = {n: fi.inputs[names.index(n)][occ] for n in ("ln_range", "cos_incidence", "material")}
+    x = {n: fi.inputs[names.index(n)][occ]
+         for n in ("ln_range", "cos_incidence", "material", "elevation")}  # fmt: skip
     numpy_ln = law.ln_predict(np.rint(x["material"]).astype(int) - 1, np.exp(x["ln_range"]),
-                              x["cos_incidence"])  # fmt: skip
+                              x["cos_incidence"], 0.0, x["elevation"] * 30.0)  # fmt: skip
     assert np.allclose(torch_ln[occ], numpy_ln, atol=1e-4)
 
 
@@ -156,3 +161,70 @@ def test_a_merged_view_links_every_root_and_refuses_collisions(tmp_path: Path):
     assert (view / "x/1.bin").read_text() == "a" and (view / "y/2.bin").read_text() == "b"
     with pytest.raises(ConfigError, match="two dataset roots"):
         merged_view([tmp_path / "a", tmp_path / "c"])
+
+
+LASERS_DEG = np.array([-20.0, -12.0, -6.0, -2.0, 1.0])
+# Each laser's own calibration: a gain, and a bend near or far (ln-intensity deviation).
+LASER_DEVIATION = {
+    0: lambda r: 0.3 + 0.0 * r, 1: lambda r: -0.25 + 0.0 * r, 2: lambda r: 0.2 * np.log(r / 10),
+    3: lambda r: -0.3 * np.exp(-r / 6), 4: lambda r: 0.0 * r,
+}  # fmt: skip
+
+
+def laser_data(n: int, seed: int):
+    group, r, cos, _ = law_data(n, seed)
+    rng = np.random.default_rng(seed + 100)
+    laser = rng.integers(0, len(LASERS_DEG), n)
+    deviation = np.zeros(n)
+    for k, fn in LASER_DEVIATION.items():
+        deviation[laser == k] = fn(r[laser == k])
+    a = np.array([TRUE["a"][g] for g in group])
+    ln = (a + TRUE["b1"] * np.log(r) + TRUE["b2"] * r / 10 + deviation
+          + np.log(fitted_physics.oren_nayar(cos, TRUE["sigma"])))  # fmt: skip
+    refl = np.maximum(np.exp(ln + rng.laplace(0, 0.05, n)) - 0.005, 0)
+    return group, r, cos, refl, LASERS_DEG[laser], deviation
+
+
+def test_each_lasers_range_response_is_fitted_and_looked_up_by_elevation():
+    group, r, cos, refl, elevation, deviation = laser_data(40000, 5)
+    plain = fitted_physics.fit(group, r, cos, refl, floor=0.005)
+    law = fitted_physics.fit(group, r, cos, refl, floor=0.005, elevation_deg=elevation)
+    assert not plain.laser_curves
+    assert law.laser_elevation_deg == tuple(LASERS_DEG)
+    truth = np.log(refl + 0.005)
+    err_plain = np.abs(plain.ln_predict(group, r, cos) - truth).mean()
+    err_laser = np.abs(law.ln_predict(group, r, cos, elevation_deg=elevation) - truth).mean()
+    assert err_laser < 0.6 * err_plain
+    # Recovered up to the shared law: the curve differences between lasers match the truth.
+    probe = np.array([4.0, 10.0, 40.0])
+    for k in (0, 1, 2, 3):
+        got = law.laser_term(probe, np.full(3, LASERS_DEG[k])) - law.laser_term(
+            probe, np.full(3, LASERS_DEG[4])
+        )
+        assert np.allclose(got, LASER_DEVIATION[k](probe), atol=0.06), k
+    # A beam between two lasers takes the nearer one; no elevation, no laser term.
+    assert np.array_equal(fitted_physics.nearest_laser(LASERS_DEG, [-19.0, -9.5, 5.0, -30.0]),
+                          [0, 1, 4, 0])  # fmt: skip
+    assert law.laser_term(probe, None).tolist() == [0.0, 0.0, 0.0]
+    again = fitted_physics.FittedPhysics.from_json(law.to_json())
+    assert np.allclose(again.ln_predict(group, r, cos, elevation_deg=elevation),
+                       law.ln_predict(group, r, cos, elevation_deg=elevation))  # fmt: skip
+
+
+def test_a_laser_with_too_few_points_keeps_the_shared_law():
+    group, r, cos, refl, elevation, _ = laser_data(20000, 6)
+    elevation[:10] = 7.0  # a laser seen ten times
+    law = fitted_physics.fit(group, r, cos, refl, floor=0.005, elevation_deg=elevation)
+    lone = law.laser_elevation_deg.index(7.0)
+    assert np.abs(law.laser_curves[lone]).max() < 1e-3
+
+
+def test_the_hat_basis_interpolates_linearly_and_clamps():
+    knots = np.log(np.array([3.0, 10.0, 30.0]))
+    x = np.log(np.array([1.0, 3.0, np.sqrt(30.0), 30.0, 100.0]))
+    basis, cols = fitted_physics.hat_basis(x, knots)
+    values = np.array([1.0, 2.0, 4.0])
+    got = (values[cols] * basis).sum(axis=1)
+    assert np.allclose(
+        got, [1.0, 1.0, 1.0 + np.log(np.sqrt(30) / 3) / np.log(10 / 3), 4.0, 4.0]
+    )

@@ -121,6 +121,47 @@ def test_points_sharing_a_pixel_get_distinct_physics_scaled_values(tmp_path):
     assert np.log(far + f) == pytest.approx(np.log(near + f) + np.log(0.5), abs=0.05)
 
 
+def test_with_a_fitted_law_sharers_take_the_law_at_their_own_inputs(tmp_path):
+    """In a residual model a sharer gets its pixel's value moved by the law's difference
+    between itself and the owner (its own material, range, incidence and laser), not by the
+    literature reflectance ratio."""
+    from lads.intensity import fitted_physics
+
+    dense = synth_frame("hdl64e", frames=1, seed=3, index=0, azimuth_bins=3000)
+    elevations = tuple(float(v) for v in HDL64.elevation_deg)
+    curves = tuple((0.1 * (k % 3), -0.05 * (k % 5), 0.0) for k in range(len(elevations)))
+    law = fitted_physics.FittedPhysics(
+        {i: -1.5 + 0.2 * i for i in range(10)}, -1.4, 0.5, -0.3, 0.4, 0.005, 3.0, 80.0,
+        laser_elevation_deg=elevations, laser_knots_ln=tuple(np.log([3.0, 10.0, 80.0])),
+        laser_curves=curves,
+    )  # fmt: skip
+    spec = TargetSpec("hdl64e", -1.5, 0.8, 0.005, 1.2, law=law.to_json())
+    save_model(tmp_path / "r.pt", _meta(targets={"kitti": spec}), build_generator(_meta()))
+    pred = predict_points(load_model(tmp_path / "r.pt"), dense.xyz, HDL64, labels=dense.labels,
+                          label_set="semantickitti", ring=dense.ring)  # fmt: skip
+    fi = frame_image(dense.xyz, HDL64, labels=dense.labels, label_set="semantickitti",
+                     ring=dense.ring)  # fmt: skip
+    ln_law = law.ln_predict(fi.material, fi.range_m, fi.cos_incidence, 0.0, fi.elevation_deg)
+    owner = fi.image.index[fi.image.row, fi.image.col]
+    sharers = np.flatnonzero(owner != np.arange(len(owner)))
+    limit = np.log(MAX_SHARED_RATIO)
+    expected = np.log(pred.reflectivity[owner[sharers]] + 0.005) + np.clip(
+        ln_law[sharers] - ln_law[owner[sharers]], -limit, limit
+    )
+    got = np.log(pred.reflectivity[sharers] + 0.005)
+    ok = (pred.reflectivity[sharers] > 0) & (pred.reflectivity[owner[sharers]] > 0)
+    assert sharers.size > 1000 and ok.mean() > 0.9
+    assert np.allclose(got[ok], expected[ok], atol=1e-4)
+    # Not the physics ratio: the two rules differ where a sharer's material is not its
+    # owner's (the law's intercepts are not the literature reflectances).
+    ln_phys = np.log(fi.physics + 1e-6)
+    phys_rule = np.log(pred.reflectivity[owner[sharers]] + 0.005) + np.clip(
+        ln_phys[sharers] - ln_phys[owner[sharers]], -limit, limit
+    )
+    other = fi.material[sharers] != fi.material[owner[sharers]]
+    assert other.sum() > 50 and np.mean(np.abs(phys_rule - got)[other] > 0.05) > 0.5
+
+
 def test_output_is_in_the_target_encoding(tmp_path, street):
     kitti = load_model(tiny_model(tmp_path))
     pred = predict_points(kitti, street.xyz, HDL64, labels=street.labels,
