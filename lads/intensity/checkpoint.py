@@ -26,7 +26,7 @@ import torch
 from lads.errors import ModelError
 from lads.files import atomic_write
 from lads.intensity.features import FEATURE_VERSION, NORMALISED_CHANNELS, channel_names
-from lads.intensity.model import Generator
+from lads.intensity.model import Generator, PointGenerator
 from lads.physics.materials import material_names
 from lads.resources import weights_dir
 
@@ -76,7 +76,9 @@ class ModelMeta:
         channels: raw input channels, in order.
         feature_version: `lads.intensity.features.FEATURE_VERSION` it was trained with.
         range_exponent: n of I_P = rho cos(theta) / R^n.
-        base, blocks: generator size.
+        base, blocks: generator size (U-Net width and residual blocks; pointwise: hidden
+            width and hidden layers).
+        architecture: "unet" or "pointwise" (`lads.intensity.train_config.ARCHITECTURES`).
         targets: output domains by key: the target name for sensor models, the weather
             style ("snow", "fog") for weather models.
         calibration: ln k per sensor profile (targets and sources), used to express a
@@ -101,6 +103,7 @@ class ModelMeta:
     training: dict[str, Any] = field(default_factory=dict)
     materials: tuple[str, ...] = ()
     material_dims: int = MATERIAL_DIMS
+    architecture: str = "unet"
 
     def to_json(self) -> dict[str, Any]:
         out = asdict(self)
@@ -127,6 +130,7 @@ class ModelMeta:
                 # Absent in files of feature version 1, which load() refuses by version.
                 materials=tuple(str(m) for m in raw.get("materials", ())),
                 material_dims=int(raw.get("material_dims", MATERIAL_DIMS)),
+                architecture=str(raw.get("architecture", "unet")),
             )
         except (KeyError, TypeError, ValueError) as exc:
             raise ModelError(
@@ -140,7 +144,7 @@ class IntensityModel:
     """A loaded generator with its metadata; `generator` is in eval mode."""
 
     meta: ModelMeta
-    generator: Generator
+    generator: Generator | PointGenerator
     path: str = ""
 
     def target(self, key: str | None) -> tuple[str, TargetSpec]:
@@ -162,12 +166,22 @@ class IntensityModel:
         return key, spec
 
 
-def build_generator(meta: ModelMeta) -> Generator:
+def build_generator(meta: ModelMeta) -> Generator | PointGenerator:
+    """The untrained generator of the architecture `meta` records."""
+    if meta.architecture == "pointwise":
+        return PointGenerator(meta.channels, NORMALISED_CHANNELS, width=meta.base,
+                              layers=meta.blocks, materials=len(meta.materials),
+                              material_dims=meta.material_dims)  # fmt: skip
+    if meta.architecture != "unet":
+        raise ModelError(
+            f"{meta.name}: generator architecture {meta.architecture!r} is not one this lads "
+            "knows (unet, pointwise); update lads or retrain the model."
+        )
     return Generator(meta.channels, NORMALISED_CHANNELS, base=meta.base, blocks=meta.blocks,
                      materials=len(meta.materials), material_dims=meta.material_dims)  # fmt: skip
 
 
-def stats_hash(generator: Generator) -> str:
+def stats_hash(generator: Generator | PointGenerator) -> str:
     norm = generator.norm
     payload = json.dumps(
         {
@@ -180,7 +194,7 @@ def stats_hash(generator: Generator) -> str:
     return hashlib.sha256(payload.encode()).hexdigest()
 
 
-def save_model(path: Path, meta: ModelMeta, generator: Generator) -> None:
+def save_model(path: Path, meta: ModelMeta, generator: Generator | PointGenerator) -> None:
     """Write a weight file atomically (meta's stats hash is filled in from the generator)."""
     meta_json = meta.to_json()
     meta_json["stats_sha256"] = stats_hash(generator)
@@ -245,7 +259,10 @@ def load_model(path: str | Path, *, device: str = "cpu") -> IntensityModel:
             f"{list(material_names())} (lads/physics/materials.yaml); its material indices "
             "would name other materials. Retrain it (lads train) or restore materials.yaml."
         )
-    generator = build_generator(meta)
+    try:
+        generator = build_generator(meta)
+    except ModelError as exc:
+        raise ModelError(f"{where}: {exc}") from None
     try:
         generator.load_state_dict(blob["state_dict"])
     except (KeyError, RuntimeError) as exc:

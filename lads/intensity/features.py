@@ -96,6 +96,8 @@ class FrameImage:
         elevation_deg: (N,) float32 table elevation of every point's beam (its channel in
             the frame's profile), degrees.
         material: (N,) int64 index of every point's material in `material_names()`.
+        point_inputs: (C, N) float32 the channels of `inputs` for every point, owner or
+            not (a pixel of `inputs` holds its owner's column).
     """
 
     inputs: FloatArray
@@ -109,6 +111,7 @@ class FrameImage:
     range_m: FloatArray
     elevation_deg: FloatArray
     material: npt.NDArray[np.int64]
+    point_inputs: FloatArray
 
     @property
     def mask(self) -> npt.NDArray[np.bool_]:
@@ -191,7 +194,6 @@ def frame_image(
     owners = image.index.reshape(-1)
     occupied = owners >= 0
     src = owners[occupied]
-    planes = np.zeros((len(names), height * w), dtype=np.float32)
     per_point = {
         "ln_range": np.log(r),
         "cos_incidence": cos,
@@ -209,15 +211,17 @@ def frame_image(
             ).astype(np.float64)
             + GEOMETRY_FLOOR
         ),  # fmt: skip
+        "elevation": np.asarray(profile.elevation_deg, dtype=np.float64)[chan]
+        / ELEVATION_SCALE_DEG,
+        "mask": np.ones(n, dtype=np.float32),
     }
-    for name, values in per_point.items():
-        planes[names.index(name), occupied] = values[src]
-    row_of_pixel = np.repeat(np.arange(height), w)
-    elevation = np.asarray(profile.elevation_deg, dtype=np.float64)[height - 1 - row_of_pixel]
-    planes[names.index("elevation"), occupied] = elevation[occupied] / ELEVATION_SCALE_DEG
-    planes[names.index("mask"), occupied] = 1.0
     if style is not None:
-        planes[names.index(style), occupied] = 1.0
+        per_point[style] = np.ones(n, dtype=np.float32)
+    columns = np.zeros((len(names), n), dtype=np.float32)
+    for name, values in per_point.items():
+        columns[names.index(name)] = values
+    planes = np.zeros((len(names), height * w), dtype=np.float32)
+    planes[:, occupied] = columns[:, src]
 
     target = None
     if intensity is not None:
@@ -241,6 +245,7 @@ def frame_image(
         range_m=r.astype(np.float32),
         elevation_deg=np.asarray(profile.elevation_deg, dtype=np.float32)[chan],
         material=material,
+        point_inputs=columns,
     )
 
 

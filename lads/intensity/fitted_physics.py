@@ -15,14 +15,14 @@ directions coincide, so with A = 1 - 0.5 s/(s + 0.33), B = 0.45 s/(s + 0.09), s 
 alpha is the frame's known extinction (weather), not fitted.
 
 s_l is the range response of laser l, the beam that measured the point: a multi-beam
-spinning LiDAR calibrates the intensity of each of its lasers on its own (the HDL-64E's
-per-laser calibration carries a gain and a range-dependent focal compensation per laser,
-`focal_distance` / `focal_slope`; docs/physics.md §11, effects E2 and E4), so one laser reads a surface
-brighter than its neighbour, and differently near than far. s_l is piecewise linear in
-ln R with knots at LASER_KNOTS_M (clamped to the fitted support), one curve per laser, a
-deviation from the shared range law that a ridge penalty pulls towards zero: a laser with
-few points keeps the shared law. A laser is keyed by its elevation in degrees (the
-channel's table elevation of the fitting sensor), so the law applies to any frame whose
+spinning LiDAR calibrates the intensity of each of its lasers on its own (the HDL-64E's per-
+laser calibration carries a gain and a range-dependent focal compensation per laser,
+`focal_distance` / `focal_slope`; docs/physics.md §11, effects E2 and E4), so one laser
+reads a surface brighter than its neighbour, and differently near than far. s_l is piecewise
+linear in ln R with knots at LASER_KNOTS_M (clamped to the fitted support), one curve per
+laser, a deviation from the shared range law that a ridge penalty pulls towards zero: a
+laser with few points keeps the shared law. A laser is keyed by its elevation in degrees
+(the channel's table elevation of the fitting sensor), so the law applies to any frame whose
 beam elevations are known, the nearest laser answering; without elevations s_l is 0.
 
 Fitted on training frames only: for each sigma of a grid, the shared parameters by

@@ -146,11 +146,17 @@ class Generator(nn.Module):
         self.u0 = WrapConv(2 * base + base, base, 3)
         self.head = nn.Conv2d(base, 1, 1)
         self.linear = nn.Conv2d(c, 1, 1)  # physics path: a linear model of the inputs
-        nn.init.zeros_(self.head.weight)
-        nn.init.zeros_(self.head.bias)
+        # Both output paths start at zero, so an untrained generator outputs 0: a residual
+        # model then starts as its fitted law, and that start is a candidate on validation.
+        for layer in (self.head, self.linear):
+            nn.init.zeros_(layer.weight)
+            nn.init.zeros_(layer.bias)
 
-    def forward(self, raw: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-        """raw (B, C, H, W) float32, mask (B, 1, H, W) float32 -> (B, 1, H, W)."""
+    def forward(
+        self, raw: torch.Tensor, mask: torch.Tensor, law: torch.Tensor | None = None
+    ) -> torch.Tensor:
+        """raw (B, C, H, W) float32, mask (B, 1, H, W) float32 -> (B, 1, H, W). `law` is
+        not an input of the U-Net (the same call as `PointGenerator`'s)."""
         x = self.norm(raw, mask)
         if self.material_channel >= 0:
             x = self._with_materials(x, raw)
@@ -170,7 +176,9 @@ class Generator(nn.Module):
         stay aligned with the unpadded image's."""
         return 8 * len(self.mid) + 8
 
-    def infer(self, raw: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    def infer(
+        self, raw: torch.Tensor, mask: torch.Tensor, law: torch.Tensor | None = None
+    ) -> torch.Tensor:
         """The same map as `forward` (to float rounding), for inference.
 
         `forward` wraps azimuth inside every convolution by redoing the few seam columns
@@ -207,12 +215,82 @@ class Generator(nn.Module):
         return out[..., m : m + w]
 
     def _with_materials(self, x: torch.Tensor, raw: torch.Tensor) -> torch.Tensor:
-        """x with its material channel swapped for the material embedding (0 when empty)."""
-        table = self.material_embedding.weight
-        index = raw[:, self.material_channel].round().long().clamp_(0, table.shape[0] - 1)
-        # Row 0 (empty pixel) starts at zero and padding_idx keeps it out of every update.
-        embedded = F.embedding(index, table, padding_idx=0).permute(0, 3, 1, 2)
-        return torch.cat([x.index_select(1, self.kept), embedded], 1)
+        return with_materials(x, raw, self.material_embedding.weight, self.material_channel,
+                              self.kept)  # fmt: skip
+
+
+def with_materials(
+    x: torch.Tensor, raw: torch.Tensor, table: torch.Tensor, channel: int, kept: torch.Tensor
+) -> torch.Tensor:
+    """x with its material channel swapped for the material embedding (0 when empty)."""
+    index = raw[:, channel].round().long().clamp_(0, table.shape[0] - 1)
+    # Row 0 (empty pixel) starts at zero and padding_idx keeps it out of every update.
+    embedded = F.embedding(index, table, padding_idx=0).permute(0, 3, 1, 2)
+    return torch.cat([x.index_select(1, kept), embedded], 1)
+
+
+class PointGenerator(nn.Module):
+    """An MLP on each pixel's (or point's) own inputs: C raw channels and the fitted law's
+    value in z-space in, one value out, (B, C, H, W) -> (B, 1, H, W), as 1 x 1 convolutions.
+
+    It sees no neighbour: what it learns is a function of a point's material, range,
+    incidence, laser elevation and the law there, the interactions a multiplicative law
+    leaves out (a material's own range or incidence response). Trained on the few places of
+    a training split, a U-Net also learns those places' layouts, which do not carry to new
+    places; a per-point function does, and it gives every point of a frame its own value
+    (no pixel sharing). `width` hidden units in `layers` hidden layers; the output layer
+    starts at zero, so an untrained model outputs 0 (the law alone). Materials as in
+    `Generator`.
+    """
+
+    def __init__(
+        self,
+        channels: Sequence[str],
+        normalised: Sequence[str],
+        *,
+        width: int = 32,
+        layers: int = 2,
+        materials: int = 0,
+        material_dims: int = 4,
+    ) -> None:
+        super().__init__()
+        self.channels = tuple(channels)
+        self.norm = Normaliser(self.channels, normalised)
+        self.material_channel = self.channels.index("material") if materials else -1
+        c = len(self.channels) + 1  # the law's z as one more input
+        if self.material_channel >= 0:
+            self.material_embedding = nn.Embedding(materials + 1, material_dims)
+            nn.init.zeros_(self.material_embedding.weight)
+            keep = [i for i in range(len(self.channels)) if i != self.material_channel]
+            self.register_buffer("kept", torch.tensor(keep, dtype=torch.long), persistent=False)
+            c = c - 1 + material_dims
+        sizes = [c] + [width] * layers
+        self.hidden = nn.ModuleList(
+            nn.Conv2d(a, b, 1) for a, b in zip(sizes[:-1], sizes[1:], strict=True)
+        )
+        self.out = nn.Conv2d(sizes[-1], 1, 1)
+        nn.init.zeros_(self.out.weight)
+        nn.init.zeros_(self.out.bias)
+
+    def forward(
+        self, raw: torch.Tensor, mask: torch.Tensor, law: torch.Tensor | None = None
+    ) -> torch.Tensor:
+        """raw (B, C, H, W), mask (B, 1, H, W), law (B, 1, H, W) z-space (None: 0)."""
+        x = self.norm(raw, mask)
+        if self.material_channel >= 0:
+            x = with_materials(x, raw, self.material_embedding.weight, self.material_channel,
+                               self.kept)  # fmt: skip
+        law = torch.zeros_like(mask) if law is None else law * mask
+        x = torch.cat([x, law], 1)
+        for layer in self.hidden:
+            x = F.leaky_relu(layer(x), LEAK)
+        return self.out(x)
+
+    def infer(
+        self, raw: torch.Tensor, mask: torch.Tensor, law: torch.Tensor | None = None
+    ) -> torch.Tensor:
+        """The same as `forward` (no neighbour, so no azimuth wrap to handle)."""
+        return self.forward(raw, mask, law)
 
 
 class Discriminator(nn.Module):

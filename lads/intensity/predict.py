@@ -1,12 +1,17 @@
 """Run an intensity generator on one frame and give *every* point an intensity.
 
-The generator predicts one value per range-image pixel, for the point that owns it (the
+A pointwise generator (`lads.intensity.model.PointGenerator`) is evaluated at every point's
+own inputs and fitted law: each point gets its own value, owner of a pixel or not.
+
+A U-Net generator predicts one value per range-image pixel, for the point that owns it (the
 nearest). Points that share a pixel with a nearer owner (41-80 % of a 64-beam scan,
 depending on the width) get the owner's prediction scaled by their own physics ratio:
 
     ln(I_p + f) = ln(I_pixel + f) + clip(ln(I_P[p] + e) - ln(I_P[owner] + e), -L, L)
 
-with f the target's reflectivity floor, e = PHYSICS_FLOOR and L = ln(MAX_SHARED_RATIO).
+with f the target's reflectivity floor, e = PHYSICS_FLOOR and L = ln(MAX_SHARED_RATIO);
+for a residual model the fitted law ln(I_law + f) at each point takes the place of
+ln(I_P + e), since the law knows the sensor (fitted intercepts, range and laser response).
 So a point on the same surface as its owner inherits the learned sensor response, and a
 point on another material, angle or range differs from it as the physics says. The clip
 keeps a grazing or zero-reflectance neighbour from pulling a value to 0 or infinity. No
@@ -18,6 +23,7 @@ integers 0-255), rounded and clipped by `IntensityEncoding.from_reflectivity`.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -82,21 +88,30 @@ def predict_images(
 def _forward(
     model: IntensityModel, inputs: list[npt.NDArray[np.float32]], device: str
 ) -> list[npt.NDArray[np.float32]]:
+    if model.meta.architecture == "pointwise":
+        raise ModelError(
+            f"{model.path}: a pointwise generator predicts points (predict_points), not "
+            "range images; it needs each point's fitted law."
+        )
     raw = torch.from_numpy(np.ascontiguousarray(np.stack(inputs)))
     raw = raw.to(device=device, memory_format=torch.channels_last)
     k = model.meta.channels.index("mask")
-    # One thread: CPU convolutions split work by thread count, which changes float sums in
-    # the last bits and can flip a quantisation step; a build worker and `lads verify
-    # --regenerate` in the main process must produce the same bytes.
+    z = _single_threaded(lambda: model.generator.infer(raw, raw[:, k : k + 1]))
+    z = z[:, 0].float().cpu().numpy()
+    return [z[i] for i in range(len(inputs))]
+
+
+def _single_threaded(run: Callable[[], torch.Tensor]) -> torch.Tensor:
+    """`run()` in inference mode on one thread: CPU kernels split work by thread count,
+    which changes float sums in the last bits and can flip a quantisation step; a build
+    worker and `lads verify --regenerate` in the main process must produce the same bytes."""
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
     try:
         with torch.inference_mode():
-            z = model.generator.infer(raw, raw[:, k : k + 1])
+            return run()
     finally:
         torch.set_num_threads(threads)
-    z = z[:, 0].float().cpu().numpy()
-    return [z[i] for i in range(len(inputs))]
 
 
 def law_points(
@@ -188,6 +203,8 @@ def predict_points_batch(
     range images (the batched path for a GPU; on a CPU the same code, frame by frame in
     effect). Each frame's result does not depend on the others in the batch."""
     prepared = [_prepare(model, r) for r in requests]
+    if model.meta.architecture == "pointwise":
+        return [_finish_points(model, p, device) for p in prepared]
     z_maps = predict_images(model, [p.fi for p in prepared], device=device)
     return [_finish(p, z) for p, z in zip(prepared, z_maps, strict=True)]
 
@@ -218,6 +235,25 @@ def _prepare(model: IntensityModel, req: PointRequest) -> _Prepared:
         extinction_per_m=req.extinction_per_m,
     )  # fmt: skip
     return _Prepared(fi, spec, out_profile, shift, req.extinction_per_m)
+
+
+def _finish_points(model: IntensityModel, p: _Prepared, device: str) -> Prediction:
+    """Every point's value from the pointwise generator at its own inputs and law."""
+    spec, fi = p.spec, p.fi
+    n = len(fi.range_m)
+    law = ((law_points(spec, fi, p.extinction_per_m) - spec.log_mean) / spec.log_std).astype(
+        np.float32
+    )
+    raw = torch.from_numpy(fi.point_inputs)[None, :, :, None].to(device)
+    law_t = torch.from_numpy(law)[None, None, :, None].to(device)
+    mask = torch.ones((1, 1, n, 1), dtype=torch.float32, device=device)
+    out = _single_threaded(lambda: model.generator.infer(raw, mask, law_t) + law_t)
+    z = out[0, 0, :, 0].float().cpu().numpy().astype(np.float64)
+    refl = np.maximum(np.exp(z * spec.log_std + spec.log_mean) - spec.floor, 0.0) * np.exp(p.shift)
+    refl32 = refl.astype(np.float32)
+    image = fi.image
+    owner = image.index[image.row, image.col] == np.arange(n)
+    return Prediction(refl32, p.out_profile.intensity.from_reflectivity(refl32), owner)
 
 
 def _finish(p: _Prepared, z: npt.NDArray[np.float32]) -> Prediction:

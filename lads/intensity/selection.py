@@ -17,7 +17,7 @@ from typing import Any
 
 from lads.files import atomic_write
 from lads.intensity.checkpoint import IntensityModel, ModelMeta, save_model
-from lads.intensity.model import Generator
+from lads.intensity.model import Generator, PointGenerator
 from lads.intensity.train_config import TrainConfig
 
 BEST = "best.pt"
@@ -72,7 +72,9 @@ class Selector:
             json.loads(path.read_text()) if path.is_file() else {"history": [], "best": None}
         )
 
-    def offer(self, step: int, meta: ModelMeta, generator: Generator, scores: dict) -> bool:
+    def offer(
+        self, step: int, meta: ModelMeta, generator: Generator | PointGenerator, scores: dict
+    ) -> bool:
         """Record `scores` of the checkpoint at `step`; keep it when it is the best."""
         self.record["history"].append({"step": step, **scores})
         best = self.record["best"]

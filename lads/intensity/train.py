@@ -34,6 +34,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 import torch
 from tqdm.auto import tqdm
 
@@ -57,7 +58,7 @@ from lads.intensity.features import (
 )
 from lads.intensity.law_reference import TorchLaw, fit_law
 from lads.intensity.losses import balanced_l1, masked_l1, masked_mse_to
-from lads.intensity.model import Discriminator, Generator
+from lads.intensity.model import Discriminator, Generator, PointGenerator
 from lads.intensity.run_statistics import run_statistics
 from lads.intensity.selection import BEST, Selector, score, validation_frames
 from lads.intensity.train_config import TrainConfig
@@ -92,6 +93,7 @@ class Sampler:
         for job in jobs:
             self.by_domain.setdefault((job.pair, job.role), []).append(job)
         self._frames: OrderedDict[str, CachedFrame] = OrderedDict()
+        self._occupied_pixels: dict[str, npt.NDArray[np.int64]] = {}
 
     def frame(self, job: CacheJob) -> CachedFrame:
         """The cached frame of `job`, read from zarr unless held (least recently used
@@ -130,6 +132,39 @@ class Sampler:
             torch.tensor(ext, dtype=torch.float32),
         )  # fmt: skip
 
+    def points(self, pair: str, count: int, z_stats: tuple[float, float, float]) -> Batch:
+        """`count` occupied target pixels drawn at random from all of the pair's target
+        frames (frame, then pixel, uniformly), as a (1, C, count, 1) batch."""
+        jobs = self.by_domain[(pair, "target")]
+        mean, std, floor = z_stats
+        which = self.rng.integers(len(jobs), size=count)
+        raws, zs, ext = [], [], []
+        labelled = True
+        for j in np.unique(which):
+            f = self.frame(jobs[int(j)])
+            if f.target is None:
+                raise TrainingError(f"pair {pair}: target frame {f.frame} carries no intensity.")
+            flat = f.inputs.reshape(f.inputs.shape[0], -1)
+            occupied = self._occupied(jobs[int(j)].node, flat)
+            pick = occupied[self.rng.integers(len(occupied), size=int(np.sum(which == j)))]
+            raws.append(flat[:, pick])
+            zs.append((np.log(f.target.reshape(-1)[pick] + floor) - mean) / std)
+            ext.append(np.full(len(pick), f.extinction_per_m))
+            labelled &= f.labelled
+        raw = torch.from_numpy(np.concatenate(raws, 1)[None, :, :, None])
+        z = torch.from_numpy(np.concatenate(zs)[None, None, :, None]).float()
+        extinction = np.concatenate(ext)
+        if np.ptp(extinction) > 0:
+            raise TrainingError(f"pair {pair}: target frames of different extinction; the "
+                                "pointwise identity batch needs one per pair.")  # fmt: skip
+        return Batch(raw, torch.ones_like(z), z, labelled,
+                     torch.tensor(extinction[:1], dtype=torch.float32))  # fmt: skip
+
+    def _occupied(self, node: str, flat: npt.NDArray[np.float32]) -> npt.NDArray[np.int64]:
+        if node not in self._occupied_pixels:
+            self._occupied_pixels[node] = np.flatnonzero(flat[GEN_MASK_INDEX[flat.shape[0]]] > 0)
+        return self._occupied_pixels[node]
+
 
 GEN_MASK_INDEX = {len(channel_names(s)): channel_names(s).index("mask") for s in (False, True)}
 
@@ -142,10 +177,17 @@ class Nets(torch.nn.Module):
         weather = cfg.kind == "weather"
         self.channels = channel_names(weather)
         styles = STYLES if weather else ()
-        self.g = Generator(
-            self.channels, NORMALISED_CHANNELS, base=cfg.base, blocks=cfg.blocks,
-            materials=len(material_names()), material_dims=MATERIAL_DIMS,
-        )  # fmt: skip
+        self.g: Generator | PointGenerator
+        if cfg.architecture == "pointwise":
+            self.g = PointGenerator(
+                self.channels, NORMALISED_CHANNELS, width=cfg.point_width, layers=cfg.point_layers,
+                materials=len(material_names()), material_dims=MATERIAL_DIMS,
+            )  # fmt: skip
+        else:
+            self.g = Generator(
+                self.channels, NORMALISED_CHANNELS, base=cfg.base, blocks=cfg.blocks,
+                materials=len(material_names()), material_dims=MATERIAL_DIMS,
+            )  # fmt: skip
         self.inv_channels = GEOMETRY + ("particle",) + styles + ("z_intensity",)
         self.inv = Generator(self.inv_channels, ("ln_range", "cos_incidence"),
                              base=cfg.base, blocks=cfg.blocks)  # fmt: skip
@@ -173,12 +215,12 @@ class Nets(torch.nn.Module):
         self, raw: torch.Tensor, mask: torch.Tensor, key: str, extinction: torch.Tensor
     ) -> torch.Tensor:
         """G_S2T in target `key`'s z-space: G's output, plus the target's fitted law when the
-        run is residual (`TrainConfig.residual`)."""
-        z = self.g(raw, mask)
-        if self.residual:
-            mean, std, _ = self.zstats[key]
-            z = z + (self.laws[key].ln_reference(raw, extinction) - mean) / std
-        return z
+        run is residual (`TrainConfig.residual`); a pointwise G also sees the law."""
+        if not self.residual:
+            return self.g(raw, mask)
+        mean, std, _ = self.zstats[key]
+        law = (self.laws[key].ln_reference(raw, extinction) - mean) / std
+        return self.g(raw, mask, law) + law
 
     def pick(
         self, raw: torch.Tensor, names: tuple[str, ...], **extra: torch.Tensor
@@ -254,9 +296,17 @@ def train(
     validation = validation_frames(cfg)
     selector = Selector(run)
     end = cfg.steps if max_steps is None else min(cfg.steps, max_steps)
+    if start == 0 and cfg.residual:
+        # The untrained residual generator outputs 0, i.e. the fitted law alone: training
+        # must beat it on validation to be chosen.
+        _offer(nets, selector, _meta(cfg, stats, channels, record, history, 0), validation, 0,
+               device)  # fmt: skip
     bar = tqdm(range(start, end), initial=start, total=cfg.steps, desc=f"train {cfg.name}",
                unit="step", disable=not progress)  # fmt: skip
     for step in bar:
+        for opt in (opt_g, opt_d):
+            for group in opt.param_groups:
+                group["lr"] = learning_rate(cfg, step)
         losses = _step(nets, cfg, sampler, targets, torch_laws, log_k, mean_alpha, opt_g, opt_d,
                        device)  # fmt: skip
         if not all(math.isfinite(v) for v in losses.values()):
@@ -271,10 +321,7 @@ def train(
             _checkpoint(ckpt_path, config_id, done, nets, opt_g, opt_d, rng, history)
             write_loss_figure(history, run / "loss.png", cfg.name)
             meta = _meta(cfg, stats, channels, record, history, done)
-            nets.g.cpu().eval()
-            scores = score(IntensityModel(meta, nets.g, f"{cfg.name} step {done}"), validation)
-            selector.offer(done, meta, nets.g, scores)
-            nets.g.train().to(device)
+            _offer(nets, selector, meta, validation, done, device)
     atomic_write(run / "history.json", json.dumps(history).encode())
     summary: dict[str, Any] = {"run_dir": str(run), "steps_done": len(history),
                                "selection": selector.record.get("best")}  # fmt: skip
@@ -292,6 +339,29 @@ def train(
     return summary
 
 
+def learning_rate(cfg: TrainConfig, step: int) -> float:
+    """The learning rate at `step` (0-based): `cfg.lr`, falling linearly to 0 at the last
+    step from `lr_decay_from` x steps on when that is set. A function of the step alone, so a
+    resumed run follows the same schedule."""
+    if cfg.lr_decay_from is None:
+        return cfg.lr
+    start = cfg.lr_decay_from * cfg.steps
+    if step < start:
+        return cfg.lr
+    return cfg.lr * max(cfg.steps - step, 0) / max(cfg.steps - start, 1.0)
+
+
+def _offer(
+    nets: Nets, selector: Selector, meta: ModelMeta, validation: dict[str, list[Any]], step: int,
+    device: str,
+) -> None:  # fmt: skip
+    """Score the generator as it is at `step` on the validation frames and offer it."""
+    nets.g.cpu().eval()
+    scores = score(IntensityModel(meta, nets.g, f"{meta.name} step {step}"), validation)
+    selector.offer(step, meta, nets.g, scores)
+    nets.g.train().to(device)
+
+
 def _meta(
     cfg: TrainConfig, stats: Statistics, channels: tuple[str, ...], record: dict[str, Any],
     history: list[dict[str, float]], step: int,
@@ -299,10 +369,13 @@ def _meta(
     """The metadata of the generator at `step`."""
     return ModelMeta(
         name=cfg.name, kind=cfg.kind, channels=channels, feature_version=FEATURE_VERSION,
-        range_exponent=cfg.range_exponent, base=cfg.base, blocks=cfg.blocks,
+        range_exponent=cfg.range_exponent,
+        base=cfg.point_width if cfg.architecture == "pointwise" else cfg.base,
+        blocks=cfg.point_layers if cfg.architecture == "pointwise" else cfg.blocks,
         targets={k: TargetSpec(**v, law=record["laws"][k] if cfg.residual else None)
                  for k, v in stats.targets.items()},
         calibration=stats.calibration, materials=material_names(), material_dims=MATERIAL_DIMS,
+        architecture=cfg.architecture,
         training={"config": cfg.to_dict(), "steps": step, "seed": cfg.seed,
                   "final_losses": history[step - 1] if history else {},
                   "loss_shares": _loss_shares(cfg, history[max(0, step - 100):step]),
@@ -374,8 +447,13 @@ def _step(
 
         l_id = torch.zeros((), device=device)
         if t.labelled:
-            l_id = balanced_l1(nets.translate(t.raw, t.mask, key, t.extinction), t.z, t.mask,
-                               t.raw[:, ch.index("material")][:, None],
+            ti = t
+            if cfg.identity_points is not None:
+                ti = _to(sampler.points(key, cfg.identity_points, targets[key]), device)
+            if ti.z is None:
+                raise TrainingError(f"pair {key}: target frames carry no intensity.")
+            l_id = balanced_l1(nets.translate(ti.raw, ti.mask, key, ti.extinction), ti.z, ti.mask,
+                               ti.raw[:, ch.index("material")][:, None],
                                w.identity_balance)  # fmt: skip
 
         l_style = torch.zeros((), device=device)

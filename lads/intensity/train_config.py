@@ -134,7 +134,19 @@ class TrainConfig:
         steps, batch, crop_width: optimisation length, frames per domain per step, and the
             azimuth crop (pixels) taken from each frame per sample.
         lr, betas: Adam settings for all four networks (paper: 1e-5, (0.5, 0.999)).
-        base, blocks: generator width and residual blocks; disc_base: critic width.
+        architecture: the generator, "unet" (a small U-Net on the range image) or
+            "pointwise" (an MLP applied to each point's own inputs and the fitted law's
+            value; needs `residual`); `lads.intensity.model`.
+        base, blocks: U-Net width and residual blocks (the generator's when it is a U-Net,
+            always the inverse generator's); disc_base: critic width.
+        point_width, point_layers: the pointwise generator's hidden width and layers.
+        lr_decay_from: with a value f in [0, 1), the learning rate falls linearly from `lr`
+            at step f x steps to 0 at the last step (CycleGAN's schedule; checkpoints
+            late in a run then differ less from one another); None: constant.
+        identity_points: pointwise generators only: the identity term draws this many
+            occupied pixels at random from all the target's training frames each step
+            (independent points, not the critics' azimuth crops: a per-point function
+            learns from an unbiased sample of every frame); None: the crops.
         seed: torch and sampling seed.
         checkpoint_every: steps between resumable checkpoints.
         losses: LossWeights.
@@ -163,6 +175,11 @@ class TrainConfig:
     workers: int = 2
     description: str = ""
     residual: bool = False
+    architecture: str = "unet"
+    point_width: int = 32
+    point_layers: int = 2
+    identity_points: int | None = None
+    lr_decay_from: float | None = None
 
     def run_path(self, run_dir: Path | None = None) -> Path:
         """The run folder: `run_dir`, else `runs/<name>` under the working directory."""
@@ -188,10 +205,14 @@ class TrainConfig:
         return hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()[:16]
 
 
+# The generator architectures (`lads.intensity.model`): a U-Net on the range image, or an MLP
+# on each point's own inputs and its fitted law.
+ARCHITECTURES: tuple[str, ...] = ("unet", "pointwise")
 _TOP = {
     "schema_version", "name", "kind", "description", "pairs", "output", "range_exponent",
     "steps", "batch", "crop_width", "lr", "betas", "base", "blocks", "disc_base", "seed",
-    "checkpoint_every", "losses", "workers", "residual",
+    "checkpoint_every", "losses", "workers", "residual", "architecture", "point_width",
+    "point_layers", "identity_points", "lr_decay_from",
 }  # fmt: skip
 _DOMAIN = set(DomainSpec.__dataclass_fields__) - {"data_root"}
 _LOSSES = set(LossWeights.__dataclass_fields__)
@@ -292,12 +313,29 @@ def parse_train_config(raw: Any, where: str) -> TrainConfig:
         cfg = TrainConfig(pairs=tuple(pairs), losses=losses, **scalars)
     except TypeError as exc:
         raise ConfigError(f"{where}: {exc}") from None
-    for name in ("steps", "batch", "crop_width", "base", "blocks", "checkpoint_every", "workers"):
+    for name in ("steps", "batch", "crop_width", "base", "blocks", "checkpoint_every", "workers",
+                 "point_width", "point_layers"):  # fmt: skip
         value = getattr(cfg, name)
         if not isinstance(value, int) or value < 1:
             raise ConfigError(f"{where}: {name} = {value!r}; expected a positive integer.")
     if cfg.crop_width % 4:
         raise ConfigError(f"{where}: crop_width {cfg.crop_width} must be a multiple of 4.")
+    decay = cfg.lr_decay_from
+    if decay is not None and not (isinstance(decay, (int, float)) and 0 <= decay < 1):
+        raise ConfigError(f"{where}: lr_decay_from = {decay!r}; expected a number in [0, 1).")
+    points = cfg.identity_points
+    if points is not None and (not isinstance(points, int) or points < 1):
+        raise ConfigError(f"{where}: identity_points = {points!r}; expected a positive integer.")
+    if points is not None and cfg.architecture != "pointwise":
+        raise ConfigError(f"{where}: identity_points needs architecture: pointwise.")
+    if cfg.architecture not in ARCHITECTURES:
+        raise ConfigError(
+            f"{where}: architecture {cfg.architecture!r}; expected one of {list(ARCHITECTURES)}."
+        )
+    if cfg.architecture == "pointwise" and not cfg.residual:
+        raise ConfigError(
+            f"{where}: the pointwise generator corrects the fitted law; set residual: true."
+        )
     return cfg
 
 

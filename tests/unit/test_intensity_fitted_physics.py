@@ -225,6 +225,4 @@ def test_the_hat_basis_interpolates_linearly_and_clamps():
     basis, cols = fitted_physics.hat_basis(x, knots)
     values = np.array([1.0, 2.0, 4.0])
     got = (values[cols] * basis).sum(axis=1)
-    assert np.allclose(
-        got, [1.0, 1.0, 1.0 + np.log(np.sqrt(30) / 3) / np.log(10 / 3), 4.0, 4.0]
-    )
+    assert np.allclose(got, [1.0, 1.0, 1.0 + np.log(np.sqrt(30) / 3) / np.log(10 / 3), 4.0, 4.0])

@@ -421,3 +421,65 @@ def test_a_batch_of_frames_gives_each_frame_the_bytes_it_gets_alone(tmp_path, st
                                ring=f.ring)  # fmt: skip
         np.testing.assert_array_equal(b.encoded, alone.encoded)
         np.testing.assert_array_equal(b.reflectivity, alone.reflectivity)
+
+
+def test_a_pointwise_generator_answers_each_pixel_from_its_own_inputs_only():
+    from lads.intensity.model import PointGenerator
+
+    names = channel_names(False)
+    torch.manual_seed(0)
+    gen = PointGenerator(names, ("ln_range",), width=8, layers=2, materials=len(material_names()))
+    raw = torch.rand(1, len(names), 4, 6)
+    mask = torch.ones(1, 1, 4, 6)
+    law = torch.rand(1, 1, 4, 6)
+    assert bool((gen(raw, mask, law) == 0).all())  # untrained: the law alone
+    with torch.no_grad():
+        for p in gen.parameters():
+            p.normal_(0, 0.3)
+    before = gen(raw, mask, law)
+    raw2, law2 = raw.clone(), law.clone()
+    raw2[0, :, 1, 2] += 1.0
+    law2[0, 0, 1, 2] += 1.0
+    after = gen(raw2, mask, law2)
+    changed = (after != before)[0, 0]
+    assert bool(changed[1, 2]) and int(changed.sum()) == 1
+    # Pixels laid out as a column of points give the same values as the image.
+    points = gen(raw.reshape(1, len(names), 24, 1), mask.reshape(1, 1, 24, 1),
+                 law.reshape(1, 1, 24, 1))  # fmt: skip
+    torch.testing.assert_close(points.reshape(1, 1, 4, 6), before, rtol=0, atol=1e-6)
+
+
+def test_a_pointwise_model_gives_every_point_its_own_value(tmp_path):
+    from lads.intensity import fitted_physics
+
+    dense = synth_frame("hdl64e", frames=1, seed=3, index=0, azimuth_bins=3000)
+    law = fitted_physics.FittedPhysics({i: -1.5 + 0.2 * i for i in range(10)}, -1.4, 0.5, -0.3,
+                                       0.4, 0.005, 3.0, 80.0)  # fmt: skip
+    spec = TargetSpec("hdl64e", -1.5, 0.8, 0.005, 1.2, law=law.to_json())
+    path = tiny_model(tmp_path, architecture="pointwise", base=8, blocks=2,
+                      targets={"kitti": spec})  # fmt: skip
+    model = load_model(path)
+    pred = predict_points(model, dense.xyz, HDL64, labels=dense.labels,
+                          label_set="semantickitti", ring=dense.ring)  # fmt: skip
+    again = predict_points(model, dense.xyz, HDL64, labels=dense.labels,
+                           label_set="semantickitti", ring=dense.ring)  # fmt: skip
+    assert np.array_equal(pred.encoded, again.encoded)
+    fi = frame_image(dense.xyz, HDL64, labels=dense.labels, label_set="semantickitti",
+                     ring=dense.ring)  # fmt: skip
+    ln_law = law.ln_predict(fi.material, fi.range_m, fi.cos_incidence, 0.0, fi.elevation_deg)
+    law_z = torch.from_numpy(((ln_law - spec.log_mean) / spec.log_std).astype(np.float32))
+    with torch.no_grad():
+        g = model.generator(
+            torch.from_numpy(fi.point_inputs)[None, :, :, None],
+            torch.ones(1, 1, len(ln_law), 1),
+            law_z[None, None, :, None],
+        )
+    z = (g[0, 0, :, 0] + law_z).numpy().astype(np.float64)
+    expected = np.maximum(np.exp(z * spec.log_std + spec.log_mean) - spec.floor, 0)
+    assert np.allclose(pred.reflectivity, expected, atol=1e-5)
+    sharers = ~pred.owner
+    assert sharers.sum() > 1000  # sharers are answered at their own inputs, not the owner's
+    with pytest.raises(ModelError, match="pointwise"):
+        from lads.intensity.predict import predict_image
+
+        predict_image(model, fi)

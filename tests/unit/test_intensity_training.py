@@ -172,3 +172,67 @@ def test_a_residual_run_stores_the_law_fitted_on_its_training_frames(target_tree
     law = FittedPhysics.from_json(model.meta.targets["kitti"].law)
     assert law.intercepts and -3.0 < law.b1 < 3.0
     assert model.meta.training["physics_reference"]["kitti"]["points"] > 1000
+
+
+def test_pointwise_configs_need_a_residual_law_and_identity_points_need_pointwise(
+    target_tree, tmp_path
+):
+    pointwise = {"residual": True, "architecture": "pointwise", "identity_points": 500}
+    ok = parse_train_config(_config(target_tree, tmp_path / "w.pt", **pointwise), "t")
+    assert ok.architecture == "pointwise" and ok.identity_points == 500
+    for changes, match in (
+        ({"architecture": "pointwise"}, "residual: true"),
+        ({"architecture": "transformer", "residual": True}, "architecture"),
+        ({"identity_points": 500, "residual": True}, "needs architecture: pointwise"),
+        ({"lr_decay_from": 1.0}, "lr_decay_from"),
+    ):
+        with pytest.raises(ConfigError, match=match):
+            parse_train_config(_config(target_tree, tmp_path / "w.pt", **changes), "t")
+
+
+def test_the_learning_rate_decays_linearly_to_zero_from_its_start():
+    from lads.intensity.train import learning_rate
+
+    cfg = dataclasses.replace(_parsed_for_lr(), lr=1e-3, steps=100, lr_decay_from=0.5)
+    assert learning_rate(cfg, 0) == learning_rate(cfg, 49) == 1e-3
+    assert learning_rate(cfg, 75) == pytest.approx(0.5e-3)
+    assert learning_rate(cfg, 100) == 0.0
+    assert learning_rate(dataclasses.replace(cfg, lr_decay_from=None), 99) == 1e-3
+
+
+def _parsed_for_lr():
+    return parse_train_config(_config(Path("/nonexistent"), Path("w.pt")), "t")
+
+
+def test_identity_points_are_occupied_pixels_of_the_training_frames(target_tree, tmp_path):
+    import numpy as np
+
+    from lads.intensity.train import GEN_MASK_INDEX, Sampler
+
+    pointwise = {"residual": True, "architecture": "pointwise", "identity_points": 300}
+    cfg = parse_train_config(_config(target_tree, tmp_path / "w.pt", **pointwise), "t")
+    jobs = build_cache(tmp_path / "run", cfg, progress=False)
+
+    def draw_points():
+        sampler = Sampler(tmp_path / "run", jobs, np.random.default_rng(1))
+        return sampler.points("kitti", 300, (-1.0, 1.0, 0.005))
+
+    draw, again = draw_points(), draw_points()
+    assert draw.raw.shape[2:] == (300, 1) and draw.z is not None and draw.z.shape == (1, 1, 300, 1)
+    assert bool((draw.raw[0, GEN_MASK_INDEX[draw.raw.shape[1]]] == 1).all())
+    assert bool((draw.raw == again.raw).all())  # drawn from the sampler's own rng only
+
+
+def test_a_pointwise_run_trains_scores_its_law_alone_first_and_loads(target_tree, tmp_path):
+    import json
+
+    cfg = parse_train_config(_config(target_tree, tmp_path / "w.pt", residual=True,
+                                     architecture="pointwise", identity_points=400,
+                                     point_width=8, point_layers=1, lr_decay_from=0.5),
+                             "t")  # fmt: skip
+    summary = train(cfg, run_dir=tmp_path / "run", progress=False)
+    record = json.loads((tmp_path / "run" / "selection.json").read_text())
+    assert [h["step"] for h in record["history"]] == [0, 2, 4]  # step 0: the law alone
+    model = load_model(summary["weights"])
+    assert model.meta.architecture == "pointwise" and model.meta.base == 8
+    assert type(model.generator).__name__ == "PointGenerator"
