@@ -25,6 +25,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from lads.intensity.features import STYLES
+
 LEAK = 0.2
 
 
@@ -229,9 +231,19 @@ def with_materials(
     return torch.cat([x.index_select(1, kept), embedded], 1)
 
 
+# The channels a pointwise generator reads (styles too, when present). The others (I_P,
+# I_P per unit reflectance, literature reflectance, the mask) are functions of these or
+# constant on a point; the law's value comes in beside them.
+POINT_INPUTS: tuple[str, ...] = ("ln_range", "cos_incidence", "elevation", "particle")
+# z-scored inputs are clamped to this many standard deviations: an MLP extrapolates linearly,
+# and ego-body returns at a few centimetres sit far outside the ranges it learnt on.
+POINT_INPUT_CLAMP = 4.0
+
+
 class PointGenerator(nn.Module):
-    """An MLP on each pixel's (or point's) own inputs: C raw channels and the fitted law's
-    value in z-space in, one value out, (B, C, H, W) -> (B, 1, H, W), as 1 x 1 convolutions.
+    """An MLP on each pixel's (or point's) own inputs: the POINT_INPUTS channels (and the
+    weather style), the material, and the fitted law's value in z-space in, one value out,
+    (B, C, H, W) -> (B, 1, H, W), as 1 x 1 convolutions.
 
     It sees no neighbour: what it learns is a function of a point's material, range,
     incidence, laser elevation and the law there, the interactions a multiplicative law
@@ -240,7 +252,7 @@ class PointGenerator(nn.Module):
     places; a per-point function does, and it gives every point of a frame its own value
     (no pixel sharing). `width` hidden units in `layers` hidden layers; the output layer
     starts at zero, so an untrained model outputs 0 (the law alone). Materials as in
-    `Generator`.
+    `Generator` (a learned vector per material, zero at the start).
     """
 
     def __init__(
@@ -256,14 +268,15 @@ class PointGenerator(nn.Module):
         super().__init__()
         self.channels = tuple(channels)
         self.norm = Normaliser(self.channels, normalised)
+        picked = [i for i, name in enumerate(self.channels)
+                  if name in POINT_INPUTS or name in STYLES]  # fmt: skip
+        self.register_buffer("picked", torch.tensor(picked, dtype=torch.long), persistent=False)
         self.material_channel = self.channels.index("material") if materials else -1
-        c = len(self.channels) + 1  # the law's z as one more input
+        c = len(picked) + 1  # the law's z as one more input
         if self.material_channel >= 0:
             self.material_embedding = nn.Embedding(materials + 1, material_dims)
             nn.init.zeros_(self.material_embedding.weight)
-            keep = [i for i in range(len(self.channels)) if i != self.material_channel]
-            self.register_buffer("kept", torch.tensor(keep, dtype=torch.long), persistent=False)
-            c = c - 1 + material_dims
+            c += material_dims
         sizes = [c] + [width] * layers
         self.hidden = nn.ModuleList(
             nn.Conv2d(a, b, 1) for a, b in zip(sizes[:-1], sizes[1:], strict=True)
@@ -276,12 +289,15 @@ class PointGenerator(nn.Module):
         self, raw: torch.Tensor, mask: torch.Tensor, law: torch.Tensor | None = None
     ) -> torch.Tensor:
         """raw (B, C, H, W), mask (B, 1, H, W), law (B, 1, H, W) z-space (None: 0)."""
-        x = self.norm(raw, mask)
-        if self.material_channel >= 0:
-            x = with_materials(x, raw, self.material_embedding.weight, self.material_channel,
-                               self.kept)  # fmt: skip
+        x = self.norm(raw, mask).index_select(1, self.picked)
+        x = x.clamp(-POINT_INPUT_CLAMP, POINT_INPUT_CLAMP)
         law = torch.zeros_like(mask) if law is None else law * mask
-        x = torch.cat([x, law], 1)
+        parts = [x, law]
+        if self.material_channel >= 0:
+            table = self.material_embedding.weight
+            index = raw[:, self.material_channel].round().long().clamp_(0, table.shape[0] - 1)
+            parts.append(F.embedding(index, table, padding_idx=0).permute(0, 3, 1, 2))
+        x = torch.cat(parts, 1)
         for layer in self.hidden:
             x = F.leaky_relu(layer(x), LEAK)
         return self.out(x)
