@@ -30,6 +30,10 @@ TERMS = {
     "radiate": "RADIATE (CC BY-NC-SA 4.0): non-commercial",
     "synth": "made by `lads synth` in this repository (no third-party terms)",
 }
+ARCHITECTURE = {
+    "pointwise": "pointwise MLP (each point from its own inputs)",
+    "unet": "range-image U-Net",
+}
 GENERATOR_FORM = {
     True: "a correction to the physics law fitted on the target training frames",
     False: "predicts the intensity outright",
@@ -93,6 +97,12 @@ def _shares(shares: dict[str, float]) -> str:
                      if v > 0) or "not recorded"  # fmt: skip
 
 
+def _decay(cfg: TrainConfig) -> str:
+    if cfg.lr_decay_from is None:
+        return ""
+    return f" falling linearly to 0 from step {round(cfg.lr_decay_from * cfg.steps)}"
+
+
 def _f(value: Any) -> str:
     return "n/a" if value is None else f"{value:.4g}"
 
@@ -108,10 +118,12 @@ def render_card(cfg: TrainConfig, weights: Path, results: dict[str, Any]) -> str
         f"- kind: {cfg.kind}; targets: {', '.join(sorted(model.meta.targets))}; "
         f"generator parameters: {sum(p.numel() for p in model.generator.parameters())}",
         f"- made by: `make train` (`lads train {cfg.name} --data-root DATA`), seed {cfg.seed}, "
-        f"batch {cfg.batch}, crop {cfg.crop_width} px, lr {cfg.lr}; of {cfg.steps} steps the "
+        f"batch {cfg.batch}, crop {cfg.crop_width} px, identity points "
+        f"{cfg.identity_points or 'from the crops'}, lr {cfg.lr}"
+        f"{_decay(cfg)}; of {cfg.steps} steps the "
         f"checkpoint at step {training.get('steps')} scored best on the validation frames "
         "(paired MAE + cell W1) and is this file",
-        f"- generator: {GENERATOR_FORM[cfg.residual]}; "
+        f"- generator: {ARCHITECTURE[cfg.architecture]}, {GENERATOR_FORM[cfg.residual]}; "
         f"range exponent n = {cfg.range_exponent}; data hash {training.get('data_hash')}",
         f"- loss composition (share of the generator loss, last 100 steps before that "
         f"checkpoint): {_shares(training.get('loss_shares', {}))}; supervised = identity "
