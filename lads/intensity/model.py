@@ -297,10 +297,12 @@ class PointGenerator(nn.Module):
             table = self.material_embedding.weight
             index = raw[:, self.material_channel].round().long().clamp_(0, table.shape[0] - 1)
             parts.append(F.embedding(index, table, padding_idx=0).permute(0, 3, 1, 2))
-        x = torch.cat(parts, 1)
+        # Channels last: each 1 x 1 convolution is then one matrix product over all points,
+        # several times faster on a CPU than conv2d on a (1, C, N, 1) image.
+        x = torch.cat(parts, 1).permute(0, 2, 3, 1)
         for layer in self.hidden:
-            x = F.leaky_relu(layer(x), LEAK)
-        return self.out(x)
+            x = F.leaky_relu_(F.linear(x, layer.weight[:, :, 0, 0], layer.bias), LEAK)
+        return F.linear(x, self.out.weight[:, :, 0, 0], self.out.bias).permute(0, 3, 1, 2)
 
     def infer(
         self, raw: torch.Tensor, mask: torch.Tensor, law: torch.Tensor | None = None
