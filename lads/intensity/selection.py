@@ -65,12 +65,18 @@ def score(model: IntensityModel, frames: dict[str, list[Any]]) -> dict[str, Any]
 class Selector:
     """The best checkpoint so far, kept on disk in the run folder."""
 
-    def __init__(self, run: Path) -> None:
+    def __init__(self, run: Path, config_id: str, *, resumed: bool) -> None:
+        """`config_id` names the training config; the stored choice is carried on only by
+        a run resumed from its checkpoint under the same config. A run that starts at
+        step 0 chooses afresh: a best checkpoint left by an earlier run (another config, or
+        the same one before its checkpoint was deleted) must not win over the new run."""
         self.run = run
         path = run / SELECTION
-        self.record: dict[str, Any] = (
-            json.loads(path.read_text()) if path.is_file() else {"history": [], "best": None}
-        )
+        stored = json.loads(path.read_text()) if resumed and path.is_file() else None
+        if stored is None or stored.get("config", config_id) != config_id:
+            stored = {"history": [], "best": None}
+        stored["config"] = config_id
+        self.record: dict[str, Any] = stored
 
     def offer(
         self, step: int, meta: ModelMeta, generator: Generator | PointGenerator, scores: dict

@@ -294,7 +294,7 @@ def train(
     record = {"laws": {k: law.to_json() for k, law in laws.items()}, "jobs": len(jobs),
               "data_hash": cfg.data_hash()}  # fmt: skip
     validation = validation_frames(cfg)
-    selector = Selector(run)
+    selector = Selector(run, config_id, resumed=start > 0)
     end = cfg.steps if max_steps is None else min(cfg.steps, max_steps)
     if start == 0 and cfg.residual:
         # The untrained residual generator outputs 0, i.e. the fitted law alone: training

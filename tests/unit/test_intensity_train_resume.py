@@ -261,3 +261,18 @@ def test_eviction_never_changes_the_batches(tiny, tmp_path, monkeypatch):
 
     for held_one, held_all in zip(batches(1), batches(64), strict=True):
         assert held_one.equal(held_all)
+
+
+def test_a_run_started_afresh_does_not_inherit_an_earlier_runs_choice(tiny, tmp_path):
+    """A best checkpoint left in the run folder by an earlier run (its checkpoint deleted,
+    or another config) must not be chosen over the new run's own checkpoints."""
+    run = tmp_path / "run"
+    train(tiny, run_dir=run, progress=False)
+    planted = json.loads((run / "selection.json").read_text())
+    planted["best"]["score"] = -1.0  # better than anything a real run can score
+    (run / "selection.json").write_text(json.dumps(planted))
+    (run / "checkpoints" / "latest.pt").unlink()
+    train(tiny, run_dir=run, progress=False)
+    record = json.loads((run / "selection.json").read_text())
+    assert record["best"]["score"] >= 0.0
+    assert [h["step"] for h in record["history"]] == sorted({h["step"] for h in record["history"]})
