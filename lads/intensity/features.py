@@ -28,6 +28,7 @@ never from a measured intensity (docs/physics.md §10.7 item 5). The measured in
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -78,12 +79,14 @@ def label_set_for(dataset: str) -> str | None:
     return dataset if dataset in LABEL_SETS else None
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(frozen=True)
 class FrameImage:
     """One frame as model input, plus what is needed to give every point its value.
 
     Attributes:
-        inputs: (C, H, W) float32 raw channels named by `channels` (not yet normalised).
+        inputs: (C, H, W) float32 raw channels named by `channels` (not yet normalised),
+            each pixel its owner's column of `point_inputs`; built on first use (a pointwise
+            generator never needs it).
         channels: channel names of `inputs`.
         target: (H, W) float32 measured reflectivity of the pixel owner (encoded intensity /
             full scale), 0 where empty; None when the frame has no measured intensity.
@@ -100,7 +103,6 @@ class FrameImage:
             not (a pixel of `inputs` holds its owner's column).
     """
 
-    inputs: FloatArray
     channels: tuple[str, ...]
     target: FloatArray | None
     labelled: bool
@@ -117,6 +119,15 @@ class FrameImage:
     def mask(self) -> npt.NDArray[np.bool_]:
         """(H, W) bool, True where a point owns the pixel."""
         return self.image.index >= 0
+
+    @functools.cached_property
+    def inputs(self) -> FloatArray:
+        """(C, H, W) float32, see the class docstring."""
+        owners = self.image.index.reshape(-1)
+        occupied = owners >= 0
+        planes = np.zeros((len(self.channels), owners.size), dtype=np.float32)
+        planes[:, occupied] = self.point_inputs[:, owners[occupied]]
+        return planes.reshape(len(self.channels), *self.image.index.shape)
 
 
 def frame_image(
@@ -190,10 +201,6 @@ def frame_image(
     is_particle = _particle_flags(n, outcome, particle)
 
     names = channel_names(styles)
-    height = profile.channels
-    owners = image.index.reshape(-1)
-    occupied = owners >= 0
-    src = owners[occupied]
     per_point = {
         "ln_range": np.log(r),
         "cos_incidence": cos,
@@ -220,8 +227,6 @@ def frame_image(
     columns = np.zeros((len(names), n), dtype=np.float32)
     for name, values in per_point.items():
         columns[names.index(name)] = values
-    planes = np.zeros((len(names), height * w), dtype=np.float32)
-    planes[:, occupied] = columns[:, src]
 
     target = None
     if intensity is not None:
@@ -230,11 +235,9 @@ def frame_image(
             raise InvalidPointsError(f"intensity: shape {values.shape}, expected ({n},).")
         profile.intensity.validate(values, "intensity")
         refl = profile.intensity.to_reflectivity(values).astype(np.float32)
-        flat = np.zeros(height * w, dtype=np.float32)
-        flat[occupied] = refl[src]
-        target = flat.reshape(height, w)
+        owners = image.index
+        target = np.where(owners >= 0, refl[np.maximum(owners, 0)], 0.0).astype(np.float32)
     return FrameImage(
-        inputs=planes.reshape(len(names), height, w),
         channels=names,
         target=target,
         labelled=labelled,

@@ -118,9 +118,16 @@ class FittedPhysics:
         if elevation_deg is None or not self.laser_curves:
             return np.zeros(np.shape(range_m))
         laser = nearest_laser(self.laser_elevation_deg, elevation_deg)
-        basis, cols = hat_basis(np.log(range_m), np.asarray(self.laser_knots_ln))
-        curves = np.asarray(self.laser_curves, dtype=np.float64)
-        return (curves[laser[:, None], cols] * basis).sum(axis=1)
+        knots = np.asarray(self.laser_knots_ln, dtype=np.float64)
+        flat = np.asarray(self.laser_curves, dtype=np.float64).ravel()
+        if len(knots) == 1:
+            return flat[laser]
+        # The hat basis evaluated in place: the curve's two knots around each ln R, blended.
+        x = np.clip(np.log(range_m), knots[0], knots[-1])
+        j = np.clip(np.searchsorted(knots, x, side="right") - 1, 0, len(knots) - 2)
+        t = (x - knots[j]) / np.diff(knots)[j]
+        at = laser * len(knots) + j
+        return (1.0 - t) * flat[at] + t * flat[at + 1]
 
     def intercept_of(self, group: npt.NDArray[np.int64]) -> npt.NDArray[np.float64]:
         """(N,) a_g of each point's group; the pooled intercept for groups not fitted."""
