@@ -169,6 +169,12 @@ class IntensityModel:
 def build_generator(meta: ModelMeta) -> Generator | PointGenerator:
     """The untrained generator of the architecture `meta` records."""
     if meta.architecture == "pointwise":
+        lawless = sorted(k for k, spec in meta.targets.items() if spec.law is None)
+        if lawless:
+            raise ModelError(
+                f"{meta.name}: a pointwise generator corrects a fitted law, but target(s) "
+                f"{lawless} carry none; the file is damaged or was not made by `lads train`."
+            )
         return PointGenerator(meta.channels, NORMALISED_CHANNELS, width=meta.base,
                               layers=meta.blocks, materials=len(meta.materials),
                               material_dims=meta.material_dims)  # fmt: skip

@@ -204,6 +204,9 @@ def predict_points_batch(
     effect). Each frame's result does not depend on the others in the batch."""
     prepared = [_prepare(model, r) for r in requests]
     if model.meta.architecture == "pointwise":
+        # One forward pass per frame: stacking several frames' points re-blocks the matrix
+        # products and moves the last bits of some values, so a frame's bytes would depend
+        # on its batch-mates.
         return [_finish_points(model, p, device) for p in prepared]
     z_maps = predict_images(model, [p.fi for p in prepared], device=device)
     return [_finish(p, z) for p, z in zip(prepared, z_maps, strict=True)]

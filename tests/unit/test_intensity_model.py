@@ -406,11 +406,16 @@ def test_inference_wraps_once_and_equals_the_training_forward(blocks, width):
     torch.testing.assert_close(got, expected, rtol=0, atol=1e-10)
 
 
-def test_a_batch_of_frames_gives_each_frame_the_bytes_it_gets_alone(tmp_path, street):
-    """The batched path (many frames per forward pass, as on a GPU) changes no output byte."""
+@pytest.mark.parametrize("architecture", ["unet", "pointwise"])
+def test_a_batch_of_frames_gives_each_frame_the_bytes_it_gets_alone(tmp_path, street, architecture):
+    """The batched path (several frames per call, as on a GPU) changes no output byte."""
+    from lads.intensity import fitted_physics
     from lads.intensity.predict import PointRequest, predict_points_batch
 
-    model = load_model(tiny_model(tmp_path))
+    law = fitted_physics.FittedPhysics({i: -1.5 + 0.2 * i for i in range(10)}, -1.4, 0.5, -0.3,
+                                       0.4, 0.005, 3.0, 80.0)  # fmt: skip
+    spec = TargetSpec("hdl64e", -1.5, 0.8, 0.005, 1.2, law=law.to_json())
+    model = load_model(tiny_model(tmp_path, architecture=architecture, targets={"kitti": spec}))
     other = synth_frame("hdl64e", frames=2, seed=5, index=1, azimuth_bins=512)
     frames = [street, other, street]
     requests = [PointRequest(f.xyz, HDL64, labels=f.labels, label_set="semantickitti",
@@ -447,6 +452,11 @@ def test_a_pointwise_generator_answers_each_pixel_from_its_own_inputs_only():
     points = gen(raw.reshape(1, len(names), 24, 1), mask.reshape(1, 1, 24, 1),
                  law.reshape(1, 1, 24, 1))  # fmt: skip
     torch.testing.assert_close(points.reshape(1, 1, 4, 6), before, rtol=0, atol=1e-6)
+
+
+def test_a_pointwise_model_without_a_fitted_law_is_refused(tmp_path):
+    with pytest.raises(ModelError, match="fitted law"):
+        load_model(tiny_model(tmp_path, architecture="pointwise"))
 
 
 def test_a_pointwise_model_gives_every_point_its_own_value(tmp_path):
