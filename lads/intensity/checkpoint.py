@@ -26,7 +26,7 @@ import torch
 from lads.errors import ModelError
 from lads.files import atomic_write
 from lads.intensity.features import FEATURE_VERSION, NORMALISED_CHANNELS, channel_names
-from lads.intensity.model import Generator, PointGenerator
+from lads.intensity.model import Generator, PointGenerator, make_generator
 from lads.physics.materials import material_names
 from lads.resources import weights_dir
 
@@ -175,16 +175,14 @@ def build_generator(meta: ModelMeta) -> Generator | PointGenerator:
                 f"{meta.name}: a pointwise generator corrects a fitted law, but target(s) "
                 f"{lawless} carry none; the file is damaged or was not made by `lads train`."
             )
-        return PointGenerator(meta.channels, NORMALISED_CHANNELS, width=meta.base,
-                              layers=meta.blocks, materials=len(meta.materials),
-                              material_dims=meta.material_dims)  # fmt: skip
-    if meta.architecture != "unet":
+    elif meta.architecture != "unet":
         raise ModelError(
             f"{meta.name}: generator architecture {meta.architecture!r} is not one this lads "
             "knows (unet, pointwise); update lads or retrain the model."
         )
-    return Generator(meta.channels, NORMALISED_CHANNELS, base=meta.base, blocks=meta.blocks,
-                     materials=len(meta.materials), material_dims=meta.material_dims)  # fmt: skip
+    return make_generator(meta.architecture, meta.channels, NORMALISED_CHANNELS, size=meta.base,
+                          depth=meta.blocks, materials=len(meta.materials),
+                          material_dims=meta.material_dims)  # fmt: skip
 
 
 def stats_hash(generator: Generator | PointGenerator) -> str:

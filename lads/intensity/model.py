@@ -135,8 +135,7 @@ class Generator(nn.Module):
         )
         c = len(self.channels)
         if self.material_channel >= 0:
-            self.material_embedding = nn.Embedding(materials + 1, material_dims)
-            nn.init.zeros_(self.material_embedding.weight)
+            self.material_embedding = material_table(materials, material_dims)
             keep = [i for i in range(c) if i != self.material_channel]
             self.register_buffer("kept", torch.tensor(keep, dtype=torch.long), persistent=False)
             c = c - 1 + material_dims
@@ -225,10 +224,22 @@ def with_materials(
     x: torch.Tensor, raw: torch.Tensor, table: torch.Tensor, channel: int, kept: torch.Tensor
 ) -> torch.Tensor:
     """x with its material channel swapped for the material embedding (0 when empty)."""
+    return torch.cat([x.index_select(1, kept), material_vectors(raw, table, channel)], 1)
+
+
+def material_table(materials: int, dims: int) -> nn.Embedding:
+    """The learned vector of each material (row 1 + index; row 0 = empty pixel), all zero at
+    the start, so a material never seen in training adds nothing."""
+    table = nn.Embedding(materials + 1, dims)
+    nn.init.zeros_(table.weight)
+    return table
+
+
+def material_vectors(raw: torch.Tensor, table: torch.Tensor, channel: int) -> torch.Tensor:
+    """(B, D, H, W) the table's vector of each pixel's material, raw channel `channel`."""
     index = raw[:, channel].round().long().clamp_(0, table.shape[0] - 1)
     # Row 0 (empty pixel) starts at zero and padding_idx keeps it out of every update.
-    embedded = F.embedding(index, table, padding_idx=0).permute(0, 3, 1, 2)
-    return torch.cat([x.index_select(1, kept), embedded], 1)
+    return F.embedding(index, table, padding_idx=0).permute(0, 3, 1, 2)
 
 
 # The channels a pointwise generator reads (styles too, when present). The others (I_P,
@@ -274,8 +285,7 @@ class PointGenerator(nn.Module):
         self.material_channel = self.channels.index("material") if materials else -1
         c = len(picked) + 1  # the law's z as one more input
         if self.material_channel >= 0:
-            self.material_embedding = nn.Embedding(materials + 1, material_dims)
-            nn.init.zeros_(self.material_embedding.weight)
+            self.material_embedding = material_table(materials, material_dims)
             c += material_dims
         sizes = [c] + [width] * layers
         self.hidden = nn.ModuleList(
@@ -294,9 +304,9 @@ class PointGenerator(nn.Module):
         law = torch.zeros_like(mask) if law is None else law * mask
         parts = [x, law]
         if self.material_channel >= 0:
-            table = self.material_embedding.weight
-            index = raw[:, self.material_channel].round().long().clamp_(0, table.shape[0] - 1)
-            parts.append(F.embedding(index, table, padding_idx=0).permute(0, 3, 1, 2))
+            parts.append(
+                material_vectors(raw, self.material_embedding.weight, self.material_channel)
+            )
         # Channels last: each 1 x 1 convolution is then one matrix product over all points,
         # several times faster on a CPU than conv2d on a (1, C, N, 1) image.
         x = torch.cat(parts, 1).permute(0, 2, 3, 1)
@@ -352,3 +362,16 @@ class Discriminator(nn.Module):
 
 def count_parameters(module: nn.Module) -> int:
     return sum(p.numel() for p in module.parameters())
+
+
+def make_generator(
+    architecture: str, channels: Sequence[str], normalised: Sequence[str], *, size: int,
+    depth: int, materials: int, material_dims: int,
+) -> Generator | PointGenerator:  # fmt: skip
+    """An untrained generator: "pointwise" (size = hidden width, depth = hidden layers) or
+    "unet" (size = base width, depth = residual blocks). The caller checks the name."""
+    if architecture == "pointwise":
+        return PointGenerator(channels, normalised, width=size, layers=depth,
+                              materials=materials, material_dims=material_dims)  # fmt: skip
+    return Generator(channels, normalised, base=size, blocks=depth, materials=materials,
+                     material_dims=material_dims)  # fmt: skip

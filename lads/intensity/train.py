@@ -28,19 +28,16 @@ from __future__ import annotations
 import io
 import json
 import math
-from collections import OrderedDict
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import numpy.typing as npt
 import torch
 from tqdm.auto import tqdm
 
 from lads.errors import TrainingError
 from lads.files import atomic_copy, atomic_write, atomic_write_figure
-from lads.intensity.cache import CachedFrame, CacheJob, build_cache, iter_frames, read_frame
+from lads.intensity.cache import build_cache, iter_frames
 from lads.intensity.cache_statistics import Statistics
 from lads.intensity.checkpoint import (
     MATERIAL_DIMS,
@@ -58,8 +55,9 @@ from lads.intensity.features import (
 )
 from lads.intensity.law_reference import TorchLaw, fit_law
 from lads.intensity.losses import balanced_l1, masked_l1, masked_mse_to
-from lads.intensity.model import Discriminator, Generator, PointGenerator
+from lads.intensity.model import Discriminator, Generator, make_generator
 from lads.intensity.run_statistics import run_statistics
+from lads.intensity.sampler import Batch, Sampler
 from lads.intensity.selection import BEST, Selector, score, validation_frames
 from lads.intensity.train_config import TrainConfig
 from lads.physics.materials import material_names
@@ -67,106 +65,6 @@ from lads.physics.materials import material_names
 GEOMETRY = ("ln_range", "cos_incidence", "elevation", "mask")
 MAX_REFLECTANCE = 1.2
 CHECKPOINT = "checkpoints/latest.pt"
-FRAME_CACHE = 64  # frames kept in memory; the rest are read from zarr when sampled
-
-
-@dataclass
-class Batch:
-    raw: torch.Tensor  # (B, C, H, W) raw channels
-    mask: torch.Tensor  # (B, 1, H, W)
-    z: torch.Tensor | None  # (B, 1, H, W) target intensity in the pair's z-space
-    labelled: bool
-    extinction: torch.Tensor  # (B,) 1/m
-
-
-class Sampler:
-    """Random circular azimuth crops of cached frames, seeded; frames read lazily.
-
-    At most FRAME_CACHE frames stay in memory, the least recently sampled evicted first.
-    Which frames are held never changes what is sampled: the draws come from `rng` only.
-    """
-
-    def __init__(self, run_dir: Path, jobs: list[CacheJob], rng: np.random.Generator) -> None:
-        self.run_dir = run_dir
-        self.rng = rng
-        self.by_domain: dict[tuple[str, str], list[CacheJob]] = {}
-        for job in jobs:
-            self.by_domain.setdefault((job.pair, job.role), []).append(job)
-        self._frames: OrderedDict[str, CachedFrame] = OrderedDict()
-        self._occupied_pixels: dict[str, npt.NDArray[np.int64]] = {}
-
-    def frame(self, job: CacheJob) -> CachedFrame:
-        """The cached frame of `job`, read from zarr unless held (least recently used
-        first out, so frames drawn often stay while rarely drawn ones are dropped)."""
-        cached = self._frames.get(job.node)
-        if cached is not None:
-            self._frames.move_to_end(job.node)
-            return cached
-        if len(self._frames) >= FRAME_CACHE:
-            self._frames.popitem(last=False)
-        cached = self._frames[job.node] = read_frame(self.run_dir, job)
-        return cached
-
-    def batch(
-        self, pair: str, role: str, size: int, width: int, z_stats: tuple[float, float, float]
-    ) -> Batch:
-        jobs = self.by_domain[(pair, role)]
-        raws, masks, zs, ext = [], [], [], []
-        labelled = True
-        mean, std, floor = z_stats
-        for _ in range(size):
-            f = self.frame(jobs[int(self.rng.integers(len(jobs)))])
-            w_full = f.inputs.shape[-1]
-            cols = (int(self.rng.integers(w_full)) + np.arange(width)) % w_full
-            raw = f.inputs[:, :, cols]
-            raws.append(raw)
-            masks.append(raw[GEN_MASK_INDEX[raw.shape[0]]][None])
-            if f.target is not None and role == "target":
-                zs.append(((np.log(f.target[:, cols] + floor) - mean) / std)[None])
-            labelled &= f.labelled
-            ext.append(f.extinction_per_m)
-        mask = torch.from_numpy(np.stack(masks))
-        z = torch.from_numpy(np.stack(zs)).float() * mask if zs else None
-        return Batch(
-            torch.from_numpy(np.stack(raws)), mask, z, labelled,
-            torch.tensor(ext, dtype=torch.float32),
-        )  # fmt: skip
-
-    def points(self, pair: str, count: int, z_stats: tuple[float, float, float]) -> Batch:
-        """`count` occupied target pixels drawn at random from all of the pair's target
-        frames (frame, then pixel, uniformly), as a (1, C, count, 1) batch."""
-        jobs = self.by_domain[(pair, "target")]
-        mean, std, floor = z_stats
-        which = self.rng.integers(len(jobs), size=count)
-        raws, zs, ext = [], [], []
-        labelled = True
-        for j in np.unique(which):
-            f = self.frame(jobs[int(j)])
-            if f.target is None:
-                raise TrainingError(f"pair {pair}: target frame {f.frame} carries no intensity.")
-            flat = f.inputs.reshape(f.inputs.shape[0], -1)
-            occupied = self._occupied(jobs[int(j)].node, flat)
-            pick = occupied[self.rng.integers(len(occupied), size=int(np.sum(which == j)))]
-            raws.append(flat[:, pick])
-            zs.append((np.log(f.target.reshape(-1)[pick] + floor) - mean) / std)
-            ext.append(np.full(len(pick), f.extinction_per_m))
-            labelled &= f.labelled
-        raw = torch.from_numpy(np.concatenate(raws, 1)[None, :, :, None])
-        z = torch.from_numpy(np.concatenate(zs)[None, None, :, None]).float()
-        extinction = np.concatenate(ext)
-        if np.ptp(extinction) > 0:
-            raise TrainingError(f"pair {pair}: target frames of different extinction; the "
-                                "pointwise identity batch needs one per pair.")  # fmt: skip
-        return Batch(raw, torch.ones_like(z), z, labelled,
-                     torch.tensor(extinction[:1], dtype=torch.float32))  # fmt: skip
-
-    def _occupied(self, node: str, flat: npt.NDArray[np.float32]) -> npt.NDArray[np.int64]:
-        if node not in self._occupied_pixels:
-            self._occupied_pixels[node] = np.flatnonzero(flat[GEN_MASK_INDEX[flat.shape[0]]] > 0)
-        return self._occupied_pixels[node]
-
-
-GEN_MASK_INDEX = {len(channel_names(s)): channel_names(s).index("mask") for s in (False, True)}
 
 
 class Nets(torch.nn.Module):
@@ -177,17 +75,11 @@ class Nets(torch.nn.Module):
         weather = cfg.kind == "weather"
         self.channels = channel_names(weather)
         styles = STYLES if weather else ()
-        self.g: Generator | PointGenerator
-        if cfg.architecture == "pointwise":
-            self.g = PointGenerator(
-                self.channels, NORMALISED_CHANNELS, width=cfg.point_width, layers=cfg.point_layers,
-                materials=len(material_names()), material_dims=MATERIAL_DIMS,
-            )  # fmt: skip
-        else:
-            self.g = Generator(
-                self.channels, NORMALISED_CHANNELS, base=cfg.base, blocks=cfg.blocks,
-                materials=len(material_names()), material_dims=MATERIAL_DIMS,
-            )  # fmt: skip
+        size, depth = cfg.generator_size
+        self.g = make_generator(
+            cfg.architecture, self.channels, NORMALISED_CHANNELS, size=size, depth=depth,
+            materials=len(material_names()), material_dims=MATERIAL_DIMS,
+        )  # fmt: skip
         self.inv_channels = GEOMETRY + ("particle",) + styles + ("z_intensity",)
         self.inv = Generator(self.inv_channels, ("ln_range", "cos_incidence"),
                              base=cfg.base, blocks=cfg.blocks)  # fmt: skip
@@ -370,8 +262,7 @@ def _meta(
     return ModelMeta(
         name=cfg.name, kind=cfg.kind, channels=channels, feature_version=FEATURE_VERSION,
         range_exponent=cfg.range_exponent,
-        base=cfg.point_width if cfg.architecture == "pointwise" else cfg.base,
-        blocks=cfg.point_layers if cfg.architecture == "pointwise" else cfg.blocks,
+        base=cfg.generator_size[0], blocks=cfg.generator_size[1],
         targets={k: TargetSpec(**v, law=record["laws"][k] if cfg.residual else None)
                  for k, v in stats.targets.items()},
         calibration=stats.calibration, materials=material_names(), material_dims=MATERIAL_DIMS,

@@ -181,6 +181,14 @@ class TrainConfig:
     identity_points: int | None = None
     lr_decay_from: float | None = None
 
+    @property
+    def generator_size(self) -> tuple[int, int]:
+        """(width, depth) of the generator: (point_width, point_layers) for a pointwise one,
+        (base, blocks) for a U-Net; what a weight file records as base and blocks."""
+        if self.architecture == "pointwise":
+            return self.point_width, self.point_layers
+        return self.base, self.blocks
+
     def run_path(self, run_dir: Path | None = None) -> Path:
         """The run folder: `run_dir`, else `runs/<name>` under the working directory."""
         return Path(run_dir) if run_dir is not None else Path(RUNS_DIR) / self.name

@@ -12,12 +12,13 @@ import pytest
 import torch
 
 from lads.intensity import run_statistics as stats_module
-from lads.intensity import train as train_module
+from lads.intensity import sampler as sampler_module
 from lads.intensity.cache import build_cache, iter_frames
 from lads.intensity.cache_statistics import Statistics, compute_statistics
 from lads.intensity.features import NORMALISED_CHANNELS, channel_names
 from lads.intensity.run_statistics import STATISTICS, PairFacts, RunStatistics
-from lads.intensity.train import Sampler, train
+from lads.intensity.sampler import Sampler
+from lads.intensity.train import train
 from lads.intensity.train_config import DomainSpec, PairSpec, parse_train_config
 from tests.unit import test_intensity_training as training
 
@@ -234,8 +235,8 @@ def test_the_sampler_keeps_a_frequently_drawn_frame_and_drops_a_cold_one(tmp_pat
         reads.append(job.frame)
         return job.frame  # which frames are held is under test, not what they hold
 
-    monkeypatch.setattr(train_module, "read_frame", read_frame)
-    monkeypatch.setattr(train_module, "FRAME_CACHE", 2)
+    monkeypatch.setattr(sampler_module, "read_frame", read_frame)
+    monkeypatch.setattr(sampler_module, "FRAME_CACHE", 2)
     hot, cold, new = _jobs(3)
     sampler = Sampler(tmp_path, [hot, cold, new], np.random.default_rng(0))
     for job in (hot, cold, hot, new, hot):
@@ -250,7 +251,7 @@ def test_eviction_never_changes_the_batches(tiny, tmp_path, monkeypatch):
     jobs = build_cache(tmp_path, tiny, progress=False)
 
     def batches(frame_cache: int) -> list[torch.Tensor]:
-        monkeypatch.setattr(train_module, "FRAME_CACHE", frame_cache)
+        monkeypatch.setattr(sampler_module, "FRAME_CACHE", frame_cache)
         sampler = Sampler(tmp_path, jobs, np.random.default_rng(5))
         out = []
         for _ in range(6):

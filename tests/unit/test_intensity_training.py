@@ -207,7 +207,7 @@ def _parsed_for_lr():
 def test_identity_points_are_occupied_pixels_of_the_training_frames(target_tree, tmp_path):
     import numpy as np
 
-    from lads.intensity.train import GEN_MASK_INDEX, Sampler
+    from lads.intensity.sampler import GEN_MASK_INDEX, Sampler
 
     pointwise = {"residual": True, "architecture": "pointwise", "identity_points": 300}
     cfg = parse_train_config(_config(target_tree, tmp_path / "w.pt", **pointwise), "t")
