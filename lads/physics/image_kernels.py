@@ -126,16 +126,21 @@ def pixel_normal_cos(
     row: npt.NDArray[np.int64],
     col: npt.NDArray[np.int64],
     xyz: npt.NDArray[np.float64],
+    use: npt.NDArray[np.bool_],
 ) -> npt.NDArray[np.float64]:
-    """(M,) |cos| between each point's ray and the normal of its pixel, clipped to [0, 1].
+    """(N,) |cos| between each used point's ray and the normal of its pixel, clipped to
+    [0, 1]; 0 where `use` is False.
 
     Args:
         normal: (H, W, 3) unnormalised normals (`image_normals`).
-        row, col: (M,) pixel of every point.
-        xyz: (M, 3) the points in m, sensor at the origin.
+        row, col: (N,) pixel of every point.
+        xyz: (N, 3) the points in m, sensor at the origin.
+        use: (N,) which points to compute.
     """
-    out = np.empty(row.shape[0])
+    out = np.zeros(row.shape[0])
     for i in range(row.shape[0]):
+        if not use[i]:
+            continue
         n0 = normal[row[i], col[i], 0]
         n1 = normal[row[i], col[i], 1]
         n2 = normal[row[i], col[i], 2]

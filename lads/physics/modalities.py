@@ -268,25 +268,17 @@ def _incidence(
     max_depth_jump: float,
 ) -> Incidence:
     n_points = len(xyz64)
-    cos = np.zeros(n_points, dtype=np.float64)
     source = np.full(n_points, IncidenceSource.MEDIAN, dtype=np.int8)
     if n_points == 0:
-        return Incidence(cos.astype(np.float32), source)
+        return Incidence(np.zeros(0, dtype=np.float32), source)
+    range_img = image.range_m.astype(np.float64)
     normal, ok = image_normals(
-        image.xyz.astype(np.float64),
-        image.range_m.astype(np.float64),
-        image.index >= 0,
-        MAX_COLUMN_GAP,
+        image.xyz.astype(np.float64), range_img, image.index >= 0, MAX_COLUMN_GAP,
         float(max_depth_jump),
-    )
-    owner_range = image.range_m.astype(np.float64)[image.row, image.col]
+    )  # fmt: skip
+    owner_range = range_img[image.row, image.col]
     use = ok[image.row, image.col] & (np.abs(r - owner_range) <= max_depth_jump * owner_range)
-    cos[use] = pixel_normal_cos(
-        normal,
-        image.row[use].astype(np.int64),
-        image.col[use].astype(np.int64),
-        np.ascontiguousarray(xyz64[use]),
-    )
+    cos = pixel_normal_cos(normal, image.row, image.col, np.ascontiguousarray(xyz64), use)
     source[use] = IncidenceSource.IMAGE
 
     rest = np.flatnonzero(~use)

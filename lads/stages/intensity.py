@@ -30,7 +30,7 @@ from lads.config import StageConfig
 from lads.errors import ConfigError, LadsError, StageError
 from lads.files import sha256_file
 from lads.frame import Frame
-from lads.physics.projection import MIN_RANGE_M
+from lads.physics.projection import MIN_RANGE_M, checked_xyz
 from lads.sensors.profile import load_profile
 
 if TYPE_CHECKING:  # torch is imported only where a learned stage runs (start-up time)
@@ -137,7 +137,10 @@ class IntensityStage:
             target = str(style)
         profile = load_profile(frame.sensor)
         xyz = frame.xyz
-        valid = np.linalg.norm(xyz.astype(np.float64), axis=1) > MIN_RANGE_M
+        try:  # the same range, and zero-range rule, as every stage's coordinate check
+            valid = checked_xyz(xyz, allow_zero=True)[1] > MIN_RANGE_M
+        except LadsError as exc:
+            raise StageError(f"{where}: intensity stage ({self.model}): {exc}") from None
         labels = None if frame.labels is None else frame.labels[valid]
         label_set = label_set_for(frame.item.dataset) if labels is not None else None
         ring = None

@@ -454,6 +454,31 @@ def test_a_pointwise_generator_answers_each_pixel_from_its_own_inputs_only():
     torch.testing.assert_close(points.reshape(1, 1, 4, 6), before, rtol=0, atol=1e-6)
 
 
+def test_pointwise_inference_in_chunks_equals_the_training_forward(monkeypatch):
+    from lads.intensity import model as model_module
+    from lads.intensity.model import PointGenerator
+
+    monkeypatch.setattr(model_module, "INFER_CHUNK", 64)  # 1000 points: 16 chunks, one partial
+    names = channel_names(False)
+    torch.manual_seed(1)
+    gen = PointGenerator(names, ("ln_range",), width=8, layers=2, materials=len(material_names()))
+    with torch.no_grad():
+        for p in gen.parameters():
+            p.normal_(0, 0.3)
+    raw = torch.rand(1, len(names), 1000, 1) * 3
+    mask = torch.ones(1, 1, 1000, 1)
+    law = torch.rand(1, 1, 1000, 1)
+    with torch.inference_mode():
+        got = gen.infer(raw, mask, law)
+        want = gen(raw, mask, law)
+        assert got.shape == want.shape == (1, 1, 1000, 1)
+        torch.testing.assert_close(got, want, rtol=0, atol=1e-6)
+        # Every point answered, none twice: a changed point changes its own value only.
+        raw[0, :, 700] += 1.0
+        changed = (gen.infer(raw, mask, law) != got)[0, 0, :, 0]
+        assert changed.nonzero().flatten().tolist() == [700]
+
+
 def test_a_pointwise_model_without_a_fitted_law_is_refused(tmp_path):
     with pytest.raises(ModelError, match="fitted law"):
         load_model(tiny_model(tmp_path, architecture="pointwise"))
