@@ -173,6 +173,19 @@ def test_a_prebuilt_image_gives_the_same_result():
         incidence_cos(xyz, HDL64, image=image, channel=ring)
 
 
+def test_a_wall_point_behind_a_pole_takes_the_walls_normal_from_its_neighbours():
+    xyz, ring, truth = planar_street(wall_x_m=8.0)
+    # A pole 3 m in front of the wall owns one column of pixels; the wall points behind it
+    # lose their pixel (another surface) and must take the wall's normal, not the pole's.
+    on_wall = np.abs(xyz[:, 0] - 8.0) < 1e-6
+    behind = np.flatnonzero(on_wall & (np.abs(xyz[:, 1]) < 0.02) & (np.abs(xyz[:, 2]) < 1.0))
+    assert behind.size >= 5
+    pole = xyz[behind] * (5.0 / 8.0)
+    inc = incidence(np.concatenate([xyz, pole]), HDL64, channel=np.r_[ring, ring[behind]])
+    assert np.all(inc.source[behind] == IncidenceSource.NEIGHBOURS)
+    np.testing.assert_allclose(inc.cos[behind], truth[behind], atol=0.05)
+
+
 # --- physics intensity ----------------------------------------------------------------
 
 
