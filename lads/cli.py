@@ -19,6 +19,7 @@ import numpy as np
 
 from lads.errors import InputDataError, LadsError
 from lads.files import atomic_write
+from lads.physics.severity import SEVERITIES
 from lads.readers import READERS
 
 EXIT_INCOMPLETE = 1
@@ -239,6 +240,11 @@ def variants() -> None:
 @click.option("--seed", type=int, default=0, show_default=True, help="Root seed.")
 @click.option("--rate-mm-h", type=float, help="Override the rain/snow rate, mm/h.")
 @click.option("--visibility-m", type=float, help="Override the fog visibility, m.")
+@click.option(
+    "--severity", type=click.Choice(SEVERITIES),
+    help="Weather severity preset: sets the rain/snow rate or fog visibility to the preset's "
+    "(docs/physics.md, 'Severity presets'); both are recorded.",
+)  # fmt: skip
 @click.option("--mode", type=click.Choice(["strongest", "last"]), help="Override the return mode.")
 @click.option(
     "--points",
@@ -285,8 +291,8 @@ def variants() -> None:
 @_lads_errors
 def build(
     source: str, variant: str | None, pipeline_file: Path | None, source_root: Path, out_root: Path,
-    seed: int, rate_mm_h: float | None, visibility_m: float | None, mode: str | None,
-    points: str | None, particle_label: int | None, intensity_model: str | None,
+    seed: int, rate_mm_h: float | None, visibility_m: float | None, severity: str | None,
+    mode: str | None, points: str | None, particle_label: int | None, intensity_model: str | None,
     device: str | None, sequences: str | None, nuscenes_version: str | None,
     include_sweeps: bool, jobs: int, batch: int | None, backend: str, scheduler: str | None,
     fail_fast: bool, wait: bool, limit: int | None, figures: bool,
@@ -299,8 +305,8 @@ def build(
         raise click.UsageError("give exactly one of --variant and --pipeline")
     path = pipeline_file or find_pipeline(source, variant)  # type: ignore[arg-type]
     pipeline = load_pipeline(path).with_overrides(
-        rate_mm_h=rate_mm_h, visibility_m=visibility_m, mode=mode, points=points,
-        particle_label=particle_label, intensity=intensity_model,
+        rate_mm_h=rate_mm_h, visibility_m=visibility_m, severity=severity, mode=mode,
+        points=points, particle_label=particle_label, intensity=intensity_model,
     )  # fmt: skip
     if device is not None:
         pipeline = pipeline.with_overrides(device=device)

@@ -17,6 +17,7 @@ from typing import Any
 import yaml
 
 from lads.errors import ConfigError
+from lads.physics.severity import SEVERITIES, with_severity
 from lads.readers import READERS
 from lads.resources import pipelines_dir
 
@@ -26,12 +27,14 @@ RETURN_MODES = ("strongest", "last")
 
 # Parameters each stage accepts, with a validator per parameter.
 _STAGE_PARAMS: dict[str, dict[str, str]] = {
-    "rain": {"rate_mm_h": "nonneg", "mode": "return_mode"},
-    "snow": {"rate_mm_h": "nonneg", "mode": "return_mode"},
-    "fog": {"visibility_m": "visibility", "mode": "return_mode"},
+    "rain": {"rate_mm_h": "nonneg", "mode": "return_mode", "severity": "severity"},
+    "snow": {"rate_mm_h": "nonneg", "mode": "return_mode", "severity": "severity"},
+    "fog": {"visibility_m": "visibility", "mode": "return_mode", "severity": "severity"},
     "intensity": {"model": "text", "target": "optional_text", "device": "device"},
 }
-_OPTIONAL_KINDS = {"return_mode", "optional_text", "device"}
+_OPTIONAL_KINDS = {"return_mode", "optional_text", "device", "severity"}
+# Stages whose physical strength a `severity` preset can give (lads.physics.severity).
+_SEVERITY_STAGES = ("rain", "snow", "fog")
 DEVICES = ("cpu", "cuda")
 # `--intensity physics` removes the learned intensity stage (physics intensity is kept).
 PHYSICS_INTENSITY = "physics"
@@ -118,8 +121,12 @@ class PipelineConfig:
         accepts them; `intensity="physics"` drops the learned intensity stage and any other
         value names its model; `points` and `particle_label` go to the writer. A stage
         parameter no stage accepts is an error, so `--visibility-m` on a snow pipeline is refused.
+        `severity` replaces the weather stages' rate or visibility by its preset's (both are
+        recorded); an explicit rate or visibility replaces a preset of the pipeline file, and
+        the two together are refused unless they agree.
         """
         given = {k: v for k, v in overrides.items() if v is not None}
+        severity = given.pop("severity", None)
         top = {k: given.pop(k) for k in ("points", "particle_label") if k in given}
         stages = list(self.stages)
         intensity = given.pop("intensity", None)
@@ -149,9 +156,32 @@ class PipelineConfig:
             for i in hit:
                 stage = stages[i]
                 params = {**stage.params, key: value}
+                if key in ("rate_mm_h", "visibility_m") and severity is None:
+                    params.pop("severity", None)  # the explicit value replaces the preset
                 _check_stage(stage.stage, params, f"override {key}")
                 stages[i] = StageConfig(stage.stage, params)
+        if severity is not None:
+            stages = _with_severity_override(stages, severity, given)
         return replace(self, stages=tuple(stages), **top)
+
+
+def _with_severity_override(
+    stages: list[StageConfig], severity: str, given: dict[str, Any]
+) -> list[StageConfig]:
+    """`--severity`: every weather stage takes the preset, replacing the strength of the
+    pipeline file (but not one given on the command line: that must agree)."""
+    hit = [i for i, s in enumerate(stages) if s.stage in _SEVERITY_STAGES]
+    if not hit:
+        names = ", ".join(s.stage for s in stages)
+        raise ConfigError(f"--severity does not apply to this pipeline (stages: {names}).")
+    for i in hit:
+        stage = stages[i]
+        params = {k: v for k, v in stage.params.items()
+                  if k not in ("rate_mm_h", "visibility_m") or k in given}  # fmt: skip
+        params = _resolved(stage.stage, {**params, "severity": severity}, "override severity")
+        _check_stage(stage.stage, params, "override severity")
+        stages[i] = StageConfig(stage.stage, params)
+    return stages
 
 
 def _hash(obj: Any) -> str:
@@ -168,6 +198,10 @@ def _check_value(kind: str, value: Any, where: str) -> None:
         if value not in DEVICES:
             raise ConfigError(f"{where}: device {value!r}; expected one of {DEVICES}.")
         return
+    if kind == "severity":
+        if value not in SEVERITIES:
+            raise ConfigError(f"{where}: severity {value!r}; expected one of {SEVERITIES}.")
+        return
     if kind == "return_mode":
         if value not in RETURN_MODES:
             raise ConfigError(f"{where}: mode is {value!r}; expected one of {RETURN_MODES}.")
@@ -178,6 +212,14 @@ def _check_value(kind: str, value: Any, where: str) -> None:
         raise ConfigError(f"{where}: rate must be a finite number >= 0 mm/h, got {value}.")
     if kind == "visibility" and not value > 0:
         raise ConfigError(f"{where}: visibility must be > 0 m (inf = clear air), got {value}.")
+
+
+def _resolved(name: str, params: dict[str, Any], where: str) -> dict[str, Any]:
+    """A weather stage's parameters with a `severity` preset's value filled in."""
+    if name not in _SEVERITY_STAGES or "severity" not in params:
+        return params
+    _check_value("severity", params["severity"], f"{where}: severity")
+    return with_severity(name, params, where)
 
 
 def _check_stage(name: str, params: dict[str, Any], where: str) -> None:
@@ -225,6 +267,7 @@ def parse_pipeline(data: Any, where: str) -> PipelineConfig:
         if not isinstance(raw, dict) or "stage" not in raw:
             raise ConfigError(f"{where}: stages[{i}] must be a mapping with a 'stage' key.")
         params = {k: v for k, v in raw.items() if k != "stage"}
+        params = _resolved(str(raw["stage"]), params, f"{where}: stages[{i}]")
         _check_stage(str(raw["stage"]), params, f"{where}: stages[{i}]")
         stages.append(StageConfig(str(raw["stage"]), params))
     writer = data.get("writer") or {}

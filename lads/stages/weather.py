@@ -23,12 +23,15 @@ class WeatherStage:
         rate_mm_h: rain or snow rate in mm/h (water equivalent for snow); None for fog.
         visibility_m: fog meteorological optical range in m; None for rain and snow.
         mode: "strongest" or "last" return.
+        severity: the preset the strength came from (lads.physics.severity), or None;
+            recorded only: the physics runs on rate_mm_h / visibility_m.
     """
 
     name: str
     rate_mm_h: float | None = None
     visibility_m: float | None = None
     mode: str = "strongest"
+    severity: str | None = None
     version: str = WEATHER_STAGE_VERSION
 
     @classmethod

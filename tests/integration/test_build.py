@@ -325,3 +325,24 @@ def test_cli_build_then_verify_with_regeneration(source, tmp_path):
     flipped.write_bytes(bytes(data))
     result = runner.invoke(main, ["verify", str(out), "--against", str(source)])
     assert result.exit_code == 1 and "000003.label" in result.output
+
+
+def test_a_severity_preset_builds_records_both_values_and_verifies(source, tmp_path):
+    import yaml
+
+    out = tmp_path / "fog-light"
+    args = ["build", "--source", "semantickitti", "--variant", "fog", "--severity", "light",
+            "--intensity", "physics", "--in", str(source), "--out", str(out)]  # fmt: skip
+    result = CliRunner().invoke(main, args)
+    assert result.exit_code == 0, result.output
+    stage = yaml.safe_load((out / "pipeline.yaml").read_text())["stages"][0]
+    assert (stage["severity"], stage["visibility_m"]) == ("light", 600.0)
+    assert "severity=light, visibility_m=600.0" in (out / "README.md").read_text()
+    result = CliRunner().invoke(
+        main, ["verify", str(out), "--against", str(source), "--regenerate", "1"]
+    )
+    assert result.exit_code == 0, result.output
+    # A preset and a disagreeing explicit value are refused before anything is built.
+    result = CliRunner().invoke(main, [*args[:-1], str(tmp_path / "x"), "--visibility-m", "80"])
+    assert result.exit_code != 0 and "give one of them" in result.output
+    assert not (tmp_path / "x").exists()

@@ -113,3 +113,53 @@ def test_hash_is_stable_across_dict_order():
         "schema_version": 1,
     }
     assert parse_pipeline(reordered, "a").config_hash() == parse_pipeline(SNOW, "b").config_hash()
+
+
+# --- severity presets -------------------------------------------------------------------
+
+FOG = {"schema_version": 1, "variant": "fog", "stages": [{"stage": "fog", "visibility_m": 50.0}]}
+
+
+@pytest.mark.parametrize(
+    ("weather", "key"), [("rain", "rate_mm_h"), ("snow", "rate_mm_h"), ("fog", "visibility_m")]
+)
+def test_a_severity_in_the_pipeline_file_fills_in_its_physical_value(weather, key):
+    from lads.physics.severity import PRESETS, SEVERITIES
+
+    values = [PRESETS[weather][1][s] for s in SEVERITIES]
+    # Heavier weather: more rain or snow, less visibility.
+    assert values == sorted(values, reverse=(key == "visibility_m"))
+    for severity, value in zip(SEVERITIES, values, strict=True):
+        data = {"schema_version": 1, "variant": weather,
+                "stages": [{"stage": weather, "severity": severity}]}  # fmt: skip
+        stage = parse_pipeline(data, "t").stages[0]
+        assert stage.params == {"severity": severity, key: value}  # both recorded
+
+
+def test_a_severity_and_a_different_explicit_value_are_refused():
+    data = {**SNOW, "stages": [{"stage": "snow", "severity": "light", "rate_mm_h": 2.5}]}
+    with pytest.raises(ConfigError, match="give one of them"):
+        parse_pipeline(data, "t.yaml")
+    agreeing = {**SNOW, "stages": [{"stage": "snow", "severity": "heavy", "rate_mm_h": 2.5}]}
+    assert parse_pipeline(agreeing, "t").stages[0].params["rate_mm_h"] == 2.5
+    with pytest.raises(ConfigError, match="severity 'extreme'"):
+        parse_pipeline({**SNOW, "stages": [{"stage": "snow", "severity": "extreme"}]}, "t")
+
+
+def test_the_severity_override_replaces_the_files_strength_and_records_both():
+    light = parse_pipeline(FOG, "t").with_overrides(severity="light")
+    assert light.stages[0].params == {"visibility_m": 600.0, "severity": "light"}
+    assert light.config_hash() != parse_pipeline(FOG, "t").config_hash()
+    # An explicit value on the command line must agree with the preset.
+    with pytest.raises(ConfigError, match="give one of them"):
+        parse_pipeline(FOG, "t").with_overrides(severity="light", visibility_m=100.0)
+    # An explicit value replaces a preset of the pipeline file.
+    preset_file = {**FOG, "stages": [{"stage": "fog", "severity": "heavy"}]}
+    explicit = parse_pipeline(preset_file, "t").with_overrides(visibility_m=100.0)
+    assert explicit.stages[0].params == {"visibility_m": 100.0}
+
+
+def test_the_severity_override_needs_a_weather_stage():
+    data = {"schema_version": 1, "variant": "x", "stages": [{"stage": "intensity", "model": "m"}]}
+    with pytest.raises(ConfigError, match="--severity does not apply"):
+        parse_pipeline(data, "t").with_overrides(severity="heavy")

@@ -1,0 +1,68 @@
+"""Severity presets: light / moderate / heavy rain, snow and fog as physical parameters.
+
+A preset is a name for one value of the weather's physical parameter, nothing more: the
+stage still runs on the rate (mm/h) or visibility (m), and the build records both (the
+pipeline file in the output tree, its dataset card). The values and their sources are in
+docs/physics.md ("Severity presets"):
+
+- rain, rate in mm/h: the American Meteorological Society's intensity classes (light up to
+  2.5 mm/h, moderate 2.6-7.6, heavy above 7.6); light and moderate sit inside their class,
+  heavy is 25 mm/h, in the range LiDAR rain simulations use (30-33 mm/h).
+- snow, water-equivalent rate in mm/h: the three snowfall rates of Robo3D's snow corruption
+  (0.5, 1.0, 2.5), which span Hahner et al.'s snowfall simulator (0.5-2.5 mm/h), so the
+  sets can be compared.
+- fog, meteorological optical range in m: 600, 150 and 50 m, i.e. extinction 0.005, 0.02
+  and 0.06 1/m (MOR = 3 / alpha), levels 1, 3 and 5 of 3D_Corruptions_AD's fog; all are
+  fog by the WMO's definition (MOR < 1000 m).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from lads.errors import ConfigError
+
+SEVERITIES: tuple[str, ...] = ("light", "moderate", "heavy")
+
+# weather -> (its physical parameter, value per severity).
+PRESETS: dict[str, tuple[str, dict[str, float]]] = {
+    "rain": ("rate_mm_h", {"light": 1.0, "moderate": 5.0, "heavy": 25.0}),
+    "snow": ("rate_mm_h", {"light": 0.5, "moderate": 1.0, "heavy": 2.5}),
+    "fog": ("visibility_m", {"light": 600.0, "moderate": 150.0, "heavy": 50.0}),
+}
+
+
+def preset(weather: str, severity: str) -> tuple[str, float]:
+    """(parameter name, value) of a weather's severity preset.
+
+    Raises:
+        ConfigError: a weather without presets or an unknown severity.
+    """
+    if weather not in PRESETS:
+        raise ConfigError(
+            f"severity: '{weather}' has no presets; presets exist for {sorted(PRESETS)}."
+        )
+    if severity not in SEVERITIES:
+        raise ConfigError(f"severity {severity!r}: expected one of {', '.join(SEVERITIES)}.")
+    key, values = PRESETS[weather]
+    return key, values[severity]
+
+
+def with_severity(weather: str, params: dict[str, Any], where: str) -> dict[str, Any]:
+    """A weather stage's parameters with its `severity` (if any) resolved: the preset's
+    value is filled in beside the name, so both are recorded.
+
+    Raises:
+        ConfigError: unknown severity, or an explicit value that differs from the preset's
+            (give one or the other).
+    """
+    if params.get("severity") is None:
+        return dict(params)
+    key, value = preset(weather, str(params["severity"]))
+    given = params.get(key)
+    if given is not None and given != value:
+        raise ConfigError(
+            f"{where}: severity '{params['severity']}' means {key} = {value:g} for {weather}, "
+            f"but {key} = {given!r} is also given; give one of them."
+        )
+    return {**params, key: value}
