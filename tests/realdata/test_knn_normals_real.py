@@ -20,7 +20,7 @@ def test_matches_the_brute_force_on_a_real_kitti_frame(kitti_frame):
 class _ScipyTree:
     """scipy's cKDTree behind the interface knn_normals uses (the tree it used before)."""
 
-    def __init__(self, xyz):
+    def __init__(self, xyz, leafsize=None):  # the leaf size changes speed, not neighbours
         from scipy.spatial import cKDTree
 
         self.tree = cKDTree(xyz)
