@@ -5,6 +5,7 @@ equivalence.json  fast path vs the brute-force reference: speed-up and two-sampl
 anchors.json      rain extinction vs Ulbrich-Atlas, Q_ext, incidence on a real frame
 wads_snow.json    simulated vs real falling snow (WADS), fitted defaults vs LISA settings
 fog_radiate.json  fog model vs real fog (RADIATE), with what that data cannot show
+realism.json      each weather and severity on real KITTI frames beside WADS snow and RADIATE fog
 build_speed.json  lads build end to end: frames/s with 1 and 2 jobs, memory, projected hours
 verify.json       lads verify throughput (MB/s) on a ~450 MB tree
 intensity_speed.json  intensity generator ms per 64-beam frame on one core
@@ -32,6 +33,7 @@ BENCHMARKS = (
     "anchors",
     "wads_snow",
     "fog_radiate",
+    "realism",
     "build_speed",
     "verify_speed",
     "intensity_speed",

@@ -1,0 +1,226 @@
+"""Weather realism report: what each weather and severity does to real scans, beside the
+real adverse-weather recordings ../shared/data holds.
+
+    .venv/bin/python -m benchmarks.realism  -> benchmarks/results/realism.json, realism.png
+
+Simulated: rain, snow and fog at each severity preset (`lads.physics.severity`) on the
+labelled real SemanticKITTI frames, physics only (`lads.physics.weather` with the shipped
+defaults, strongest return, one generator per frame and setting). Per setting:
+- lost: share of the input points that no longer return, overall and per range bin of the
+  source point;
+- particle: drop, flake or fog returns as a share of the output points, overall and per
+  range bin of the return;
+- intensity: median output / input reflectivity of the attenuated points per material (the
+  materials with at least MIN_CLASS_POINTS of them).
+
+Real references (other sensors, places and weather strengths: shapes to set beside the
+simulation, not targets it is scored on):
+- WADS falling snow (label 110, wads64): share of the unique returns (dual-return duplicates
+  removed), overall and per range bin;
+- RADIATE fog (HDL-32E): returns per fired beam (2170 firings x 32 lasers per sweep) and the
+  share of returns per range bin.
+A KITTI frame holds only the beams that returned in clear air, so the simulated shares are
+relative to those, and a real foggy frame's share is relative to every beam fired.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from benchmarks.common import RESULTS, SHARED_DATA, machine_info, write_result
+from lads.calibration import radiate, wads
+from lads.errors import InputDataError
+from lads.physics import weather as wx
+from lads.physics.materials import material_index_for_labels, material_names
+from lads.physics.result import Outcome
+from lads.physics.severity import PRESETS, SEVERITIES, preset
+from lads.readers import get_reader
+from lads.sensors.profile import load_profile
+
+KITTI_ROOTS = ("semantickitti", "semantickitti-more", "semantickitti-seqx")
+WADS_ROOTS = ("wads", "wads-more")
+RANGE_BINS_M = (0.0, 5.0, 10.0, 20.0, 40.0, np.inf)  # KITTI holds a handful of points past 80 m
+MIN_CLASS_POINTS = 1000
+SIMULATE = {"rain": wx.rain, "snow": wx.snow, "fog": wx.fog}
+
+
+def _bin_labels() -> list[str]:
+    edges = zip(RANGE_BINS_M[:-1], RANGE_BINS_M[1:], strict=True)
+    return [f"{a:g}-{b:g} m" if np.isfinite(b) else f">{a:g} m" for a, b in edges]
+
+
+def _share_per_bin(
+    range_m: npt.NDArray[np.float64], flag: npt.NDArray[np.bool_]
+) -> list[float | None]:
+    """Share of `flag` among the points of each range bin (None for an empty bin)."""
+    out: list[float | None] = []
+    for lo, hi in zip(RANGE_BINS_M[:-1], RANGE_BINS_M[1:], strict=True):
+        inside = (range_m >= lo) & (range_m < hi)
+        out.append(round(float(flag[inside].mean()), 5) if inside.any() else None)
+    return out
+
+
+def _points_per_bin(frames: list[Any]) -> list[int]:
+    r = np.concatenate([np.linalg.norm(p[:, :3].astype(np.float64), axis=1) for p, _ in frames])
+    return [int(c) for c in np.histogram(r, bins=np.asarray(RANGE_BINS_M))[0]]
+
+
+def _kitti_frames() -> list[tuple[npt.NDArray[np.float32], npt.NDArray[np.uint32]]]:
+    frames = []
+    for root in KITTI_ROOTS:
+        folder = SHARED_DATA / root
+        if not folder.is_dir():
+            raise InputDataError(f"real SemanticKITTI frames missing at {folder} (../shared/data).")
+        reader = get_reader("semantickitti", folder)
+        for item in reader.items():
+            frame = reader.read(item)
+            if frame.labels is not None:
+                frames.append((frame.points[:, :4].copy(), frame.labels))
+    return frames
+
+
+def _simulate(weather: str, severity: str, frames: list[Any]) -> dict[str, Any]:
+    """Pooled statistics of one weather at one severity over the KITTI frames."""
+    key, value = preset(weather, severity)
+    profile = load_profile("hdl64e")
+    src_range, lost, out_range, particle, ratios, materials = [], [], [], [], [], []
+    for k, (points, labels) in enumerate(frames):
+        rng = np.random.default_rng([k, list(PRESETS).index(weather), SEVERITIES.index(severity)])
+        result = SIMULATE[weather](points[:, :3], points[:, 3], sensor=profile, rng=rng,
+                                   **{key: value})  # fmt: skip
+        r_in = np.linalg.norm(points[:, :3].astype(np.float64), axis=1)
+        is_lost = np.zeros(len(points), dtype=bool)
+        is_lost[result.lost_index] = True
+        src_range.append(r_in)
+        lost.append(is_lost)
+        out_range.append(np.linalg.norm(result.xyz.astype(np.float64), axis=1))
+        particle.append(result.outcome == Outcome.PARTICLE)
+        att = result.outcome == Outcome.ATTENUATED
+        src = result.source_index[att]
+        before = profile.intensity.to_reflectivity(points[src, 3])
+        after = profile.intensity.to_reflectivity(result.intensity[att])
+        ok = before > 0
+        ratios.append(after[ok] / before[ok])
+        materials.append(material_index_for_labels(labels[src][ok], "semantickitti"))
+    r_in, is_lost = np.concatenate(src_range), np.concatenate(lost)
+    r_out, is_particle = np.concatenate(out_range), np.concatenate(particle)
+    ratio, material = np.concatenate(ratios), np.concatenate(materials)
+    names = material_names()
+    per_material = {
+        names[m]: round(float(np.median(ratio[material == m])), 4)
+        for m in np.unique(material) if (material == m).sum() >= MIN_CLASS_POINTS
+    }  # fmt: skip
+    return {
+        key: value,
+        "lost_share": round(float(is_lost.mean()), 5),
+        "lost_share_per_source_range_bin": _share_per_bin(r_in, is_lost),
+        "particle_share_of_output": round(float(is_particle.mean()), 5),
+        "particle_share_per_range_bin": _share_per_bin(r_out, is_particle),
+        "attenuated_intensity_ratio_median_per_material": per_material,
+    }
+
+
+def _wads_reference() -> dict[str, Any]:
+    r_all, snow = [], []
+    for root in WADS_ROOTS:
+        folder = SHARED_DATA / root / "sequences" / "36"
+        for path in sorted((folder / "velodyne").glob("*.bin")):
+            frame = wads.load_frame(path, folder / "labels" / f"{path.stem}.label")
+            _, first = np.unique(frame.points, axis=0, return_index=True)
+            pts, lab = frame.points[first], frame.labels[first]
+            r_all.append(np.linalg.norm(pts[:, :3].astype(np.float64), axis=1))
+            snow.append(lab == wads.FALLING_SNOW)
+    if not r_all:
+        raise InputDataError(f"WADS frames missing under {SHARED_DATA} (wads, wads-more).")
+    r, is_snow = np.concatenate(r_all), np.concatenate(snow)
+    return {
+        "frames": len(r_all),
+        "falling_snow_share_of_unique_returns": round(float(is_snow.mean()), 5),
+        "falling_snow_share_per_range_bin": _share_per_bin(r, is_snow),
+    }
+
+
+def _radiate_reference() -> dict[str, Any]:
+    folder = SHARED_DATA / "radiate" / "tiny_foggy" / "velo_lidar"
+    paths = sorted(folder.glob("*.csv"))
+    if not paths:
+        raise InputDataError(f"RADIATE foggy frames missing at {folder}.")
+    shares, ranges = [], []
+    for path in paths:
+        frame = radiate.load_frame(path)
+        shares.append(len(frame.xyz) / (radiate.FIRINGS_PER_SWEEP * 32))
+        ranges.append(np.linalg.norm(frame.xyz.astype(np.float64), axis=1))
+    r = np.concatenate(ranges)
+    counts = np.histogram(r, bins=np.asarray(RANGE_BINS_M))[0]
+    return {
+        "frames": len(paths),
+        "returns_per_fired_beam": [round(s, 4) for s in shares],
+        "share_of_returns_per_range_bin": [round(float(c / r.size), 5) for c in counts],
+    }
+
+
+def _figure(result: dict[str, Any], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from lads.files import atomic_write_figure
+
+    labels = _bin_labels()
+    x = np.arange(len(labels))
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4.2), sharey=False)
+    for ax, weather in zip(axes, PRESETS, strict=True):
+        colours = ("tab:green", "tab:orange", "tab:red")
+        for severity, colour in zip(SEVERITIES, colours, strict=True):
+            row = result["simulated"][weather][severity]
+            lost = [np.nan if v is None else v for v in row["lost_share_per_source_range_bin"]]
+            part = [np.nan if v is None else v for v in row["particle_share_per_range_bin"]]
+            ax.plot(x, lost, "-o", color=colour, label=f"{severity}: lost")
+            ax.plot(x, part, "--s", color=colour, label=f"{severity}: particle returns")
+        if weather == "snow":
+            ref = result["references"]["wads_falling_snow"]["falling_snow_share_per_range_bin"]
+            real = [np.nan if v is None else v for v in ref]
+            ax.plot(x, real, ":k^", label="WADS real snow: share of returns")
+        ax.set_title(f"{weather} on real SemanticKITTI frames")
+        ax.set_xticks(x, labels, rotation=30)
+        ax.set_ylabel("share of points in the range bin")
+        ax.set_yscale("symlog", linthresh=1e-3)
+        ax.set_ylim(bottom=0.0)
+        ax.legend(fontsize=7)
+    fog_ref = result["references"]["radiate_fog"]["returns_per_fired_beam"]
+    axes[2].text(0.02, 0.02, f"RADIATE real fog: {min(fog_ref):.2f}-{max(fog_ref):.2f} of fired "
+                 "beams return", transform=axes[2].transAxes, fontsize=8)  # fmt: skip
+    fig.tight_layout()
+    atomic_write_figure(fig, path, dpi=110)
+    plt.close(fig)
+
+
+def main(argv: list[str] | None = None) -> dict[str, Any]:
+    frames = _kitti_frames()
+    simulated = {w: {s: _simulate(w, s, frames) for s in SEVERITIES} for w in PRESETS}
+    result = {
+        "what": "rain, snow and fog at each severity preset on labelled real SemanticKITTI "
+        "frames (physics only, strongest return), beside WADS real snow and RADIATE real fog",
+        "command": "python -m benchmarks.realism",
+        "kitti_frames": len(frames),
+        "range_bins_m": _bin_labels(),
+        "kitti_points_per_range_bin": _points_per_bin(frames),
+        "simulated": simulated,
+        "references": {"wads_falling_snow": _wads_reference(), "radiate_fog": _radiate_reference()},
+        "note": "simulated shares are relative to the beams that returned in clear air; "
+        "RADIATE's to every beam fired; the references are other sensors, places and "
+        "strengths",
+        "machine": machine_info(),
+    }
+    _figure(result, RESULTS / "realism.png")
+    write_result("realism.json", result)
+    return result
+
+
+if __name__ == "__main__":
+    main()
