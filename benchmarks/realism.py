@@ -5,7 +5,8 @@ real adverse-weather recordings ../shared/data holds.
 
 Simulated: rain, snow and fog at each severity preset (`lads.physics.severity`) on the
 labelled real SemanticKITTI frames, physics only (`lads.physics.weather` with the shipped
-defaults, strongest return, one generator per frame and setting). Per setting:
+defaults, strongest return, one generator per frame and setting), and rain and snow again
+with LISA's published settings (fixed threshold; `--weather-settings lisa`). Per setting:
 - lost: share of the input points that no longer return, overall and per range bin of the
   source point;
 - particle: drop, flake or fog returns as a share of the output points, overall and per
@@ -83,15 +84,19 @@ def _kitti_frames() -> list[tuple[npt.NDArray[np.float32], npt.NDArray[np.uint32
     return frames
 
 
-def _simulate(weather: str, severity: str, frames: list[Any]) -> dict[str, Any]:
-    """Pooled statistics of one weather at one severity over the KITTI frames."""
+def _simulate(
+    weather: str, severity: str, frames: list[Any], settings: str = "lads"
+) -> dict[str, Any]:
+    """Pooled statistics of one weather at one severity over the KITTI frames, with the
+    named physics settings (`lads.physics.weather.SETTINGS`)."""
     key, value = preset(weather, severity)
+    params = wx.settings_for(weather, settings)
     profile = load_profile("hdl64e")
     src_range, lost, out_range, particle, ratios, materials = [], [], [], [], [], []
     for k, (points, labels) in enumerate(frames):
         rng = np.random.default_rng([k, list(PRESETS).index(weather), SEVERITIES.index(severity)])
         result = SIMULATE[weather](points[:, :3], points[:, 3], sensor=profile, rng=rng,
-                                   **{key: value})  # fmt: skip
+                                   params=params, **{key: value})  # fmt: skip
         r_in = np.linalg.norm(points[:, :3].astype(np.float64), axis=1)
         is_lost = np.zeros(len(points), dtype=bool)
         is_lost[result.lost_index] = True
@@ -203,6 +208,8 @@ def _figure(result: dict[str, Any], path: Path) -> None:
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     frames = _kitti_frames()
     simulated = {w: {s: _simulate(w, s, frames) for s in SEVERITIES} for w in PRESETS}
+    lisa = {w: {s: _simulate(w, s, frames, "lisa") for s in SEVERITIES}
+            for w in PRESETS if "lisa" in wx.SETTINGS and w in wx.SETTINGS["lisa"]}  # fmt: skip
     result = {
         "what": "rain, snow and fog at each severity preset on labelled real SemanticKITTI "
         "frames (physics only, strongest return), beside WADS real snow and RADIATE real fog",
@@ -211,6 +218,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         "range_bins_m": _bin_labels(),
         "kitti_points_per_range_bin": _points_per_bin(frames),
         "simulated": simulated,
+        "simulated_lisa_settings": lisa,
         "references": {"wads_falling_snow": _wads_reference(), "radiate_fog": _radiate_reference()},
         "note": "simulated shares are relative to the beams that returned in clear air; "
         "RADIATE's to every beam fired; the references are other sensors, places and "

@@ -245,6 +245,12 @@ def variants() -> None:
     help="Weather severity preset: sets the rain/snow rate or fog visibility to the preset's "
     "(docs/physics.md, 'Severity presets'); both are recorded.",
 )  # fmt: skip
+@click.option(
+    "--weather-settings", type=click.Choice(["lads", "lisa"]),
+    help="Physics settings of the weather stage: lads (the default: fitted to real snow, "
+    "nothing lost in clear air) or lisa (LISA's published model with its fixed threshold, to "
+    "compare; rain and snow).",
+)  # fmt: skip
 @click.option("--mode", type=click.Choice(["strongest", "last"]), help="Override the return mode.")
 @click.option(
     "--points",
@@ -292,7 +298,8 @@ def variants() -> None:
 def build(
     source: str, variant: str | None, pipeline_file: Path | None, source_root: Path, out_root: Path,
     seed: int, rate_mm_h: float | None, visibility_m: float | None, severity: str | None,
-    mode: str | None, points: str | None, particle_label: int | None, intensity_model: str | None,
+    weather_settings: str | None, mode: str | None, points: str | None,
+    particle_label: int | None, intensity_model: str | None,
     device: str | None, sequences: str | None, nuscenes_version: str | None,
     include_sweeps: bool, jobs: int, batch: int | None, backend: str, scheduler: str | None,
     fail_fast: bool, wait: bool, limit: int | None, figures: bool,
@@ -306,7 +313,8 @@ def build(
     path = pipeline_file or find_pipeline(source, variant)  # type: ignore[arg-type]
     pipeline = load_pipeline(path).with_overrides(
         rate_mm_h=rate_mm_h, visibility_m=visibility_m, severity=severity, mode=mode,
-        points=points, particle_label=particle_label, intensity=intensity_model,
+        settings=weather_settings, points=points, particle_label=particle_label,
+        intensity=intensity_model,
     )  # fmt: skip
     if device is not None:
         pipeline = pipeline.with_overrides(device=device)

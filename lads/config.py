@@ -27,12 +27,15 @@ RETURN_MODES = ("strongest", "last")
 
 # Parameters each stage accepts, with a validator per parameter.
 _STAGE_PARAMS: dict[str, dict[str, str]] = {
-    "rain": {"rate_mm_h": "nonneg", "mode": "return_mode", "severity": "severity"},
-    "snow": {"rate_mm_h": "nonneg", "mode": "return_mode", "severity": "severity"},
-    "fog": {"visibility_m": "visibility", "mode": "return_mode", "severity": "severity"},
+    "rain": {"rate_mm_h": "nonneg", "mode": "return_mode", "severity": "severity",
+             "settings": "settings"},
+    "snow": {"rate_mm_h": "nonneg", "mode": "return_mode", "severity": "severity",
+             "settings": "settings"},
+    "fog": {"visibility_m": "visibility", "mode": "return_mode", "severity": "severity",
+            "settings": "settings"},
     "intensity": {"model": "text", "target": "optional_text", "device": "device"},
-}
-_OPTIONAL_KINDS = {"return_mode", "optional_text", "device", "severity"}
+}  # fmt: skip
+_OPTIONAL_KINDS = {"return_mode", "optional_text", "device", "severity", "settings"}
 # Stages whose physical strength a `severity` preset can give (lads.physics.severity).
 _SEVERITY_STAGES = ("rain", "snow", "fog")
 DEVICES = ("cpu", "cuda")
@@ -198,6 +201,10 @@ def _check_value(kind: str, value: Any, where: str) -> None:
         if value not in DEVICES:
             raise ConfigError(f"{where}: device {value!r}; expected one of {DEVICES}.")
         return
+    if kind == "settings":
+        if not (isinstance(value, str) and value):
+            raise ConfigError(f"{where}: expected the name of weather settings, got {value!r}.")
+        return
     if kind == "severity":
         if value not in SEVERITIES:
             raise ConfigError(f"{where}: severity {value!r}; expected one of {SEVERITIES}.")
@@ -239,6 +246,13 @@ def _check_stage(name: str, params: dict[str, Any], where: str) -> None:
         raise ConfigError(f"{where}: stage {name!r} needs {missing}.")
     for key, value in params.items():
         _check_value(accepted[key], value, f"{where}: {key}")
+    if "settings" in params:
+        from lads.physics.weather import settings_for
+
+        try:
+            settings_for(name, params["settings"])
+        except ConfigError as exc:
+            raise ConfigError(f"{where}: {exc}") from None
 
 
 def _reject_unknown(mapping: dict[str, Any], allowed: set[str], where: str) -> None:

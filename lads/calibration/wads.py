@@ -61,7 +61,7 @@ from lads.physics.beams import prepare_beams
 from lads.physics.particles import ParticleParams, resolve_optics
 from lads.physics.result import Outcome
 from lads.physics.thinning import sample_winning_particles
-from lads.physics.weather import SNOW_DEFAULTS, snow, with_overrides
+from lads.physics.weather import LISA_SNOW, SNOW_DEFAULTS, snow, with_overrides
 from lads.sensors.profile import SensorProfile, load_profile
 
 FALLING_SNOW = 110
@@ -76,19 +76,7 @@ PERCENTILES = (5, 50, 95)
 # Treated as a nuisance parameter: see `rate_sensitivity`.
 ASSUMED_RATE_MM_H = 2.5
 
-# LISA's settings (docs/physics.md §4, paper code / pylisa): Gunn-Marshall with twice the primary
-# intercept, melted diameter taken as optical, Fresnel reflectivity of ice, 3 mrad, r_min
-# 1.5 m, fixed threshold 0.9 / 200^2.
-LISA_SNOW = ParticleParams(
-    size_distribution="gunn_marshall",
-    material="ice",
-    particle_reflectivity=0.01732,
-    n0_scale=2.0,
-    diameter_ratio=1.0,
-    beam_divergence_mrad=3.0,
-    min_range_m=1.5,
-    detection_threshold=0.9 / 200.0**2,
-)
+# LISA's settings (docs/physics.md §4, paper code / pylisa) are `LISA_SNOW`, imported above.
 # The Hahner fork of LISA: r_max 120 m (threshold 0.9 / 120^2) and r_min 0.9 m.
 LISA_HAHNER_SNOW = with_overrides(LISA_SNOW, min_range_m=0.9, detection_threshold=0.9 / 120.0**2)
 

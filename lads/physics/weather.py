@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from lads.errors import ConfigError
 from lads.physics.beams import prepare_beams, resolve_sensor
 from lads.physics.fog import FogParams, simulate_fog
 from lads.physics.particles import ParticleParams, simulate_particles
@@ -63,6 +64,55 @@ SNOW_DEFAULTS = ParticleParams(
 
 # Fog: Mie lidar ratio of advection-fog droplets (~17 sr) and the same faint-return onset.
 FOG_DEFAULTS = FogParams(overlap_start_m=FAINT_ONSET_M, overlap_full_m=FAINT_FULL_M)
+
+# LISA's published model (Kilic et al. 2021, paper code / pylisa; docs/physics.md §4), an
+# explicit setting to compare with: Fresnel particle reflectivity, 3 mrad, a 1.5 m blind
+# zone with no overlap ramp, range accuracy 0.09 m and the fixed threshold P_min = 0.9 /
+# 200^2 (a 90 % target just detectable at 200 m), which also drops weak clear-air returns.
+LISA_RAIN = ParticleParams(
+    size_distribution="marshall_palmer",
+    material="water",
+    particle_reflectivity=0.01985,
+    beam_divergence_mrad=3.0,
+    min_range_m=1.5,
+    range_accuracy_m=0.09,
+    detection_threshold=0.9 / 200.0**2,
+)
+# Snow: Gunn-Marshall with twice the primary intercept, melted diameter taken as optical,
+# Fresnel reflectivity of ice.
+LISA_SNOW = ParticleParams(
+    size_distribution="gunn_marshall",
+    material="ice",
+    particle_reflectivity=0.01732,
+    n0_scale=2.0,
+    diameter_ratio=1.0,
+    beam_divergence_mrad=3.0,
+    min_range_m=1.5,
+    range_accuracy_m=0.09,
+    detection_threshold=0.9 / 200.0**2,
+)
+# The physics settings a weather stage can run with: lads' own (fitted to real snow, the
+# frame-calibrated threshold) or LISA's published ones. Fog has no LISA setting here (LISA's
+# fog is another model, docs/physics.md §4).
+SETTINGS: dict[str, dict[str, ParticleParams | FogParams]] = {
+    "lads": {"rain": RAIN_DEFAULTS, "snow": SNOW_DEFAULTS, "fog": FOG_DEFAULTS},
+    "lisa": {"rain": LISA_RAIN, "snow": LISA_SNOW},
+}
+
+
+def settings_for(weather: str, settings: str) -> ParticleParams | FogParams:
+    """The physical knobs of `weather` under the named settings.
+
+    Raises:
+        ConfigError: unknown settings, or a weather they do not cover.
+    """
+    if settings not in SETTINGS:
+        raise ConfigError(f"weather settings {settings!r}: expected one of {sorted(SETTINGS)}.")
+    if weather not in SETTINGS[settings]:
+        raise ConfigError(
+            f"weather settings '{settings}' have no {weather} model; use 'lads' for {weather}."
+        )
+    return SETTINGS[settings][weather]
 
 
 def rain(

@@ -25,6 +25,8 @@ class WeatherStage:
         mode: "strongest" or "last" return.
         severity: the preset the strength came from (lads.physics.severity), or None;
             recorded only: the physics runs on rate_mm_h / visibility_m.
+        settings: "lads" (the shipped physics) or "lisa" (LISA's published model, rain and
+            snow), `lads.physics.weather.SETTINGS`.
     """
 
     name: str
@@ -32,6 +34,7 @@ class WeatherStage:
     visibility_m: float | None = None
     mode: str = "strongest"
     severity: str | None = None
+    settings: str = "lads"
     version: str = WEATHER_STAGE_VERSION
 
     @classmethod
@@ -42,16 +45,17 @@ class WeatherStage:
         """Points that still return, with weather intensities; labels and extra columns
         (e.g. the nuScenes ring) follow each point's source beam."""
         xyz, intensity = frame.xyz, frame.intensity
+        params = wx.settings_for(self.name, self.settings)
         if self.name == "fog":
             result = wx.fog(
                 xyz, intensity, visibility_m=float(self.visibility_m),  # type: ignore[arg-type]
-                sensor=frame.sensor, rng=rng, mode=self.mode,
+                sensor=frame.sensor, rng=rng, mode=self.mode, params=params,  # type: ignore[arg-type]
             )  # fmt: skip
         else:
             simulate = wx.rain if self.name == "rain" else wx.snow
             result = simulate(
                 xyz, intensity, rate_mm_h=float(self.rate_mm_h),  # type: ignore[arg-type]
-                sensor=frame.sensor, rng=rng, mode=self.mode,
+                sensor=frame.sensor, rng=rng, mode=self.mode, params=params,  # type: ignore[arg-type]
             )  # fmt: skip
         points = frame.points[result.source_index]
         points[:, :3] = result.xyz

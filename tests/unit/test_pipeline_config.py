@@ -163,3 +163,14 @@ def test_the_severity_override_needs_a_weather_stage():
     data = {"schema_version": 1, "variant": "x", "stages": [{"stage": "intensity", "model": "m"}]}
     with pytest.raises(ConfigError, match="--severity does not apply"):
         parse_pipeline(data, "t").with_overrides(severity="heavy")
+
+
+def test_weather_settings_are_a_checked_stage_parameter():
+    lisa = parse_pipeline(SNOW, "t").with_overrides(settings="lisa")
+    assert lisa.stages[0].params == {"rate_mm_h": 2.5, "settings": "lisa"}
+    assert lisa.config_hash() != parse_pipeline(SNOW, "t").config_hash()
+    with pytest.raises(ConfigError, match="no fog model"):
+        parse_pipeline(FOG, "t").with_overrides(settings="lisa")
+    bad = {**SNOW, "stages": [{"stage": "snow", "rate_mm_h": 1.0, "settings": "carla"}]}
+    with pytest.raises(ConfigError, match="t.yaml: stages\\[0\\]"):
+        parse_pipeline(bad, "t.yaml")

@@ -244,3 +244,36 @@ def test_light_fog_leaves_more_than_90_percent_of_points_as_targets(
 ):
     xyz, intensity = kitti_like if sensor == "hdl64e" else nuscenes_like
     assert fog_share(xyz, intensity, sensor, 1000.0) < 0.10
+
+
+# --- LISA's published settings ---------------------------------------------------------------
+
+
+@pytest.mark.parametrize("weather", ["rain", "snow"])
+def test_lisa_settings_apply_their_fixed_threshold_where_lads_loses_nothing(kitti_like, weather):
+    from lads.physics.weather import LISA_RAIN, LISA_SNOW, settings_for
+
+    xyz, intensity = kitti_like[:2]
+    lisa = settings_for(weather, "lisa")
+    assert lisa is (LISA_RAIN if weather == "rain" else LISA_SNOW)
+    # A weak far return: detected in clear air, below LISA's 0.9 / 200^2 even before rain.
+    weak = np.array([[70.0, 0.0, -1.0]], dtype=np.float32)
+    xyz = np.concatenate([xyz, weak])
+    intensity = np.concatenate([intensity, np.float32([0.02])]).astype(np.float32)
+    assert 0.02 / 70.0**2 < lisa.detection_threshold
+    ours = run(weather, xyz, intensity, params=settings_for(weather, "lads"))
+    theirs = run(weather, xyz, intensity, params=lisa)
+    assert len(xyz) - 1 not in ours.lost_index
+    assert len(xyz) - 1 in theirs.lost_index
+    assert theirs.lost_index.size > ours.lost_index.size
+    assert theirs.detection_threshold == pytest.approx(0.9 / 200.0**2)
+
+
+def test_fog_has_no_lisa_settings_and_unknown_settings_are_refused():
+    from lads.physics.weather import FOG_DEFAULTS, settings_for
+
+    assert settings_for("fog", "lads") is FOG_DEFAULTS
+    with pytest.raises(ConfigError, match="no fog model"):
+        settings_for("fog", "lisa")
+    with pytest.raises(ConfigError, match="expected one of"):
+        settings_for("rain", "carla")
