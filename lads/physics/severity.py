@@ -11,8 +11,8 @@ docs/physics.md ("Severity presets"):
 - snow, water-equivalent rate in mm/h: the three snowfall rates of Robo3D's snow corruption
   (0.5, 1.0, 2.5), which span Hahner et al.'s snowfall simulator (0.5-2.5 mm/h), so the
   sets can be compared.
-- fog, meteorological optical range in m: 600, 150 and 50 m, i.e. extinction 0.005, 0.02
-  and 0.06 1/m (MOR = 3 / alpha), levels 1, 3 and 5 of 3D_Corruptions_AD's fog; all are
+- fog, meteorological optical range in m: 600, 150 and 50 m, i.e. extinction about 0.005, 0.02
+  and 0.06 1/m (alpha = ln(20) / MOR), levels 1, 3 and 5 of 3D_Corruptions_AD's fog; all are
   fog by the WMO's definition (MOR < 1000 m).
 """
 
