@@ -6,6 +6,8 @@ torch.set_num_threads(1):
   range image for a U-Net, every point's inputs and law for a pointwise generator);
 - features: projection, incidence, materials and I_P (numpy, `frame_image`);
 - incidence: the part of features spent on incidence (range-image normals, kNN fallback);
+- fallback: of that, the k-nearest-neighbour PCA normals of the points without a usable
+  normal of their own pixel (k-d tree build, queries and plane fits; `fallback_points` of them);
 - frame: all of `predict_points` (scan check + features + network + every point's value +
   encoding).
 Budget: <= 35 ms per 64-beam frame on one core for the whole stage (`frame`, median over
@@ -27,7 +29,12 @@ from benchmarks.common import machine_info, reference_workload_ms, write_result
 from lads.intensity.checkpoint import resolve_model
 from lads.intensity.features import frame_image
 from lads.intensity.predict import predict_image, predict_points
-from lads.physics.modalities import DEFAULT_MAX_DEPTH_JUMP, _incidence
+from lads.physics.modalities import (
+    DEFAULT_MAX_DEPTH_JUMP,
+    IncidenceSource,
+    _incidence,
+    _neighbour_cos,
+)
 from lads.physics.projection import channels_of, checked_xyz, organise
 from lads.readers import get_reader
 from lads.sensors.profile import load_profile
@@ -66,6 +73,15 @@ def _incidence_only(xyz: np.ndarray, profile: Any) -> None:
     _incidence(xyz64, r, image, DEFAULT_MAX_DEPTH_JUMP)
 
 
+def _fallback_points(xyz: np.ndarray, profile: Any) -> tuple[np.ndarray, np.ndarray]:
+    """(N, 3) float64 points and the indices of those the neighbour fallback answers."""
+    xyz64, r = checked_xyz(xyz)
+    image = organise(xyz64, r, channels_of(xyz64, profile, None), profile.channels,
+                     profile.range_image_width)  # fmt: skip
+    source = _incidence(xyz64, r, image, DEFAULT_MAX_DEPTH_JUMP).source
+    return xyz64, np.flatnonzero(source != IncidenceSource.IMAGE)
+
+
 def main() -> dict[str, Any]:
     # One core: torch and every OpenMP / BLAS pool (the k-d tree of the incidence fallback
     # is OpenMP-parallel) limited to one thread.
@@ -83,6 +99,7 @@ def _measure() -> dict[str, Any]:
         frame = reader.read(item)
         fi = frame_image(frame.xyz, profile, labels=frame.labels, label_set="semantickitti",
                          range_exponent=model.meta.range_exponent)  # fmt: skip
+        xyz64, rest = _fallback_points(frame.xyz, profile)
         rows.append(
             {
                 "frame": item.relpath,
@@ -95,6 +112,8 @@ def _measure() -> dict[str, Any]:
                     )  # fmt: skip
                 ),
                 "incidence_ms": _median_ms(lambda f=frame: _incidence_only(f.xyz, profile)),
+                "fallback_points": int(rest.size),
+                "fallback_ms": _median_ms(lambda x=xyz64, q=rest: _neighbour_cos(x, q)),
                 "frame_ms": _median_ms(
                     lambda f=frame: predict_points(
                         model, f.xyz, profile, labels=f.labels, label_set="semantickitti"
@@ -111,6 +130,7 @@ def _measure() -> dict[str, Any]:
         "network_ms_median": network,
         "features_ms_median": float(np.median([r["features_ms"] for r in rows])),
         "incidence_ms_median": float(np.median([r["incidence_ms"] for r in rows])),
+        "fallback_ms_median": float(np.median([r["fallback_ms"] for r in rows])),
         "frame_ms_median": float(np.median([r["frame_ms"] for r in rows])),
         "target_frame_ms": TARGET_MS,
         "meets_target": float(np.median([r["frame_ms"] for r in rows])) <= TARGET_MS,

@@ -315,8 +315,9 @@ class PointGenerator(nn.Module):
         """`forward` for inference: the points go through the MLP INFER_CHUNK at a time.
 
         A chunk's hidden activations stay in the CPU's cache (a whole frame's do not), which
-        makes the pass about 1.5x faster on one core. A point's value depends only on its
-        own inputs and the fixed chunking of its own frame, never on other frames.
+        makes the pass faster on one core (benchmarks/intensity_speed.py). A point's value
+        depends only on its own inputs and the fixed chunking of its own frame, never on
+        other frames.
         """
         x = self._inputs(raw, mask, law)
         flat = x.reshape(-1, x.shape[-1])

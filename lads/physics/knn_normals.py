@@ -19,7 +19,7 @@ from pykdtree.kdtree import KDTree
 
 _JACOBI_SWEEPS = 12
 # Points per leaf of the k-d tree: larger leaves than pykdtree's default (16) make the
-# build plus ~10k queries of a 64-beam frame about a sixth faster; the neighbours are the same.
+# build plus the fallback's queries of a 64-beam frame faster; the neighbours are the same.
 TREE_LEAF_POINTS = 32
 
 
