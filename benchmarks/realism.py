@@ -208,8 +208,9 @@ def _figure(result: dict[str, Any], path: Path) -> None:
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     frames = _kitti_frames()
     simulated = {w: {s: _simulate(w, s, frames) for s in SEVERITIES} for w in PRESETS}
-    lisa = {w: {s: _simulate(w, s, frames, "lisa") for s in SEVERITIES}
-            for w in PRESETS if "lisa" in wx.SETTINGS and w in wx.SETTINGS["lisa"]}  # fmt: skip
+    lisa = {
+        w: {s: _simulate(w, s, frames, "lisa") for s in SEVERITIES} for w in wx.SETTINGS["lisa"]
+    }
     result = {
         "what": "rain, snow and fog at each severity preset on labelled real SemanticKITTI "
         "frames (physics only, strongest return), beside WADS real snow and RADIATE real fog",

@@ -26,15 +26,13 @@ POINT_MODES = ("physical", "aligned")
 RETURN_MODES = ("strongest", "last")
 
 # Parameters each stage accepts, with a validator per parameter.
+_WEATHER_PARAMS = {"mode": "return_mode", "severity": "severity", "settings": "settings"}
 _STAGE_PARAMS: dict[str, dict[str, str]] = {
-    "rain": {"rate_mm_h": "nonneg", "mode": "return_mode", "severity": "severity",
-             "settings": "settings"},
-    "snow": {"rate_mm_h": "nonneg", "mode": "return_mode", "severity": "severity",
-             "settings": "settings"},
-    "fog": {"visibility_m": "visibility", "mode": "return_mode", "severity": "severity",
-            "settings": "settings"},
+    "rain": {"rate_mm_h": "nonneg", **_WEATHER_PARAMS},
+    "snow": {"rate_mm_h": "nonneg", **_WEATHER_PARAMS},
+    "fog": {"visibility_m": "visibility", **_WEATHER_PARAMS},
     "intensity": {"model": "text", "target": "optional_text", "device": "device"},
-}  # fmt: skip
+}
 _OPTIONAL_KINDS = {"return_mode", "optional_text", "device", "severity", "settings"}
 # Stages whose physical strength a `severity` preset can give (lads.physics.severity).
 _SEVERITY_STAGES = ("rain", "snow", "fog")
@@ -225,7 +223,6 @@ def _resolved(name: str, params: dict[str, Any], where: str) -> dict[str, Any]:
     """A weather stage's parameters with a `severity` preset's value filled in."""
     if name not in _SEVERITY_STAGES or "severity" not in params:
         return params
-    _check_value("severity", params["severity"], f"{where}: severity")
     return with_severity(name, params, where)
 
 

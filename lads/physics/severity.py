@@ -58,7 +58,10 @@ def with_severity(weather: str, params: dict[str, Any], where: str) -> dict[str,
     """
     if params.get("severity") is None:
         return dict(params)
-    key, value = preset(weather, str(params["severity"]))
+    try:
+        key, value = preset(weather, params["severity"])
+    except ConfigError as exc:
+        raise ConfigError(f"{where}: {exc}") from None
     given = params.get(key)
     if given is not None and given != value:
         raise ConfigError(

@@ -65,6 +65,12 @@ SNOW_DEFAULTS = ParticleParams(
 # Fog: Mie lidar ratio of advection-fog droplets (~17 sr) and the same faint-return onset.
 FOG_DEFAULTS = FogParams(overlap_start_m=FAINT_ONSET_M, overlap_full_m=FAINT_FULL_M)
 
+
+def with_overrides(params: ParticleParams, **changes: Any) -> ParticleParams:
+    """A copy of `params` with some fields changed (validated again)."""
+    return replace(params, **changes)
+
+
 # LISA's published model (Kilic et al. 2021, paper code / pylisa; docs/physics.md §4), an
 # explicit setting to compare with: Fresnel particle reflectivity, 3 mrad, a 1.5 m blind
 # zone with no overlap ramp, range accuracy 0.09 m and the fixed threshold P_min = 0.9 /
@@ -78,19 +84,12 @@ LISA_RAIN = ParticleParams(
     range_accuracy_m=0.09,
     detection_threshold=0.9 / 200.0**2,
 )
-# Snow: Gunn-Marshall with twice the primary intercept, melted diameter taken as optical,
-# Fresnel reflectivity of ice.
-LISA_SNOW = ParticleParams(
-    size_distribution="gunn_marshall",
-    material="ice",
-    particle_reflectivity=0.01732,
-    n0_scale=2.0,
-    diameter_ratio=1.0,
-    beam_divergence_mrad=3.0,
-    min_range_m=1.5,
-    range_accuracy_m=0.09,
-    detection_threshold=0.9 / 200.0**2,
-)
+# Snow: the same beam and threshold, Gunn-Marshall with twice the primary intercept, melted
+# diameter taken as optical, Fresnel reflectivity of ice.
+LISA_SNOW = with_overrides(
+    LISA_RAIN, size_distribution="gunn_marshall", material="ice",
+    particle_reflectivity=0.01732, n0_scale=2.0, diameter_ratio=1.0,
+)  # fmt: skip
 # The physics settings a weather stage can run with: lads' own (fitted to real snow, the
 # frame-calibrated threshold) or LISA's published ones. Fog has no LISA setting here (LISA's
 # fog is another model, docs/physics.md §4).
@@ -192,8 +191,3 @@ def fog(
         beams, profile, visibility_m=visibility_m, rng=rng, mode=mode,
         params=FOG_DEFAULTS if params is None else params,
     )  # fmt: skip
-
-
-def with_overrides(params: ParticleParams, **changes: Any) -> ParticleParams:
-    """A copy of `params` with some fields changed (validated again)."""
-    return replace(params, **changes)
