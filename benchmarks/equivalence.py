@@ -16,6 +16,7 @@ Run: .venv/bin/python -m benchmarks.equivalence   (writes benchmarks/results/equ
 from __future__ import annotations
 
 import os
+from dataclasses import replace
 
 for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
@@ -57,15 +58,16 @@ def particle_cases(frames: list[np.ndarray]) -> tuple[list[dict[str, Any]], Samp
     profile = fine_kitti_profile()
     rows = []
     first_fast: Sample | None = None
-    for weather, rate, mode in tqdm(CASES, desc="fast vs brute force", unit="case"):
+    for case in tqdm(CASES, desc="fast vs brute force", unit="case"):
+        weather, rate, mode, detection = case
         fast, brute = Sample(), Sample()
         drawn = 0
         for i, points in enumerate(frames):
             xyz, intensity = fine_frame(points[:, :3], points[:, 3])
-            run_fast(xyz, intensity, weather, rate, mode, 0, Sample(), profile)  # warm-up
+            run_fast(xyz, intensity, *case, 0, Sample(), profile)  # warm-up
             for seed in range(FAST_SEEDS):
-                run_fast(xyz, intensity, weather, rate, mode, 1000 * i + seed, fast, profile)
-            drawn += run_brute(xyz, intensity, weather, rate, mode, 7 + i, brute, profile)
+                run_fast(xyz, intensity, *case, 1000 * i + seed, fast, profile)
+            drawn += run_brute(xyz, intensity, *case, 7 + i, brute, profile)
         first_fast = first_fast or fast
         stats = compare(fast, brute)
         fast_s = fast.seconds / (FAST_SEEDS * len(frames))
@@ -75,6 +77,7 @@ def particle_cases(frames: list[np.ndarray]) -> tuple[list[dict[str, Any]], Samp
                 "weather": weather,
                 "rate_mm_h": rate,
                 "mode": mode,
+                "detection": detection,
                 "frames": len(frames),
                 "fast_runs": FAST_SEEDS * len(frames),
                 "brute_runs": len(frames),
@@ -90,14 +93,14 @@ def particle_cases(frames: list[np.ndarray]) -> tuple[list[dict[str, Any]], Samp
 
 def power_check(frames: list[np.ndarray], fast: Sample) -> dict[str, Any]:
     """The same statistics against a wrong brute force (rho_p doubled) must reject it."""
-    weather, rate, mode = CASES[0]
+    case = CASES[0]
     wrong = Sample()
     rho_p = RAIN_DEFAULTS.particle_reflectivity
     for i, points in enumerate(frames):
         xyz, intensity = fine_frame(points[:, :3], points[:, 3])
-        run_brute(xyz, intensity, weather, rate, mode, 99 + i, wrong, fine_kitti_profile(),
+        run_brute(xyz, intensity, *case, 99 + i, wrong, fine_kitti_profile(),
                   particle_reflectivity=2 * rho_p)  # fmt: skip
-    return {"case": f"{weather} {rate} {mode}, brute force with particle_reflectivity x 2",
+    return {"case": " ".join(map(str, case)) + ", brute force with particle_reflectivity x 2",
             **_rounded(compare(fast, wrong))}  # fmt: skip
 
 
@@ -115,12 +118,15 @@ def fog_case(points: np.ndarray) -> dict[str, Any]:
         beams.range_m[chosen], beams.reflectivity[chosen], constants, auto_threshold(beams)
     )
     brute_s_per_beam = (time.perf_counter() - start) / FOG_BEAMS
-    fog(xyz, intensity, visibility_m=FOG_VISIBILITY_M, sensor=profile, rng=np.random.default_rng(0))
+    # Beam by beam needs a deterministic rule: the frame-calibrated hard threshold.
+    hard = replace(FOG_DEFAULTS, detection_threshold="frame")
+    fog(xyz, intensity, visibility_m=FOG_VISIBILITY_M, sensor=profile, params=hard,
+        rng=np.random.default_rng(0))  # fmt: skip
     times = []
     for seed in range(FAST_SEEDS):
         start = time.perf_counter()
         result = fog(xyz, intensity, visibility_m=FOG_VISIBILITY_M, sensor=profile,
-                     rng=np.random.default_rng(seed))  # fmt: skip
+                     params=hard, rng=np.random.default_rng(seed))  # fmt: skip
         times.append(time.perf_counter() - start)
     fast = np.full(len(xyz), Outcome.LOST, dtype=np.uint8)
     fast[result.source_index] = result.outcome

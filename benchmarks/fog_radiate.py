@@ -18,7 +18,7 @@ from benchmarks.common import SHARED_DATA, machine_info, write_result
 from lads.calibration import radiate as R
 from lads.errors import InputDataError
 from lads.physics.fog import FogParams
-from lads.physics.weather import FOG_DEFAULTS
+from lads.physics.weather import FAINT_FULL_M, FAINT_ONSET_M, FOG_DEFAULTS
 
 FOLDER = SHARED_DATA / "radiate" / "tiny_foggy" / "velo_lidar"
 FRAMES = ("000018", "000019", "000020")
@@ -70,14 +70,15 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             "the model consistent, and then only for MOR >= 1-5 km, i.e. a bound, not a "
             "visibility estimate. The same near-range suppression shows in WADS snow (fitted "
             "R1 ~3.5 m, R2 ~5.9 m).",
-            "The shipped FOG_DEFAULTS take that WADS onset (3.4 -> 6.4 m) and so put fog "
-            "echoes at ~5-6 m, outside this check's 3 m window: they pass it trivially, and "
-            "whether this HDL-32E shows fog echoes at 5-6 m cannot be told apart from scene "
-            "returns in these frames.",
-            "With the frame-calibrated (auto) threshold the fog echo always clears P_min, so "
-            "the model never loses a beam to fog (lost = 0 at every visibility); real foggy "
-            "frames return on only ~29 % of beams. A separate, absolute threshold for faint "
-            "returns per sensor would be needed to model fog losses; not done yet.",
+            f"The shipped FOG_DEFAULTS take the WADS faint-return onset ({FAINT_ONSET_M} -> "
+            f"{FAINT_FULL_M} m) and so put fog echoes beyond this check's 3 m window: they pass "
+            "it trivially, and whether this HDL-32E shows fog echoes there cannot be told "
+            "apart from scene returns in these frames.",
+            "The visibility bounds use each frame's own weakest return as the threshold (an "
+            "upper bound on the sensor's). With the default rule (the sensor's detection "
+            "limit, docs/physics.md 9.7) dense fog still returns a fog echo on every beam "
+            "whose target is lost, while real foggy frames return on only ~29 % of beams: "
+            "fog beam loss is not modelled yet.",
         ],
         "cannot_show": [
             "extinction: no clear twin and no visibility record, so lost points and "

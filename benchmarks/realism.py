@@ -6,7 +6,9 @@ real adverse-weather recordings ../shared/data holds.
 Simulated: rain, snow and fog at each severity preset (`lads.physics.severity`) on the
 labelled real SemanticKITTI frames, physics only (`lads.physics.weather` with the shipped
 defaults, strongest return, one generator per frame and setting), and rain and snow again
-with LISA's published settings (fixed threshold; `--weather-settings lisa`). Per setting:
+with LISA's published settings (fixed threshold; `--weather-settings lisa`). The heavy
+presets run again with the frame-calibrated threshold and with other spreads of the
+sensor's detection curve (docs/physics.md §9.7). Per setting:
 - lost: share of the input points that no longer return, overall and per range bin of the
   source point;
 - particle: drop, flake or fog returns as a share of the output points, overall and per
@@ -26,6 +28,7 @@ relative to those, and a real foggy frame's share is relative to every beam fire
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -46,6 +49,7 @@ KITTI_ROOTS = ("semantickitti", "semantickitti-more", "semantickitti-seqx")
 WADS_ROOTS = ("wads", "wads-more")
 RANGE_BINS_M = (0.0, 5.0, 10.0, 20.0, 40.0, np.inf)  # KITTI holds a handful of points past 80 m
 MIN_CLASS_POINTS = 1000
+SPREADS_LN = (0.25, 0.5, 1.0)  # around the profiles' assumed spread of the detection curve
 SIMULATE = {"rain": wx.rain, "snow": wx.snow, "fog": wx.fog}
 
 
@@ -85,13 +89,23 @@ def _kitti_frames() -> list[tuple[npt.NDArray[np.float32], npt.NDArray[np.uint32
 
 
 def _simulate(
-    weather: str, severity: str, frames: list[Any], settings: str = "lads"
+    weather: str,
+    severity: str,
+    frames: list[Any],
+    settings: str = "lads",
+    detection: str | None = None,
+    spread_ln: float | None = None,
 ) -> dict[str, Any]:
     """Pooled statistics of one weather at one severity over the KITTI frames, with the
-    named physics settings (`lads.physics.weather.SETTINGS`)."""
+    named physics settings (`lads.physics.weather.SETTINGS`), optionally another detection
+    rule or another spread of the sensor's detection curve."""
     key, value = preset(weather, severity)
     params = wx.settings_for(weather, settings)
+    if detection is not None:
+        params = replace(params, detection_threshold=detection)
     profile = load_profile("hdl64e")
+    if spread_ln is not None:
+        profile = replace(profile, detection=replace(profile.detection, spread_ln=spread_ln))
     src_range, lost, out_range, particle, ratios, materials = [], [], [], [], [], []
     for k, (points, labels) in enumerate(frames):
         rng = np.random.default_rng([k, list(PRESETS).index(weather), SEVERITIES.index(severity)])
@@ -211,6 +225,16 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     lisa = {
         w: {s: _simulate(w, s, frames, "lisa") for s in SEVERITIES} for w in wx.SETTINGS["lisa"]
     }
+    # How much the default's loss owes to the assumed spread of the detection curve, and
+    # what the frame-calibrated threshold (the default before the sensor's limit) gives.
+    sensitivity = {
+        w: {
+            "frame_threshold": _simulate(w, "heavy", frames, detection="frame")["lost_share"],
+            **{f"sensor_spread_ln_{s:g}": _simulate(w, "heavy", frames, spread_ln=s)["lost_share"]
+               for s in SPREADS_LN},
+        }
+        for w in PRESETS
+    }  # fmt: skip
     result = {
         "what": "rain, snow and fog at each severity preset on labelled real SemanticKITTI "
         "frames (physics only, strongest return), beside WADS real snow and RADIATE real fog",
@@ -220,6 +244,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         "kitti_points_per_range_bin": _points_per_bin(frames),
         "simulated": simulated,
         "simulated_lisa_settings": lisa,
+        "heavy_lost_share_by_detection_rule": sensitivity,
         "references": {"wads_falling_snow": _wads_reference(), "radiate_fog": _radiate_reference()},
         "note": "simulated shares are relative to the beams that returned in clear air; "
         "RADIATE's to every beam fired; the references are other sensors, places and "

@@ -17,6 +17,7 @@ from typing import Any
 import yaml
 
 from lads.errors import ConfigError
+from lads.physics.detection import resolve_detection
 from lads.physics.severity import SEVERITIES, with_severity
 from lads.readers import READERS
 from lads.resources import pipelines_dir
@@ -26,14 +27,17 @@ POINT_MODES = ("physical", "aligned")
 RETURN_MODES = ("strongest", "last")
 
 # Parameters each stage accepts, with a validator per parameter.
-_WEATHER_PARAMS = {"mode": "return_mode", "severity": "severity", "settings": "settings"}
+_WEATHER_PARAMS = {
+    "mode": "return_mode", "severity": "severity", "settings": "settings",
+    "detection": "detection",
+}  # fmt: skip
 _STAGE_PARAMS: dict[str, dict[str, str]] = {
     "rain": {"rate_mm_h": "nonneg", **_WEATHER_PARAMS},
     "snow": {"rate_mm_h": "nonneg", **_WEATHER_PARAMS},
     "fog": {"visibility_m": "visibility", **_WEATHER_PARAMS},
     "intensity": {"model": "text", "target": "optional_text", "device": "device"},
 }
-_OPTIONAL_KINDS = {"return_mode", "optional_text", "device", "severity", "settings"}
+_OPTIONAL_KINDS = {"return_mode", "optional_text", "device", "severity", "settings", "detection"}
 # Stages whose physical strength a `severity` preset can give (lads.physics.severity).
 _SEVERITY_STAGES = ("rain", "snow", "fog")
 DEVICES = ("cpu", "cuda")
@@ -202,6 +206,12 @@ def _check_value(kind: str, value: Any, where: str) -> None:
     if kind == "settings":
         if not (isinstance(value, str) and value):
             raise ConfigError(f"{where}: expected the name of weather settings, got {value!r}.")
+        return
+    if kind == "detection":
+        try:
+            resolve_detection(value, 1.0, 1.0, 1.0)
+        except ConfigError as exc:
+            raise ConfigError(f"{where}: {exc}") from None
         return
     if kind == "severity":
         if value not in SEVERITIES:

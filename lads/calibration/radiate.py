@@ -22,7 +22,7 @@ the fog return is the only possible echo on them.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -137,7 +137,7 @@ def near_fog_share(
     beams = prepare_beams(xyz, intensity, profile)
     res = simulate_fog(
         beams, profile, visibility_m=visibility_m, rng=np.random.default_rng(seed),
-        params=fog_params, detection_threshold=detection_threshold,
+        params=replace(fog_params, detection_threshold=detection_threshold),
     )  # fmt: skip
     fog = res.outcome == Outcome.PARTICLE
     r = np.linalg.norm(res.xyz[fog].astype(np.float64), axis=1)

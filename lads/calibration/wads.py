@@ -35,10 +35,13 @@ The knobs (`SnowKnobs`) and their physics:
   seen before the fields of view start to overlap at R1; the overlap grows ~linearly to 1 at
   R2. Bright hard targets are still detected inside R2, faint flakes mostly not, which is
   why real snow starts at ~2 m and its density per r^2 rises up to ~5 m.
-- detection_threshold P_min: normalised power (reflectivity / m^2) a return needs. None is
-  the library's auto threshold (the weakest clear-air return of the frame, frame-dependent);
-  a number is an absolute sensor property: a sensor that sees 10 % reflectivity out to r10
-  has P_min = 0.1 / r10^2, which carries across frames and, via datasheets, across sensors.
+- detection_threshold P_lim: the sensor's detection limit, normalised power (reflectivity /
+  m^2): a flake return needs P_p >= P_lim, and hard targets survive the snow with the
+  conditional probability of `lads.physics.detection` (clear air loses nothing). A sensor
+  that sees 10 % reflectivity out to r10 has P_lim = 0.1 / r10^2. WADS' sensor model is not
+  confirmed, so its limit is fitted here and written into wads64.yaml; other sensors take
+  theirs from a datasheet. Only rho_p / P_lim sets the flake count; the flakes' intensity
+  (real flakes read ~0) sets rho_p.
 
 The snowfall rate of WADS is not recorded per frame (nor in any document we hold). The
 number of detectable flakes grows with the rate and with rho_p / P_min alike, so the rate is
@@ -49,7 +52,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -62,7 +65,7 @@ from lads.physics.particles import ParticleParams, resolve_optics
 from lads.physics.result import Outcome
 from lads.physics.thinning import sample_winning_particles
 from lads.physics.weather import LISA_SNOW, SNOW_DEFAULTS, snow, with_overrides
-from lads.sensors.profile import SensorProfile, load_profile
+from lads.sensors.profile import DetectionLimit, SensorProfile, load_profile
 
 FALLING_SNOW = 110
 ACCUMULATED_SNOW = 111
@@ -208,7 +211,11 @@ def scene_from_frame(frame: WadsFrame) -> SnowScene:
 
 @dataclass(frozen=True, slots=True)
 class SnowKnobs:
-    """The fitted physical knobs (module docstring); detection_threshold None = auto."""
+    """The fitted physical knobs (module docstring).
+
+    detection_threshold: the sensor's detection limit P_lim (reflectivity / m^2) the fit
+    assumes for WADS' unknown sensor, or None for the profile's (`SensorProfile.detection`).
+    """
 
     particle_reflectivity: float
     beam_divergence_mrad: float
@@ -217,30 +224,33 @@ class SnowKnobs:
     detection_threshold: float | None
 
     def params(self, base: ParticleParams = SNOW_DEFAULTS) -> ParticleParams:
-        return with_overrides(base, **asdict(self))
+        """The flake optics; detection stays the sensor's rule (`sensor` gives the limit)."""
+        optics = {k: v for k, v in asdict(self).items() if k != "detection_threshold"}
+        return with_overrides(base, **optics, detection_threshold="sensor")
+
+    def sensor(self, profile: SensorProfile | str = SENSOR) -> SensorProfile:
+        """`profile` with its detection limit replaced by the fitted one (if any)."""
+        base = load_profile(profile) if isinstance(profile, str) else profile
+        if self.detection_threshold is None:
+            return base
+        reference = base.detection.reflectivity
+        limit = DetectionLimit(
+            reflectivity=reference,
+            range_m=math.sqrt(reference / self.detection_threshold),
+            spread_ln=base.detection.spread_ln,
+        )
+        return replace(base, detection=limit)
 
 
-# Result of `benchmarks.wads_snow` (fit on 042223 + 042224, seeds 0-1, rate ASSUMED_RATE_MM_H),
-# rounded; the values proposed for SNOW_DEFAULTS. Fitted through the public `weather.snow()`
-# (strongest return, auto threshold), i.e. as the library runs by default: an effective
-# calibration, because WADS itself is a dual-return recording (module docstring).
+# Result of `benchmarks.wads_snow` (dual-return emulation, the WADS sensor's detection limit
+# fitted with the flake optics on the fit frames at ASSUMED_RATE_MM_H), rounded. The optics
+# are SNOW_DEFAULTS' and the limit is wads64.yaml's `detection`.
 FITTED_SNOW_KNOBS = SnowKnobs(
-    particle_reflectivity=0.025,
-    beam_divergence_mrad=4.3,
-    min_range_m=3.4,
-    overlap_full_m=6.4,
-    detection_threshold=None,
-)
-# The faithful sensor model: dual-return emulation with an absolute threshold (same fit).
-# 1.3e-5 reflectivity / m^2 is 10 % reflectivity seen to 88 m; but ~8 % of the clear WADS
-# returns are weaker than that, so the library (one threshold for targets and flakes) would
-# delete them in clear air. Not shippable without a separate flake threshold (see report).
-FITTED_DUAL_KNOBS = SnowKnobs(
-    particle_reflectivity=0.0117,
-    beam_divergence_mrad=1.62,
-    min_range_m=3.41,
-    overlap_full_m=7.27,
-    detection_threshold=1.28e-5,
+    particle_reflectivity=0.00625,
+    beam_divergence_mrad=1.23,
+    min_range_m=2.73,
+    overlap_full_m=7.44,
+    detection_threshold=6.86e-6,
 )
 
 
@@ -269,6 +279,8 @@ def simulate(
     returns / output points. mode "dual": Velodyne dual return, a beam records its
     strongest particle above P_min in front of the target whether or not it beats the
     target; fraction = flakes / (detected targets + flakes), as `SnowScene.target_fraction`.
+    Targets are detected by the rule `params.detection_threshold` names
+    (`lads.physics.detection`).
     """
     profile = load_profile(sensor) if isinstance(sensor, str) else sensor
     if mode == "strongest":
@@ -284,6 +296,9 @@ def simulate(
     beams = prepare_beams(scene.clear_xyz, scene.clear_intensity, profile)
     optics = resolve_optics(beams, profile, rate_mm_h, params)
     r0 = np.where(beams.active, beams.range_m, 0.0)
+    detected, _ = optics.detection.targets_detected(
+        beams.clear_power, -2.0 * optics.particles.alpha_per_m * r0, beams.active, rng
+    )
     floor = np.full(r0.size, optics.threshold)
     owner, r_p, p_p = sample_winning_particles(optics.particles, r0, floor, rng)
     if owner.size:
@@ -292,14 +307,9 @@ def simulate(
         r_best, p_best = r_p[last], p_p[last]
     else:
         r_best = p_best = np.zeros(0)
-    detected = int(
-        (
-            beams.clear_power * np.exp(-2 * optics.particles.alpha_per_m * r0) >= optics.threshold
-        ).sum()
-    )
     inten = profile.intensity.from_reflectivity(p_best * r_best**2)
-    return SimulatedSnow(r_best, inten, r_best.size / max(detected + r_best.size, 1),
-                         optics.threshold)  # fmt: skip
+    fraction = r_best.size / max(int(detected.sum()) + r_best.size, 1)
+    return SimulatedSnow(r_best, inten, fraction, optics.threshold)
 
 
 def compare(
@@ -340,6 +350,7 @@ def evaluate(
     rate_mm_h: float = ASSUMED_RATE_MM_H,
     mode: str = "dual",
     seeds: Sequence[int] = (0,),
+    sensor: SensorProfile | str = SENSOR,
 ) -> dict[str, Any]:
     """Pooled comparison over scenes and seeds (every seed simulates every scene)."""
     sim_r, sim_i, real_r, real_i, fs, fr = [], [], [], [], [], []
@@ -349,7 +360,7 @@ def evaluate(
         fr.append(scene.target_fraction)
         for seed in seeds:
             rng = np.random.default_rng([seed, k])
-            sim = simulate(scene, params, rate_mm_h=rate_mm_h, rng=rng, mode=mode)
+            sim = simulate(scene, params, rate_mm_h=rate_mm_h, rng=rng, mode=mode, sensor=sensor)
             sim_r.append(sim.range_m)
             sim_i.append(sim.intensity)
             fs.append(sim.fraction)
@@ -420,7 +431,10 @@ def fit(
         nonlocal count
         count += 1
         knobs = _knobs_from_vector(x, fit_threshold)
-        res = evaluate(scenes, knobs.params(base), rate_mm_h=rate_mm_h, mode=mode, seeds=seeds)
+        res = evaluate(
+            scenes, knobs.params(base), rate_mm_h=rate_mm_h, mode=mode, seeds=seeds,
+            sensor=knobs.sensor(),
+        )  # fmt: skip
         # Soft wall outside the bounds, so Nelder-Mead does not wander on a flat plateau.
         clipped = _vector(knobs)
         wall = float(np.abs(x - clipped)[: 5 if fit_threshold else 4].sum())
@@ -464,12 +478,16 @@ def rate_sensitivity(
 ) -> list[dict[str, Any]]:
     """The fitted knobs at other snowfall rates, and rho_p refitted alone at each rate."""
     out = []
+    profile = knobs.sensor()
     for rate in rates_mm_h:
-        fixed = evaluate(scenes, knobs.params(base), rate_mm_h=rate, mode=mode, seeds=seeds)
+        fixed = evaluate(
+            scenes, knobs.params(base), rate_mm_h=rate, mode=mode, seeds=seeds, sensor=profile
+        )
 
         def f(log_rho: float, rate: float = rate) -> float:
             k = with_overrides(knobs.params(base), particle_reflectivity=10**log_rho)
-            return loss(evaluate(scenes, k, rate_mm_h=rate, mode=mode, seeds=seeds))
+            result = evaluate(scenes, k, rate_mm_h=rate, mode=mode, seeds=seeds, sensor=profile)
+            return loss(result)
 
         lo, hi = (math.log10(v) for v in BOUNDS["particle_reflectivity"])
         best = optimize.minimize_scalar(f, bounds=(lo, hi), method="bounded",

@@ -65,6 +65,7 @@ import numpy.typing as npt
 
 from lads.errors import ConfigError
 from lads.physics.beams import Beams, assemble, auto_threshold
+from lads.physics.detection import resolve_detection
 from lads.physics.result import Outcome, WeatherResult
 from lads.sensors.profile import SensorProfile
 
@@ -103,6 +104,10 @@ class FogParams:
         report_pulse_centre: report a fog peak at r* - c tau_H / 2, as the sensor's hard-target
             range calibration does (True); False reports the raw pulse-start timing.
         table_step_m: range step of the soft-return table, m (0.01).
+        detection_threshold: "sensor" (the profile's detection limit; targets survive with
+            the conditional probability of docs/physics.md §9.7), "frame" (the frame's
+            weakest clear-air return) or a fixed P_min in reflectivity / m^2
+            (`lads.physics.detection.resolve_detection`).
     """
 
     pulse_half_power_width_s: float = 20e-9
@@ -117,6 +122,7 @@ class FogParams:
     wavelength_nm: float = 905.0
     report_pulse_centre: bool = True
     table_step_m: float = 0.01
+    detection_threshold: float | str = "sensor"
 
     def __post_init__(self) -> None:
         positive = (
@@ -148,6 +154,7 @@ class FogParams:
                 f"FogParams.backscatter_model = {self.backscatter_model!r}; expected one of "
                 f"{BACKSCATTER_MODELS}."
             )
+        resolve_detection(self.detection_threshold, 1.0, 1.0, 1.0)  # raises if malformed
 
     @property
     def pulse_length_m(self) -> float:
@@ -331,46 +338,44 @@ def simulate_fog(
     rng: np.random.Generator,
     mode: str = "strongest",
     params: FogParams | None = None,
-    detection_threshold: float | None = None,
 ) -> WeatherResult:
     """Apply homogeneous fog of a given visibility to one frame.
 
     Per active beam with target range r0 and reflectivity rho: hard-target power
-    P_w = rho T^2(r0) / r0^2 and fog peak P_f (`soft_return_peak`). strongest: fog return if
-    P_f > P_w and P_f >= P_min, else the target if P_w >= P_min, else lost. last: the target
-    if P_w >= P_min, else fog if P_f >= P_min, else lost. Kept targets (ATTENUATED) get
-    intensity rho T^2 and extra range noise of variance sigma(SNR_w)^2 - sigma(SNR_clear)^2,
-    sigma = dR / sqrt(2 SNR), SNR = P / P_min (LISA, docs/physics.md §4). Fog returns (PARTICLE)
-    lie on the same ray at the reported peak range plus noise (module docstring), with
-    intensity P_f r^2. Intensities are encoded once, by `assemble`.
+    P_w = P_eff T^2(r0) and fog peak P_f (`soft_return_peak`); the target is detected by the
+    rule of `lads.physics.detection` (default: the sensor's limit, conditioned on the clear-air
+    detection), the fog echo if P_f >= P_min. strongest: fog return if it is detected and
+    P_f > P_w, else the target if detected, else lost. last: the target if detected, else fog
+    if detected, else lost. Kept targets (ATTENUATED) get intensity rho T^2 and extra range
+    noise of variance sigma(SNR_w)^2 - sigma(SNR_clear)^2, sigma = dR / sqrt(2 SNR),
+    SNR = P / P_min (LISA, docs/physics.md §4). Fog returns (PARTICLE) lie on the same ray at
+    the reported peak range plus noise (module docstring), with intensity P_f r^2.
+    Intensities are encoded once, by `assemble`.
 
     Args:
         beams: the prepared frame (`prepare_beams`), N beams.
-        sensor: its profile (range_accuracy_m = dR, intensity encoding).
+        sensor: its profile (range_accuracy_m = dR, detection limit, intensity encoding).
         visibility_m: meteorological optical range (MOR), m; inf returns the input unchanged.
-        rng: source of the range noise; the same state gives byte-identical output.
+        rng: source of the detection draws and range noise; the same state gives
+            byte-identical output.
         mode: "strongest" or "last" return.
-        params: fog parameters (default `FogParams()`).
-        detection_threshold: P_min in normalised power (reflectivity / m^2); None takes
-            `auto_threshold(beams)`, the weakest clear-air return, so clear air loses nothing.
+        params: fog parameters (default `FogParams()`), detection rule included.
 
     Returns:
         WeatherResult with extinction_per_m = alpha and the P_min used.
 
     Raises:
-        ConfigError: visibility_m NaN or <= 0, unknown mode, or a threshold that is not a
-            finite number > 0.
+        ConfigError: visibility_m NaN or <= 0, unknown mode, or a malformed threshold.
     """
     params = (FogParams() if params is None else params).resolved_for(sensor)
     if mode not in MODES:
         raise ConfigError(f"fog mode = {mode!r}; expected one of {MODES}.")
     alpha = extinction_from_visibility(visibility_m)
-    p_min = auto_threshold(beams) if detection_threshold is None else float(detection_threshold)
-    if not (math.isfinite(p_min) and p_min > 0):
-        raise ConfigError(
-            f"detection_threshold = {detection_threshold!r}; expected a finite normalised power "
-            "> 0 (reflectivity / m^2), or None to calibrate it on the frame."
-        )
+    detection = resolve_detection(
+        params.detection_threshold, sensor.detection.power, sensor.detection.spread_ln,
+        auto_threshold(beams),
+    )  # fmt: skip
+    p_min = detection.threshold
     n = beams.range_m.size
     outcome = np.full(n, Outcome.KEPT, dtype=np.uint8)
     new_range = np.zeros(n)
@@ -383,13 +388,15 @@ def simulate_fog(
     beta = backscatter_from_visibility(visibility_m, params)
     idx = np.flatnonzero(beams.active)
     r0, rho = beams.range_m[idx], beams.reflectivity[idx]
-    p_clear = rho / r0**2
-    t2 = np.exp(-2.0 * alpha * r0)
-    p_target = p_clear * t2
+    p_clear = detection.effective_power(rho / r0**2)
+    two_way_ln = -2.0 * alpha * r0
+    t2 = np.exp(two_way_ln)
+    target_ok, p_target = detection.targets_detected(
+        beams.clear_power[idx], two_way_ln, np.ones(idx.size, dtype=bool), rng
+    )
     table = soft_return_table(alpha, params)
     p_fog = np.pi * beta * _lookup(table.peak_unit, r0, table)
     p_fog[r0 < params.overlap_start_m] = 0.0
-    target_ok = p_target >= p_min
     fog_ok = p_fog >= p_min
     if mode == "strongest":
         fog = fog_ok & (p_fog > p_target)

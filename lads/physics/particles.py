@@ -16,11 +16,14 @@ the same outcome distribution as drawing every particle (~200 per beam at 25 mm/
 drawing ~0.1 per beam; `tests/reference/particles_bruteforce.py` draws every one and the
 test suite checks the two agree.
 
+Detection (`lads.physics.detection`, docs/physics.md §9.7): a hard target is still detected
+with the conditional probability of the sensor's detection curve (default) or by a hard
+threshold; a particle needs P_p >= P_min, the sensor's limit.
 Decision per beam (strongest return): particle return if the strongest detectable particle
-beats the attenuated target; else the target if P0 >= P_min; else lost. Last return: the
+beats the attenuated target; else the target if detected; else lost. Last return: the
 target if detected, else the farthest detectable particle, else lost.
 Kept targets: intensity rho T^2 and the extra range noise that the lower SNR brings,
-variance (dR^2 / 2) (1 / SNR_w - 1 / SNR_clear), SNR = P / P_min, so clear air is exact.
+variance (dR^2 / 2) (1 / SNR_w - 1 / SNR_clear), SNR = P_eff / P_min, so clear air is exact.
 """
 
 from __future__ import annotations
@@ -33,6 +36,7 @@ import numpy.typing as npt
 
 from lads.errors import ConfigError
 from lads.physics.beams import Beams, assemble, auto_threshold, unchanged
+from lads.physics.detection import Detection, resolve_detection
 from lads.physics.mie import extinction_per_m
 from lads.physics.psd import SIZE_DISTRIBUTIONS, ExponentialPSD
 from lads.physics.result import Outcome, WeatherResult
@@ -67,8 +71,10 @@ class ParticleParams:
             hard targets are still seen there, faint particles mostly not. None -> profile
             (R2 = R1 is a hard cut, LISA's model).
         range_accuracy_m: dR, range sigma is dR / sqrt(2 SNR); None -> profile.
-        detection_threshold: P_min in reflectivity / m^2; None -> calibrated to the frame
-            (weakest clear-air return), so clear air loses nothing.
+        detection_threshold: "sensor" (the profile's detection limit; a hard target
+            survives with the conditional probability of docs/physics.md §9.7), "frame"
+            (the frame's weakest clear-air return as a hard threshold) or a fixed P_min in
+            reflectivity / m^2 (a hard threshold that also drops weaker clear-air returns).
     """
 
     size_distribution: str = "marshall_palmer"
@@ -81,7 +87,7 @@ class ParticleParams:
     beam_divergence_mrad: float | None = None
     min_range_m: float | None = None
     range_accuracy_m: float | None = None
-    detection_threshold: float | None = None
+    detection_threshold: float | str = "sensor"
     overlap_full_m: float | None = None
 
     def __post_init__(self) -> None:
@@ -94,7 +100,7 @@ class ParticleParams:
             problems.append("n0_scale, diameter_ratio and min_diameter_mm must be > 0")
         if not 0.5 <= self.extinction_scale <= 1.0:
             problems.append("extinction_scale must lie in [0.5, 1]")
-        for key in ("beam_divergence_mrad", "range_accuracy_m", "detection_threshold"):
+        for key in ("beam_divergence_mrad", "range_accuracy_m"):
             value = getattr(self, key)
             if value is not None and not value > 0:
                 problems.append(f"{key} must be > 0 when given")
@@ -106,6 +112,7 @@ class ParticleParams:
             problems.append("overlap_full_m must be finite and >= min_range_m when given")
         if problems:
             raise ConfigError("ParticleParams: " + "; ".join(problems) + ".")
+        resolve_detection(self.detection_threshold, 1.0, 1.0, 1.0)  # raises if malformed
 
     def psd(self, rate_mm_h: float) -> ExponentialPSD:
         """Size distribution of optical diameters at a rate (mm/h)."""
@@ -120,11 +127,16 @@ class ParticleParams:
 
 @dataclass(frozen=True, slots=True)
 class FrameOptics:
-    """Per-frame constants: the particle process plus threshold and range accuracy."""
+    """Per-frame constants: the particle process plus detection rule and range accuracy."""
 
     particles: ParticleOptics
-    threshold: float
+    detection: Detection
     range_accuracy_m: float
+
+    @property
+    def threshold(self) -> float:
+        """P_min a particle return needs, reflectivity / m^2."""
+        return self.detection.threshold
 
 
 def resolve_optics(
@@ -145,11 +157,12 @@ def resolve_optics(
         max_range_m=max(10.0 * math.ceil(farthest / 10.0), min_range + 10.0),
         overlap_full_m=max(_pick(params.overlap_full_m, sensor.overlap_full_m), min_range),
     )
-    threshold = (
-        auto_threshold(beams) if params.detection_threshold is None else params.detection_threshold
-    )
+    detection = resolve_detection(
+        params.detection_threshold, sensor.detection.power, sensor.detection.spread_ln,
+        auto_threshold(beams),
+    )  # fmt: skip
     return FrameOptics(
-        particles, threshold, _pick(params.range_accuracy_m, sensor.range_accuracy_m)
+        particles, detection, _pick(params.range_accuracy_m, sensor.range_accuracy_m)
     )
 
 
@@ -186,14 +199,16 @@ def simulate_particles(
     optics = resolve_optics(beams, sensor, rate_mm_h, params)
     alpha = optics.particles.alpha_per_m
     r0 = np.where(beams.active, beams.range_m, 0.0)
-    transmission = np.exp(-2.0 * alpha * r0)
-    target_power = beams.clear_power * transmission
-    detected = beams.active & (target_power >= optics.threshold)
+    two_way_ln = -2.0 * alpha * r0
+    transmission = np.exp(two_way_ln)
+    detected, target_power = optics.detection.targets_detected(
+        beams.clear_power, two_way_ln, beams.active, rng
+    )
 
-    # Strongest: a particle matters if it beats the detected target (or P_min if the
-    # target is lost). Last: only on beams whose target is lost.
+    # Strongest: a particle matters if it is detectable and beats the detected target.
+    # Last: only on beams whose target is lost.
     if mode == "strongest":
-        floor = np.where(detected, target_power, optics.threshold)
+        floor = np.where(detected, np.maximum(target_power, optics.threshold), optics.threshold)
         searched = r0
     else:
         floor = np.full(n, optics.threshold)
@@ -210,7 +225,8 @@ def simulate_particles(
 
     out_range = beams.range_m.copy()
     out_refl = sensor.intensity.to_reflectivity(beams.intensity) * transmission
-    noisy = out_range[kept] + _extra_range_noise(optics, beams.clear_power, target_power, kept, rng)
+    clear_power = optics.detection.effective_power(beams.clear_power)
+    noisy = out_range[kept] + _extra_range_noise(optics, clear_power, target_power, kept, rng)
     # sigma <= dR / sqrt(2) is centimetres; the clamp only guards returns near the origin.
     out_range[kept] = np.maximum(noisy, 0.5 * beams.range_m[kept])
     out_range[particle_wins] = best_r[particle_wins]

@@ -24,14 +24,14 @@ from lads.physics.result import WeatherResult
 from lads.sensors.profile import SensorProfile
 
 # Where faint returns (drops, flakes, fog) become visible. Real falling snow (WADS: none
-# nearer than ~4 m though hard targets are seen from 0.3 m) and real fog (RADIATE HDL-32E:
+# nearer than ~3 m though hard targets are seen from 0.3 m) and real fog (RADIATE HDL-32E:
 # no fog echo at 1-3 m) both show that the receiver barely sees faint returns within a few
 # metres: the transmitter/receiver overlap of a bistatic sensor, modelled as a linear ramp
 # from FAINT_ONSET_M to FAINT_FULL_M (fitted on WADS by lads.calibration.wads, see
 # benchmarks/results/wads_snow.json). Bright hard targets still pass at short range. The same
 # sensor-side onset serves rain, snow and fog, since no rain recording exists to fit it.
-FAINT_ONSET_M = 3.4
-FAINT_FULL_M = 6.4
+FAINT_ONSET_M = 2.73
+FAINT_FULL_M = 7.44
 
 # Rain: Marshall-Palmer drops, water Mie extinction, Fresnel backscatter (LISA). No real
 # rain recording is available to calibrate particle_reflectivity; the Fresnel value is the
@@ -45,19 +45,19 @@ RAIN_DEFAULTS = ParticleParams(
 )
 
 # Snow: Gunn-Marshall melted diameters widened to flakes of 0.1 g/cm^3, ice Mie extinction,
-# and the knobs fitted to real falling snow (WADS 36/042223-042224 at an assumed 2.5 mm/h,
-# held out: 042225; `python -m benchmarks.wads_snow`): effective flake reflectivity 0.025
-# (ice Fresnel is 0.0173; flakes are rough aggregates), divergence 4.3 mrad (trades off
-# against the reflectivity), onset 3.4 -> 6.4 m. Two-sample KS distance of the range
-# distribution to real snow: 0.027 (LISA's settings: 0.86). These are effective values of a
-# single-return model fitted to a dual-return recording at an assumed rate; the
-# reflectivity is only meaningful together with that rate.
+# and the knobs fitted to real falling snow (WADS seq 36, a dual-return recording, fitted in
+# the dual-return emulation together with the WADS sensor's detection limit at an assumed
+# 2.5 mm/h; `python -m benchmarks.wads_snow`, held-out frames reported there): effective
+# flake reflectivity 0.00625 (below ice Fresnel 0.0173: real flakes read ~0 intensity, and
+# only rho_p / P_lim sets the flake count), divergence 1.23 mrad (trades off against the
+# reflectivity), onset 2.73 -> 7.44 m. These are effective values of a single-scattering
+# model at an assumed rate; the reflectivity is only meaningful together with that rate.
 SNOW_DEFAULTS = ParticleParams(
     size_distribution="gunn_marshall",
     material="ice",
-    particle_reflectivity=0.025,
+    particle_reflectivity=0.00625,
     diameter_ratio=flake_diameter_ratio(),
-    beam_divergence_mrad=4.3,
+    beam_divergence_mrad=1.23,
     min_range_m=FAINT_ONSET_M,
     overlap_full_m=FAINT_FULL_M,
 )
@@ -91,7 +91,7 @@ LISA_SNOW = with_overrides(
     particle_reflectivity=0.01732, n0_scale=2.0, diameter_ratio=1.0,
 )  # fmt: skip
 # The physics settings a weather stage can run with: lads' own (fitted to real snow, the
-# frame-calibrated threshold) or LISA's published ones. Fog has no LISA setting here (LISA's
+# sensor's detection limit) or LISA's published ones. Fog has no LISA setting here (LISA's
 # fog is another model, docs/physics.md §4).
 SETTINGS: dict[str, dict[str, ParticleParams | FogParams]] = {
     "lads": {"rain": RAIN_DEFAULTS, "snow": SNOW_DEFAULTS, "fog": FOG_DEFAULTS},

@@ -97,6 +97,27 @@ class IntensityEncoding:
 
 
 @dataclass(frozen=True, slots=True)
+class DetectionLimit:
+    """The sensor's hard-target detection limit (docs/physics.md §9.7).
+
+    Attributes:
+        reflectivity: rho_lim, a diffuse target reflectivity the datasheet quotes a range for.
+        range_m: r_lim, the range out to which such a target is detected, m.
+        spread_ln: s, width of the detection probability curve Phi((ln P - ln P_lim) / s) in
+            ln-power units (detection rises from 10 % to 90 % over a factor exp(2.56 s)).
+    """
+
+    reflectivity: float
+    range_m: float
+    spread_ln: float
+
+    @property
+    def power(self) -> float:
+        """P_lim = rho_lim / r_lim^2, normalised power (reflectivity / m^2)."""
+        return self.reflectivity / self.range_m**2
+
+
+@dataclass(frozen=True, slots=True)
 class SensorProfile:
     """One LiDAR as recorded in one dataset.
 
@@ -118,6 +139,7 @@ class SensorProfile:
             targets survive but faint particle and fog returns mostly do not.
         max_range_m: maximum range in m.
         range_accuracy_m: one-sigma range accuracy in m at the detection threshold.
+        detection: the datasheet detection limit (`DetectionLimit`).
         intensity: the dataset's intensity encoding.
         has_ring_column: scans carry a per-point ring (channel) column.
         sources: citations for the numbers above.
@@ -136,6 +158,7 @@ class SensorProfile:
     overlap_full_m: float
     max_range_m: float
     range_accuracy_m: float
+    detection: DetectionLimit
     intensity: IntensityEncoding
     has_ring_column: bool
     sources: tuple[str, ...]
@@ -212,11 +235,12 @@ def _build(raw: dict[str, Any], path: Path) -> SensorProfile:
             overlap_full_m=float(raw["overlap_full_m"]),
             max_range_m=float(raw["max_range_m"]),
             range_accuracy_m=float(raw["range_accuracy_m"]),
+            detection=DetectionLimit(**{k: float(v) for k, v in raw["detection"].items()}),
             intensity=enc,
             has_ring_column=bool(raw["has_ring_column"]),
             sources=tuple(str(s) for s in raw["sources"]),
         )
-    except (TypeError, ValueError, KeyError, IndexError) as exc:
+    except (TypeError, ValueError, KeyError, IndexError, AttributeError) as exc:
         raise SensorProfileError(
             f"{path}: malformed value ({exc}); see lads/sensors/*.yaml."
         ) from exc
@@ -250,5 +274,8 @@ def _check(p: SensorProfile, path: Path) -> None:
         problems.append("intensity needs kind unit|byte and 0 < step <= max_value")
     if not enc.reflectivity_full_scale > 0:
         problems.append("intensity.reflectivity_full_scale must be > 0")
+    det = p.detection
+    if not (det.reflectivity > 0 and det.range_m > 0 and det.spread_ln > 0):
+        problems.append("detection needs reflectivity, range_m and spread_ln > 0")
     if problems:
         raise SensorProfileError(f"{path}: " + "; ".join(problems) + ".")

@@ -11,7 +11,7 @@ from lads.frame import Frame
 from lads.physics import weather as wx
 
 # Bump when the physics changes the bytes produced for the same input and seed.
-WEATHER_STAGE_VERSION = "1"
+WEATHER_STAGE_VERSION = "2"
 
 
 @dataclass(frozen=True, slots=True)
@@ -27,6 +27,9 @@ class WeatherStage:
             recorded only: the physics runs on rate_mm_h / visibility_m.
         settings: "lads" (the shipped physics) or "lisa" (LISA's published model, rain and
             snow), `lads.physics.weather.SETTINGS`.
+        detection: None (the settings' own rule: the sensor's detection limit for "lads",
+            LISA's fixed threshold for "lisa"), "sensor", "frame" or a fixed threshold in
+            reflectivity / m^2 (`lads.physics.detection`, docs/physics.md §9.7).
     """
 
     name: str
@@ -35,6 +38,7 @@ class WeatherStage:
     mode: str = "strongest"
     severity: str | None = None
     settings: str = "lads"
+    detection: str | float | None = None
     version: str = WEATHER_STAGE_VERSION
 
     @classmethod
@@ -46,6 +50,8 @@ class WeatherStage:
         (e.g. the nuScenes ring) follow each point's source beam."""
         xyz, intensity = frame.xyz, frame.intensity
         params = wx.settings_for(self.name, self.settings)
+        if self.detection is not None:
+            params = replace(params, detection_threshold=self.detection)
         if self.name == "fog":
             result = wx.fog(
                 xyz, intensity, visibility_m=float(self.visibility_m),  # type: ignore[arg-type]

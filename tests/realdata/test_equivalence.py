@@ -25,6 +25,8 @@ outside a 1 % band around ties.
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -64,14 +66,13 @@ def samples(kitti_frame):
 
     def get(case):
         if case not in cache:
-            weather, rate, mode = case
             fast, brute = Sample(), Sample()
             drawn = 0
             for i in FRAMES:
                 xyz, intensity = fine_frame(*kitti_frame(i))
                 for seed in range(FAST_SEEDS):
-                    run_fast(xyz, intensity, weather, rate, mode, 1000 * i + seed, fast, profile)
-                drawn += run_brute(xyz, intensity, weather, rate, mode, 7 + i, brute, profile)
+                    run_fast(xyz, intensity, *case, 1000 * i + seed, fast, profile)
+                drawn += run_brute(xyz, intensity, *case, 7 + i, brute, profile)
             cache[case] = (fast, brute, drawn)
         return cache[case]
 
@@ -87,24 +88,29 @@ def test_fast_path_matches_brute_force_on_real_frames(samples, case):
         f"({drawn / len(FRAMES):.3g} particles/frame), fast "
         f"{1e3 * fast.seconds / (FAST_SEEDS * len(FRAMES)):.1f} ms/frame"
     )
-    assert brute.particle >= 100, "too few particle returns for the comparison to mean anything"
+    # Every case must exercise what it tests: returns lost to the weather, and particle
+    # returns wherever the detection rule lets drops or flakes through.
+    assert brute.lost >= 100, "too few lost returns for the comparison to mean anything"
+    tests_particles = case[0] == "snow" or case[3] == "frame"
+    assert brute.particle >= 100 or not tests_particles, "too few particle returns"
     for what in ("lost", "particle"):
         stat = result[what]
         assert stat["p"] > P_VALUE_FLOOR, f"{what} fraction differs: {stat}"
         assert abs(stat["h"]) <= MAX_COHEN_H, f"{what} fraction effect size too large: {stat}"
-    assert result["range_ks_p"] > P_VALUE_FLOOR, "particle-return ranges differ"
-    assert result["intensity_ks_p"] > P_VALUE_FLOOR, "particle-return intensities differ"
+    if tests_particles:
+        assert result["range_ks_p"] > P_VALUE_FLOOR, "particle-return ranges differ"
+        assert result["intensity_ks_p"] > P_VALUE_FLOOR, "particle-return intensities differ"
 
 
 def test_comparison_rejects_a_brute_force_with_doubled_particle_reflectivity(samples, kitti_frame):
     """Power: the same statistics tell a wrong model (rho_p x 2) apart at p < 0.001."""
-    weather, rate, mode = case = ("rain", 25.0, "strongest")
+    case = ("rain", 25.0, "strongest", "frame")
     fast, _, _ = samples(case)
     wrong = Sample()
     rho_p = RAIN_DEFAULTS.particle_reflectivity
     for i in FRAMES:
         xyz, intensity = fine_frame(*kitti_frame(i))
-        run_brute(xyz, intensity, weather, rate, mode, 99 + i, wrong, fine_kitti_profile(),
+        run_brute(xyz, intensity, *case, 99 + i, wrong, fine_kitti_profile(),
                   particle_reflectivity=2 * rho_p)  # fmt: skip
     result = compare(fast, wrong)
     print(f"\nrho_p x 2: {result}")
@@ -156,7 +162,9 @@ def test_fog_outcomes_match_direct_waveform_integration_beam_by_beam(kitti_frame
     )
     assert (brute["strongest"] == PARTICLE).any() and (brute["strongest"] != PARTICLE).any()
     for mode in ("strongest", "last"):
+        # Beam by beam needs a deterministic rule: the frame-calibrated hard threshold.
         result = fog(xyz, intensity, visibility_m=visibility_m, sensor=profile, mode=mode,
+                     params=dataclasses.replace(FOG_DEFAULTS, detection_threshold="frame"),
                      rng=np.random.default_rng(0))  # fmt: skip
         fast = np.full(len(xyz), LOST, dtype=np.uint8)
         fast[result.source_index] = result.outcome

@@ -13,9 +13,14 @@ written the slow, literal way, as a reference for the thinned-Poisson fast path:
   D_b(r) = 1e3 theta r (mm), T^2(r) = exp(-2 alpha r) and the transmitter/receiver overlap
   xi(r): 0 up to r_min = R1, linear to 1 at R2 = overlap_full_m (a step at R1 if R2 = R1,
   LISA's hard cut); the target returns P0 = rho T^2(r0) / r0^2.
+- Target detection: a hard step P0 >= P_min ("frame", fixed thresholds), or the sensor's
+  soft limit: the target (taken at P_eff = max(P_clear, P_lim)) was seen in clear air
+  because its latent receiver noise e ~ N(0, s^2) gave ln P_eff + e >= ln P_lim; that same e,
+  drawn by rejection, decides whether ln P0 + e >= ln P_lim in weather.
 - strongest: particle return if the strongest particle with P_p >= P_min beats the attenuated
-  target (P_p >= P0 when the target is detected); else the target if P0 >= P_min; else lost.
-  last: the target if P0 >= P_min; else the farthest particle with P_p >= P_min; else lost.
+  target (P_p >= max(P0, P_min) when the target is detected); else the target if detected;
+  else lost. last: the target if detected; else the farthest particle with P_p >= P_min;
+  else lost.
 - Kept targets: reflectivity rho T^2(r0), range r0 + N(0, sigma_extra^2) with
   sigma_extra^2 = dR^2 / 2 (P_min / P0 - P_min / P_clear) (clamped at r0 / 2).
   Particle returns: range r, reflectivity P_p r^2.
@@ -52,6 +57,8 @@ class Constants:
     particle_reflectivity: float  # rho_p
     threshold: float  # P_min, normalised power
     range_accuracy_m: float  # dR
+    setting: str = "frame"  # detection rule: "sensor" (soft, conditional) or a hard step
+    spread_ln: float = 0.0  # s of the sensor's detection curve
 
     @classmethod
     def from_optics(cls, optics) -> Constants:
@@ -69,6 +76,8 @@ class Constants:
             particle_reflectivity=p.particle_reflectivity,
             threshold=optics.threshold,
             range_accuracy_m=optics.range_accuracy_m,
+            setting=optics.detection.setting,
+            spread_ln=optics.detection.spread_ln,
         )
 
     def overlap(self, r: np.ndarray) -> np.ndarray:
@@ -105,8 +114,19 @@ def simulate_beam(
     """
     t2 = lambda r: np.exp(-2.0 * c.alpha_per_m * r)  # noqa: E731
     p_clear = rho / r0**2
-    p_target = p_clear * t2(r0)
-    target_detected = p_target >= c.threshold
+    if c.setting == "sensor":
+        # The latent noise e ~ N(0, s^2) that let the target be seen in clear air
+        # (ln P_eff + e >= ln P_lim), drawn by rejection, decides again in weather.
+        p_clear = max(p_clear, c.threshold)
+        p_target = p_clear * t2(r0)
+        while True:
+            e = c.spread_ln * rng.standard_normal()
+            if math.log(p_clear) + e >= math.log(c.threshold):
+                break
+        target_detected = math.log(p_target) + e >= math.log(c.threshold)
+    else:
+        p_target = p_clear * t2(r0)
+        target_detected = p_target >= c.threshold
 
     # Every particle in the cone between r_min and r0.
     if r0 > c.min_range_m:
@@ -123,7 +143,7 @@ def simulate_beam(
 
     detectable = p >= c.threshold
     if mode == "strongest":
-        floor = p_target if target_detected else c.threshold
+        floor = max(p_target, c.threshold) if target_detected else c.threshold
         beats = p >= floor
         if beats.any():
             j = int(np.argmax(np.where(beats, p, -np.inf)))

@@ -92,12 +92,13 @@ def outcome_fractions(result, n):
 
 @pytest.mark.parametrize("weather", ["rain", "snow"])
 def test_particle_returns_and_target_losses_rise_with_rate(street, weather):
-    """With the default (auto) threshold: more particle returns, more beams lose the target."""
+    """With the frame threshold: more particle returns, more beams lose the target."""
     xyz, intensity = street
-    simulate, _ = PRECIPITATION[weather]
+    simulate, params = PRECIPITATION[weather]
+    params = with_overrides(params, detection_threshold="frame")
     lost, particle = [], []
     for rate in (1.0, 5.0, 25.0, 100.0):
-        result = simulate(xyz, intensity, rate_mm_h=rate, sensor="hdl64e",
+        result = simulate(xyz, intensity, rate_mm_h=rate, sensor="hdl64e", params=params,
                           rng=np.random.default_rng(1))  # fmt: skip
         lo, pa = outcome_fractions(result, len(xyz))
         lost.append(lo)
@@ -106,6 +107,24 @@ def test_particle_returns_and_target_losses_rise_with_rate(street, weather):
     assert np.all(np.diff(particle) > 0), particle
     assert np.all(np.diff(target_gone) > 0), target_gone
     assert particle[-1] > 0.001  # at 1 mm/h a street frame may show no drop at all
+
+
+@pytest.mark.parametrize("weather", ["rain", "snow"])
+def test_with_the_sensor_limit_far_weak_targets_go_first_and_loss_rises_with_rate(street, weather):
+    """docs/physics.md §9.7: the default rule loses more with the rate, most beyond 40 m."""
+    xyz, intensity = street
+    simulate, _ = PRECIPITATION[weather]
+    r = np.linalg.norm(xyz.astype(np.float64), axis=1)
+    lost, far_share = [], []
+    rates = (1.0, 5.0, 25.0, 100.0) if weather == "rain" else (0.5, 1.0, 2.5, 5.0)
+    for rate in rates:
+        result = simulate(xyz, intensity, rate_mm_h=rate, sensor="hdl64e",
+                          rng=np.random.default_rng(1))  # fmt: skip
+        lost.append(result.lost_index.size / len(xyz))
+        far_share.append(float((r[result.lost_index] > 40.0).mean()) if lost[-1] else 1.0)
+    assert np.all(np.diff(lost) > 0), lost
+    assert lost[-1] > 0.001
+    assert far_share[0] > 0.5, far_share  # light weather takes the far weak targets first
 
 
 @pytest.mark.parametrize("weather", ["rain", "snow"])

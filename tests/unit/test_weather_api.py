@@ -10,7 +10,7 @@ import pytest
 from lads.errors import ConfigError, IntensityEncodingError, InvalidPointsError, LadsError
 from lads.physics.beams import auto_threshold, prepare_beams
 from lads.physics.result import Outcome
-from lads.physics.weather import fog, rain, snow
+from lads.physics.weather import RAIN_DEFAULTS, fog, rain, snow, with_overrides
 from lads.sensors.profile import load_profile
 from tests.conftest import street_frame
 
@@ -132,7 +132,9 @@ def test_empty_frame_gives_an_empty_result(weather):
 def test_labels_follow_their_beams_through_source_index(kitti_like, weather, mode):
     xyz, intensity = kitti_like
     labels = np.arange(len(xyz), dtype=np.uint32) * 7 + 3  # a label that names its point
-    result = run(weather, xyz, intensity, mode=mode)
+    # Rain drops rarely reach the sensor's limit; the frame threshold lets some return here.
+    frame_rule = {"params": with_overrides(RAIN_DEFAULTS, detection_threshold="frame")}
+    result = run(weather, xyz, intensity, mode=mode, **(frame_rule if weather == "rain" else {}))
     assert_contract(result, len(xyz))
     out_labels = labels[result.source_index]
     np.testing.assert_array_equal((out_labels - 3) // 7, result.source_index)
@@ -250,7 +252,9 @@ def test_light_fog_leaves_more_than_90_percent_of_points_as_targets(
 
 
 @pytest.mark.parametrize("weather", ["rain", "snow"])
-def test_lisa_settings_apply_their_fixed_threshold_where_lads_loses_nothing(kitti_like, weather):
+def test_lisa_settings_drop_a_weak_clear_air_return_that_lads_keeps_in_light_weather(
+    kitti_like, weather
+):
     from lads.physics.weather import LISA_RAIN, LISA_SNOW, settings_for
 
     xyz, intensity = kitti_like[:2]
@@ -261,12 +265,20 @@ def test_lisa_settings_apply_their_fixed_threshold_where_lads_loses_nothing(kitt
     xyz = np.concatenate([xyz, weak])
     intensity = np.concatenate([intensity, np.float32([0.02])]).astype(np.float32)
     assert 0.02 / 70.0**2 < lisa.detection_threshold
-    ours = run(weather, xyz, intensity, params=settings_for(weather, "lads"))
-    theirs = run(weather, xyz, intensity, params=lisa)
-    assert len(xyz) - 1 not in ours.lost_index
-    assert len(xyz) - 1 in theirs.lost_index
-    assert theirs.lost_index.size > ours.lost_index.size
-    assert theirs.detection_threshold == pytest.approx(0.9 / 200.0**2)
+    simulate = rain if weather == "rain" else snow
+    kept_ours = kept_lisa = 0
+    for seed in range(20):
+        for params, counter in ((settings_for(weather, "lads"), "ours"), (lisa, "lisa")):
+            result = simulate(xyz, intensity, rate_mm_h=0.01, sensor="hdl64e", params=params,
+                              rng=np.random.default_rng(seed))  # fmt: skip
+            kept = len(xyz) - 1 not in result.lost_index
+            if counter == "ours":
+                kept_ours += kept
+            else:
+                kept_lisa += kept
+                assert result.detection_threshold == pytest.approx(0.9 / 200.0**2)
+    # Ours: the point was detected, so light weather keeps it almost always; LISA never.
+    assert kept_ours >= 17 and kept_lisa == 0
 
 
 def test_fog_has_no_lisa_settings_and_unknown_settings_are_refused():
