@@ -8,7 +8,8 @@ labelled real SemanticKITTI frames, physics only (`lads.physics.weather` with th
 defaults, strongest return, one generator per frame and setting), and rain and snow again
 with LISA's published settings (fixed threshold; `--weather-settings lisa`). The heavy
 presets run again with the frame-calibrated threshold and with other spreads of the
-sensor's detection curve (docs/physics.md §9.7). Per setting:
+sensor's detection curve (docs/physics.md §9.7), and wet ground runs at each severity's water
+film (docs/physics.md §8.2). Per setting:
 - lost: share of the input points that no longer return, overall and per range bin of the
   source point;
 - particle: drop, flake or fog returns as a share of the output points, overall and per
@@ -23,7 +24,9 @@ simulation, not targets it is scored on):
 - RADIATE fog (HDL-32E): returns per fired beam (2170 firings x 32 lasers per sweep) and the
   share of returns per range bin.
 A KITTI frame holds only the beams that returned in clear air, so the simulated shares are
-relative to those, and a real foggy frame's share is relative to every beam fired.
+relative to those, and a real foggy frame's share is relative to every beam fired. Fog runs
+again on real nuScenes frames (the HDL-32E, RADIATE's sensor), which record a return on
+nearly every firing, so there its share of fired beams that return is RADIATE's measure.
 """
 
 from __future__ import annotations
@@ -39,9 +42,10 @@ from benchmarks.common import RESULTS, SHARED_DATA, machine_info, write_result
 from lads.calibration import radiate, wads
 from lads.errors import InputDataError
 from lads.physics import weather as wx
-from lads.physics.materials import material_index_for_labels, material_names
+from lads.physics.materials import material_index_for_labels, material_names, wet_surface_for_labels
 from lads.physics.result import Outcome
 from lads.physics.severity import PRESETS, SEVERITIES, preset
+from lads.physics.wet_ground import WetGroundParams, wet_ground
 from lads.readers import get_reader
 from lads.sensors.profile import load_profile
 
@@ -49,8 +53,12 @@ KITTI_ROOTS = ("semantickitti", "semantickitti-more", "semantickitti-seqx")
 WADS_ROOTS = ("wads", "wads-more")
 RANGE_BINS_M = (0.0, 5.0, 10.0, 20.0, 40.0, np.inf)  # KITTI holds a handful of points past 80 m
 MIN_CLASS_POINTS = 1000
+NUSCENES_FIRINGS = 32 * 1084  # HDL-32E lasers x firings per 20 Hz sweep (hdl32e.yaml)
+NUSCENES_STRIDE = 4  # every 4th of the 40 frames: 0.2 s apart, enough for shares
+NUSCENES_FOG_MOR_M = (20.0, 50.0, 150.0, 600.0)
 SPREADS_LN = (0.25, 0.5, 1.0)  # around the profiles' assumed spread of the detection curve
 SIMULATE = {"rain": wx.rain, "snow": wx.snow, "fog": wx.fog}
+WEATHERS = tuple(SIMULATE)
 
 
 def _bin_labels() -> list[str]:
@@ -143,6 +151,42 @@ def _simulate(
     }
 
 
+def _wet_ground(severity: str, frames: list[Any]) -> dict[str, Any]:
+    """Wet ground at a severity's water film over the KITTI frames: lost share (of all points
+    and of the ground points, per source range bin) and median intensity ratio per material."""
+    key, film = preset("wet_ground", severity)
+    profile = load_profile("hdl64e")
+    ground, lost, src_range, ratios, materials = [], [], [], [], []
+    for k, (points, labels) in enumerate(frames):
+        rng = np.random.default_rng([k, len(WEATHERS), SEVERITIES.index(severity)])
+        res = wet_ground(points[:, :3], points[:, 3], labels, "semantickitti", sensor=profile,
+                         rng=rng, params=WetGroundParams(film))  # fmt: skip
+        is_lost = np.zeros(len(points), dtype=bool)
+        is_lost[res.lost_index] = True
+        ground.append(wet_surface_for_labels(labels, "semantickitti")[0])
+        lost.append(is_lost)
+        src_range.append(np.linalg.norm(points[:, :3].astype(np.float64), axis=1))
+        att = res.outcome == Outcome.ATTENUATED
+        src = res.source_index[att]
+        before, after = points[src, 3].astype(np.float64), res.intensity[att].astype(np.float64)
+        ok = before > 0
+        ratios.append(after[ok] / before[ok])
+        materials.append(material_index_for_labels(labels[src][ok], "semantickitti"))
+    is_ground, is_lost, r = np.concatenate(ground), np.concatenate(lost), np.concatenate(src_range)
+    ratio, material = np.concatenate(ratios), np.concatenate(materials)
+    names = material_names()
+    return {
+        key: film,
+        "lost_share": round(float(is_lost.mean()), 5),
+        "lost_share_of_ground": round(float(is_lost[is_ground].mean()), 5),
+        "ground_lost_share_per_source_range_bin": _share_per_bin(r[is_ground], is_lost[is_ground]),
+        "wet_intensity_ratio_median_per_material": {
+            names[m]: round(float(np.median(ratio[material == m])), 4)
+            for m in np.unique(material) if (material == m).sum() >= MIN_CLASS_POINTS
+        },
+    }  # fmt: skip
+
+
 def _wads_reference() -> dict[str, Any]:
     r_all, snow = [], []
     for root in WADS_ROOTS:
@@ -161,6 +205,40 @@ def _wads_reference() -> dict[str, Any]:
         "falling_snow_share_of_unique_returns": round(float(is_snow.mean()), 5),
         "falling_snow_share_per_range_bin": _share_per_bin(r, is_snow),
     }
+
+
+def _nuscenes_fog() -> dict[str, Any]:
+    """Fog on real nuScenes frames (HDL-32E, RADIATE's sensor): returns per fired beam.
+
+    nuScenes stores a return for nearly every firing (32 lasers x 1084 per 20 Hz sweep), so
+    points out / firings is the share of fired beams that return, RADIATE's measure.
+    """
+    folder = SHARED_DATA / "nuscenes-kittifmt"
+    if not folder.is_dir():
+        raise InputDataError(f"real nuScenes frames missing at {folder} (../shared/data).")
+    reader = get_reader("nuscenes-kitti", folder)
+    frames = [reader.read(item).points[:, :4].copy() for item in reader.items()[::NUSCENES_STRIDE]]
+    profile = load_profile("hdl32e")
+    out: dict[str, Any] = {"frames": len(frames), "firings_per_sweep": NUSCENES_FIRINGS}
+    for visibility in NUSCENES_FOG_MOR_M:
+        returned, echoes, ranges = [], [], []
+        for k, points in enumerate(frames):
+            rng = np.random.default_rng([k, int(visibility)])
+            res = wx.fog(points[:, :3], points[:, 3], visibility_m=visibility, sensor=profile,
+                         rng=rng)  # fmt: skip
+            returned.append(len(res.xyz) / NUSCENES_FIRINGS)
+            echoes.append(float((res.outcome == Outcome.PARTICLE).mean()))
+            ranges.append(np.linalg.norm(res.xyz.astype(np.float64), axis=1))
+        r = np.concatenate(ranges)
+        counts = np.histogram(r, bins=np.asarray(RANGE_BINS_M))[0]
+        out[f"mor_{visibility:g}_m"] = {
+            "returns_per_fired_beam": round(float(np.mean(returned)), 4),
+            "fog_echo_share_of_returns": round(float(np.mean(echoes)), 4),
+            "share_of_returns_per_range_bin": [round(float(c / r.size), 5) for c in counts],
+        }  # fmt: skip
+    clear = [len(p) / NUSCENES_FIRINGS for p in frames]
+    out["clear_returns_per_fired_beam"] = round(float(np.mean(clear)), 4)
+    return out
 
 
 def _radiate_reference() -> dict[str, Any]:
@@ -193,7 +271,7 @@ def _figure(result: dict[str, Any], path: Path) -> None:
     labels = _bin_labels()
     x = np.arange(len(labels))
     fig, axes = plt.subplots(1, 3, figsize=(15, 4.2), sharey=False)
-    for ax, weather in zip(axes, PRESETS, strict=True):
+    for ax, weather in zip(axes, WEATHERS, strict=True):
         colours = ("tab:green", "tab:orange", "tab:red")
         for severity, colour in zip(SEVERITIES, colours, strict=True):
             row = result["simulated"][weather][severity]
@@ -221,7 +299,7 @@ def _figure(result: dict[str, Any], path: Path) -> None:
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     frames = _kitti_frames()
-    simulated = {w: {s: _simulate(w, s, frames) for s in SEVERITIES} for w in PRESETS}
+    simulated = {w: {s: _simulate(w, s, frames) for s in SEVERITIES} for w in WEATHERS}
     lisa = {
         w: {s: _simulate(w, s, frames, "lisa") for s in SEVERITIES} for w in wx.SETTINGS["lisa"]
     }
@@ -233,7 +311,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             **{f"sensor_spread_ln_{s:g}": _simulate(w, "heavy", frames, spread_ln=s)["lost_share"]
                for s in SPREADS_LN},
         }
-        for w in PRESETS
+        for w in WEATHERS
     }  # fmt: skip
     result = {
         "what": "rain, snow and fog at each severity preset on labelled real SemanticKITTI "
@@ -244,8 +322,10 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         "kitti_points_per_range_bin": _points_per_bin(frames),
         "simulated": simulated,
         "simulated_lisa_settings": lisa,
+        "wet_ground": {s: _wet_ground(s, frames) for s in SEVERITIES},
         "heavy_lost_share_by_detection_rule": sensitivity,
         "references": {"wads_falling_snow": _wads_reference(), "radiate_fog": _radiate_reference()},
+        "fog_on_real_nuscenes_hdl32e": _nuscenes_fog(),
         "note": "simulated shares are relative to the beams that returned in clear air; "
         "RADIATE's to every beam fired; the references are other sensors, places and "
         "strengths",

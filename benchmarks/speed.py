@@ -17,8 +17,9 @@ from typing import Any  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from benchmarks.common import kitti_frames, machine_info, write_result  # noqa: E402
+from benchmarks.common import KITTI_SCANS, kitti_frames, machine_info, write_result  # noqa: E402
 from lads.physics import weather  # noqa: E402
+from lads.physics.wet_ground import WetGroundParams, wet_ground  # noqa: E402
 from lads.sensors.profile import load_profile  # noqa: E402
 
 SETTINGS: tuple[tuple[str, str, float], ...] = (
@@ -28,18 +29,33 @@ SETTINGS: tuple[tuple[str, str, float], ...] = (
     ("snow", "rate_mm_h", 20.0),
     ("fog", "visibility_m", 20.0), ("fog", "visibility_m", 50.0), ("fog", "visibility_m", 200.0),
     ("fog", "visibility_m", 1000.0),
+    ("wet_ground", "water_film_mm", 0.5), ("wet_ground", "water_film_mm", 1.2),
 )  # fmt: skip
-TARGETS_MS = {("rain", 25.0): 20.0, ("snow", 10.0): 20.0, ("fog", 50.0): 20.0}
+TARGETS_MS = {
+    ("rain", 25.0): 20.0, ("snow", 10.0): 20.0, ("fog", 50.0): 20.0, ("wet_ground", 1.2): 20.0,
+}  # fmt: skip
 REPEATS = 15
 
 
-def time_setting(frames: list[np.ndarray], name: str, key: str, value: float) -> dict[str, Any]:
+def _wet(labels: np.ndarray) -> Any:
+    """lads.physics.wet_ground.wet_ground with the frame's labels bound, called like rain()."""
+
+    def simulate(xyz: Any, intensity: Any, *, water_film_mm: float, **kw: Any) -> Any:
+        return wet_ground(xyz, intensity, labels, "semantickitti",
+                          params=WetGroundParams(water_film_mm), **kw)  # fmt: skip
+
+    return simulate
+
+
+def time_setting(
+    frames: list[np.ndarray], labels: list[np.ndarray], name: str, key: str, value: float
+) -> dict[str, Any]:
     """Median / min / p90 wall time per frame over REPEATS runs of every frame."""
-    simulate = getattr(weather, name)
     profile = load_profile("hdl64e")
     times_ms: list[float] = []
     counts = []
     for f_index, points in enumerate(frames):
+        simulate = _wet(labels[f_index]) if name == "wet_ground" else getattr(weather, name)
         xyz, intensity = points[:, :3], points[:, 3]
         simulate(xyz, intensity, sensor=profile, rng=np.random.default_rng(0), **{key: value})
         for rep in range(REPEATS):
@@ -70,9 +86,14 @@ def time_setting(frames: list[np.ndarray], name: str, key: str, value: float) ->
 
 def main(out_dir: Path | None = None) -> dict[str, Any]:
     frames = kitti_frames()
-    rows = [time_setting(frames, *setting) for setting in SETTINGS]
+    labels = [
+        np.fromfile(str(p).replace("velodyne", "labels").replace(".bin", ".label"), np.uint32)
+        for p in KITTI_SCANS
+    ]
+    rows = [time_setting(frames, labels, *setting) for setting in SETTINGS]
     payload = {
-        "what": "wall time of lads.physics.weather.{rain,snow,fog} per real SemanticKITTI "
+        "what": "wall time of lads.physics.weather.{rain,snow,fog} and "
+        "lads.physics.wet_ground.wet_ground per real SemanticKITTI "
         "frame (sequence 00, frames 000000-000002), HDL-64E profile, strongest return, "
         "one thread, after one warm-up call per frame (table and numba caches built)",
         "machine": machine_info(),
@@ -84,5 +105,5 @@ def main(out_dir: Path | None = None) -> dict[str, Any]:
 
 if __name__ == "__main__":
     for row in main()["results"]:
-        key = "rate_mm_h" if "rate_mm_h" in row else "visibility_m"
+        key = next(k for k in ("rate_mm_h", "visibility_m", "water_film_mm") if k in row)
         print(f"{row['weather']:5s} {row[key]:7.1f}  median {row['median_ms_per_frame']:6.2f} ms")  # noqa: T201

@@ -38,6 +38,18 @@ def _lads_errors(func: Callable[..., Any]) -> Callable[..., Any]:
     return wrapper
 
 
+def _detection_rule(value: str | None) -> str | float | None:
+    """--detection: "sensor", "frame" or a number (a fixed threshold, reflectivity / m^2)."""
+    if value is None or value in ("sensor", "frame"):
+        return value
+    try:
+        return float(value)
+    except ValueError:
+        raise click.BadParameter(
+            f"{value!r}: expected sensor, frame or a threshold in reflectivity / m^2"
+        ) from None
+
+
 class _LazyGroup(click.Group):
     """A click group whose heavier subcommands are imported only when run or listed in help:
     `lads build` starts without loading the training and synthesis modules."""
@@ -240,6 +252,7 @@ def variants() -> None:
 @click.option("--seed", type=int, default=0, show_default=True, help="Root seed.")
 @click.option("--rate-mm-h", type=float, help="Override the rain/snow rate, mm/h.")
 @click.option("--visibility-m", type=float, help="Override the fog visibility, m.")
+@click.option("--water-film-mm", type=float, help="Override the wet-ground water film, mm.")
 @click.option(
     "--severity", type=click.Choice(SEVERITIES),
     help="Weather severity preset: sets the rain/snow rate or fog visibility to the preset's "
@@ -250,6 +263,12 @@ def variants() -> None:
     help="Physics settings of the weather stage: lads (the default: fitted to real snow, "
     "nothing lost in clear air) or lisa (LISA's published model with its fixed threshold, to "
     "compare; rain and snow).",
+)  # fmt: skip
+@click.option(
+    "--detection", callback=lambda _ctx, _param, value: _detection_rule(value),
+    help="Detection rule of the weather stage: sensor (the default: the profile's datasheet "
+    "limit, nothing lost in clear air), frame (the frame's weakest return as threshold) or a "
+    "fixed threshold in reflectivity / m^2 (docs/physics.md, 'Detection limits').",
 )  # fmt: skip
 @click.option("--mode", type=click.Choice(["strongest", "last"]), help="Override the return mode.")
 @click.option(
@@ -297,8 +316,10 @@ def variants() -> None:
 @_lads_errors
 def build(
     source: str, variant: str | None, pipeline_file: Path | None, source_root: Path, out_root: Path,
-    seed: int, rate_mm_h: float | None, visibility_m: float | None, severity: str | None,
-    weather_settings: str | None, mode: str | None, points: str | None,
+    seed: int, rate_mm_h: float | None, visibility_m: float | None,
+    water_film_mm: float | None, severity: str | None,
+    weather_settings: str | None, detection: str | float | None, mode: str | None,
+    points: str | None,
     particle_label: int | None, intensity_model: str | None,
     device: str | None, sequences: str | None, nuscenes_version: str | None,
     include_sweeps: bool, jobs: int, batch: int | None, backend: str, scheduler: str | None,
@@ -312,9 +333,10 @@ def build(
         raise click.UsageError("give exactly one of --variant and --pipeline")
     path = pipeline_file or find_pipeline(source, variant)  # type: ignore[arg-type]
     pipeline = load_pipeline(path).with_overrides(
-        rate_mm_h=rate_mm_h, visibility_m=visibility_m, severity=severity, mode=mode,
-        settings=weather_settings, points=points, particle_label=particle_label,
-        intensity=intensity_model,
+        rate_mm_h=rate_mm_h, visibility_m=visibility_m, water_film_mm=water_film_mm,
+        severity=severity, mode=mode,
+        settings=weather_settings, detection=detection, points=points,
+        particle_label=particle_label, intensity=intensity_model,
     )  # fmt: skip
     if device is not None:
         pipeline = pipeline.with_overrides(device=device)

@@ -18,7 +18,7 @@ import yaml
 
 from lads.errors import ConfigError
 from lads.physics.detection import resolve_detection
-from lads.physics.severity import SEVERITIES, with_severity
+from lads.physics.severity import PRESETS, SEVERITIES, with_severity
 from lads.readers import READERS
 from lads.resources import pipelines_dir
 
@@ -35,11 +35,14 @@ _STAGE_PARAMS: dict[str, dict[str, str]] = {
     "rain": {"rate_mm_h": "nonneg", **_WEATHER_PARAMS},
     "snow": {"rate_mm_h": "nonneg", **_WEATHER_PARAMS},
     "fog": {"visibility_m": "visibility", **_WEATHER_PARAMS},
+    "wet_ground": {"water_film_mm": "film", "severity": "severity", "detection": "detection"},
     "intensity": {"model": "text", "target": "optional_text", "device": "device"},
 }
 _OPTIONAL_KINDS = {"return_mode", "optional_text", "device", "severity", "settings", "detection"}
 # Stages whose physical strength a `severity` preset can give (lads.physics.severity).
-_SEVERITY_STAGES = ("rain", "snow", "fog")
+_SEVERITY_STAGES = ("rain", "snow", "fog", "wet_ground")
+# The physical strengths a severity preset names (rate, visibility, water film).
+_STRENGTHS = tuple(sorted({key for key, _ in PRESETS.values()}))
 DEVICES = ("cpu", "cuda")
 # `--intensity physics` removes the learned intensity stage (physics intensity is kept).
 PHYSICS_INTENSITY = "physics"
@@ -161,7 +164,7 @@ class PipelineConfig:
             for i in hit:
                 stage = stages[i]
                 params = {**stage.params, key: value}
-                if key in ("rate_mm_h", "visibility_m") and severity is None:
+                if key in _STRENGTHS and severity is None:
                     params.pop("severity", None)  # the explicit value replaces the preset
                 _check_stage(stage.stage, params, f"override {key}")
                 stages[i] = StageConfig(stage.stage, params)
@@ -182,7 +185,7 @@ def _with_severity_override(
     for i in hit:
         stage = stages[i]
         params = {k: v for k, v in stage.params.items()
-                  if k not in ("rate_mm_h", "visibility_m") or k in given}  # fmt: skip
+                  if k not in _STRENGTHS or k in given}  # fmt: skip
         params = _resolved(stage.stage, {**params, "severity": severity}, "override severity")
         _check_stage(stage.stage, params, "override severity")
         stages[i] = StageConfig(stage.stage, params)
@@ -225,6 +228,8 @@ def _check_value(kind: str, value: Any, where: str) -> None:
         raise ConfigError(f"{where}: expected a number, got {value!r}.")
     if kind == "nonneg" and not (0 <= value < math.inf):
         raise ConfigError(f"{where}: rate must be a finite number >= 0 mm/h, got {value}.")
+    if kind == "film" and not (0 <= value < math.inf):
+        raise ConfigError(f"{where}: water film must be a finite thickness >= 0 mm, got {value}.")
     if kind == "visibility" and not value > 0:
         raise ConfigError(f"{where}: visibility must be > 0 m (inf = clear air), got {value}.")
 

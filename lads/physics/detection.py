@@ -17,9 +17,12 @@ P_w = P0 T^2 in weather, T^2 = exp(-2 alpha r).
   say less than the power detection needed (KITTI stores remission 0 for a large share of
   its returns beyond 40 m), so a point is never taken as weaker than the limit: the datasheet
   and the fact of detection outrank a stored intensity below the encoding's resolution.
-- **Faint (volume) returns** (drops, flakes, fog) carry no clear-air evidence: they are
-  detected if their power reaches P_lim, after the transmitter/receiver overlap ramp that
-  gives them their near-range onset (`lads.physics.weather.FAINT_ONSET_M`).
+- **Faint (volume) returns** (drops, flakes, fog) carry no clear-air evidence and are seen
+  after the transmitter/receiver overlap ramp that gives them their near-range onset
+  (`lads.physics.weather.FAINT_ONSET_M`). A fog echo is detected with probability p(P_f): it
+  is the same on every beam of a frame, and a hard step would switch fog returns on for all
+  beams or for none. Drops and flakes need P_p >= P_lim (a hard step, which the exact thinned
+  particle sampler needs; their powers already spread over decades).
 
 Two explicit alternatives (`DETECTION_SETTINGS`): "frame", the threshold calibrated to the
 frame (its weakest clear-air return, a hard step), which loses almost nothing in rain; and a
@@ -34,7 +37,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
-from scipy.special import log_ndtr
+from scipy.special import log_ndtr, ndtr
 
 from lads.errors import ConfigError
 
@@ -93,6 +96,22 @@ class Detection:
         if uncertain.size:
             detected[uncertain] = rng.random(uncertain.size) < survival[uncertain]
         return detected, power
+
+    def faint_detected(
+        self, power: npt.NDArray[np.float64], rng: np.random.Generator
+    ) -> npt.NDArray[np.bool_]:
+        """(N,) whether volume returns of power P (reflectivity / m^2) are detected: with
+        probability p(P) under "sensor" (one uniform per beam where 0 < p < 1), else P >= P_min.
+        """
+        if self.setting != "sensor":
+            return power >= self.threshold
+        with np.errstate(divide="ignore"):
+            z = np.log(power / self.threshold) / self.spread_ln
+        detected = z >= CERTAIN_Z
+        uncertain = np.flatnonzero((z > -CERTAIN_Z) & (z < CERTAIN_Z))
+        if uncertain.size:
+            detected[uncertain] = rng.random(uncertain.size) < ndtr(z[uncertain])
+        return detected
 
 
 def target_survival(

@@ -82,7 +82,9 @@ class FogParams:
     """Parameters of the fog model, with defaults from Hahner et al. 2021 unless noted.
 
     Attributes:
-        pulse_half_power_width_s: tau_H of the sin^2 pulse, s (20 ns; pulse spans 2 tau_H).
+        pulse_half_power_width_s: tau_H of the sin^2 pulse, s (its full width at half power;
+            the pulse spans 2 tau_H); None takes the profile's `pulse_width_ns` (HDL-64E:
+            4 ns, Velodyne); Hahner et al. use 20 ns.
         overlap_start_m: R1, range where the transmitter/receiver overlap xi starts, m;
             None takes the sensor profile's min_range_m (Hahner et al.: 0.9 for the HDL-64).
         overlap_full_m: R2 >= R1, range of full overlap, m; xi is linear from R1 to R2 (a
@@ -110,7 +112,7 @@ class FogParams:
             (`lads.physics.detection.resolve_detection`).
     """
 
-    pulse_half_power_width_s: float = 20e-9
+    pulse_half_power_width_s: float | None = None
     overlap_start_m: float | None = None
     overlap_full_m: float | None = None
     backscatter_model: str = "mie"
@@ -126,7 +128,6 @@ class FogParams:
 
     def __post_init__(self) -> None:
         positive = (
-            "pulse_half_power_width_s",
             "hahner_backscatter_factor",
             "droplet_modal_radius_um",
             "droplet_shape_a",
@@ -134,6 +135,9 @@ class FogParams:
             "refractive_index",
             "wavelength_nm",
         )
+        tau = self.pulse_half_power_width_s
+        if tau is not None and not (math.isfinite(tau) and tau > 0):
+            raise ConfigError(f"FogParams.pulse_half_power_width_s = {tau!r}; expected > 0 s.")
         for name in positive:
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
@@ -159,13 +163,21 @@ class FogParams:
     @property
     def pulse_length_m(self) -> float:
         """L = c tau_H: range extent of the whole sin^2 pulse (c 2 tau_H / 2), m."""
+        if self.pulse_half_power_width_s is None:
+            raise ConfigError(
+                "FogParams.pulse_half_power_width_s is None: call resolved_for(sensor) first."
+            )
         return SPEED_OF_LIGHT_M_S * self.pulse_half_power_width_s
 
     def resolved_for(self, sensor: SensorProfile) -> FogParams:
-        """Copy with every None overlap range taken from the sensor profile."""
+        """Copy with every None overlap range and the pulse width taken from the profile."""
         r1 = sensor.min_range_m if self.overlap_start_m is None else self.overlap_start_m
         r2 = sensor.overlap_full_m if self.overlap_full_m is None else self.overlap_full_m
-        return replace(self, overlap_start_m=r1, overlap_full_m=max(r1, r2))
+        tau = self.pulse_half_power_width_s
+        tau = sensor.pulse_width_ns * 1e-9 if tau is None else tau
+        return replace(
+            self, overlap_start_m=r1, overlap_full_m=max(r1, r2), pulse_half_power_width_s=tau
+        )
 
 
 def extinction_from_visibility(visibility_m: float) -> float:
@@ -397,7 +409,7 @@ def simulate_fog(
     table = soft_return_table(alpha, params)
     p_fog = np.pi * beta * _lookup(table.peak_unit, r0, table)
     p_fog[r0 < params.overlap_start_m] = 0.0
-    fog_ok = p_fog >= p_min
+    fog_ok = detection.faint_detected(p_fog, rng)
     if mode == "strongest":
         fog = fog_ok & (p_fog > p_target)
         target = target_ok & ~fog

@@ -33,11 +33,16 @@ class UnknownLabelWarning(UserWarning):
 
 @dataclass(frozen=True, slots=True)
 class Material:
-    """One material: diffuse reflectance at 905 nm (unitless) and where the value comes from."""
+    """One material: diffuse reflectance at 905 nm (unitless) and where the value comes from.
+
+    texture_depth_mm: mean texture depth of a ground surface of this material, mm (how much
+    water it holds before a film covers it, docs/physics.md §8); None for non-ground materials.
+    """
 
     name: str
     reflectance: float
     source: str
+    texture_depth_mm: float | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -48,6 +53,7 @@ class _LabelSet:
     lookup: npt.NDArray[np.float32]  # (MAX_CLASS_ID + 2,) reflectance per id
     known: npt.NDArray[np.bool_]  # (MAX_CLASS_ID + 2,) id has an entry
     material: npt.NDArray[np.int16]  # (MAX_CLASS_ID + 2,) index into material_names()
+    ground: npt.NDArray[np.bool_]  # (MAX_CLASS_ID + 2,) class is a ground surface
 
 
 @dataclass(frozen=True, slots=True)
@@ -109,6 +115,29 @@ def _classes_of(labels: npt.ArrayLike, label_set: str) -> tuple[_LabelSet, npt.N
     if unknown.any():
         _warn_unknown(lset, labels, unknown)
     return lset, ids
+
+
+def wet_surface_for_labels(
+    labels: npt.ArrayLike, label_set: str
+) -> tuple[npt.NDArray[np.bool_], npt.NDArray[np.float64]]:
+    """Which points are ground that holds a water film, and its texture depth.
+
+    Args:
+        labels: (N,) stored labels (instance bits allowed where the label set has them).
+        label_set: one of LABEL_SETS.
+
+    Returns:
+        wettable (N,) bool: the class is marked `ground` and its material has a texture depth;
+        texture_depth_mm (N,) float64 (0 where not wettable).
+    """
+    table = _table()
+    lset, ids = _classes_of(labels, label_set)
+    depth_of = np.array(
+        [m.texture_depth_mm or 0.0 for m in table.materials.values()], dtype=np.float64
+    )
+    depth = depth_of[lset.material[ids]]
+    wettable = lset.ground[ids] & (depth > 0)
+    return wettable, np.where(wettable, depth, 0.0)
 
 
 def material_names() -> tuple[str, ...]:
@@ -209,7 +238,14 @@ def parse_table(raw: Any, where: str) -> _Table:
 def _material(name: str, spec: Any, where: str) -> Material:
     if not isinstance(spec, dict):
         raise ConfigError(f"{where}: materials.{name} must be a mapping.")
-    _require_keys(spec, {"reflectance", "source"}, f"{where}: materials.{name}")
+    _require_keys(
+        spec, {"reflectance", "source"}, f"{where}: materials.{name}",
+        optional=frozenset({"texture_depth_mm"}),
+    )  # fmt: skip
+    depth = spec.get("texture_depth_mm")
+    if depth is not None and (isinstance(depth, bool) or not isinstance(depth, int | float)
+                              or not depth > 0):  # fmt: skip
+        raise ConfigError(f"{where}: materials.{name}.texture_depth_mm must be a number > 0.")
     rho = spec["reflectance"]
     if isinstance(rho, bool) or not isinstance(rho, int | float):
         raise ConfigError(f"{where}: materials.{name}.reflectance must be a number.")
@@ -220,7 +256,9 @@ def _material(name: str, spec: Any, where: str) -> Material:
         )
     if not isinstance(spec["source"], str) or not spec["source"].strip():
         raise ConfigError(f"{where}: materials.{name}.source must cite where {rho} comes from.")
-    return Material(str(name), float(rho), spec["source"].strip())
+    return Material(
+        str(name), float(rho), spec["source"].strip(), None if depth is None else float(depth)
+    )
 
 
 def _label_set(
@@ -237,16 +275,25 @@ def _label_set(
     required = {"description", "instance_bits", "classes"}
     _require_keys(spec, required, ctx, optional=frozenset({"extends"}))
     classes: dict[int, tuple[str, str]] = {}
+    grounds: set[int] = set()
     if "extends" in spec:
         base = sets_raw.get(spec["extends"])
         if not isinstance(base, dict) or "extends" in base:
             raise ConfigError(f"{ctx}.extends must name a label set that extends nothing.")
-        classes.update(_classes(base.get("classes"), f"{where}: label_sets.{spec['extends']}"))
-    classes.update(_classes(spec["classes"], ctx))
+        inherited, inherited_ground = _classes(
+            base.get("classes"), f"{where}: label_sets.{spec['extends']}"
+        )
+        classes.update(inherited)
+        grounds |= inherited_ground
+    own, own_ground = _classes(spec["classes"], ctx)
+    classes.update(own)
+    grounds = (grounds - set(own)) | own_ground
     lookup = np.full(_OUT_OF_RANGE + 1, default.reflectance, dtype=np.float32)
     known = np.zeros(_OUT_OF_RANGE + 1, dtype=bool)
     order = {m: i for i, m in enumerate(materials)}
     material_of = np.full(_OUT_OF_RANGE + 1, order[default.name], dtype=np.int16)
+    ground = np.zeros(_OUT_OF_RANGE + 1, dtype=bool)
+    ground[sorted(grounds)] = True
     for class_id, (class_name, material) in classes.items():
         if material not in materials:
             raise ConfigError(
@@ -256,15 +303,16 @@ def _label_set(
         lookup[class_id] = materials[material].reflectance
         known[class_id] = True
         material_of[class_id] = order[material]
-    for table in (lookup, known, material_of):
+    for table in (lookup, known, material_of, ground):
         table.flags.writeable = False
-    return _LabelSet(name, bool(spec["instance_bits"]), classes, lookup, known, material_of)
+    return _LabelSet(name, bool(spec["instance_bits"]), classes, lookup, known, material_of, ground)
 
 
-def _classes(raw: Any, ctx: str) -> dict[int, tuple[str, str]]:
+def _classes(raw: Any, ctx: str) -> tuple[dict[int, tuple[str, str]], set[int]]:
+    """Class id -> (name, material), and the ids marked `ground: true` (road-like surfaces)."""
     if not isinstance(raw, dict) or not raw:
         raise ConfigError(f"{ctx}.classes must be a non-empty mapping of class id -> entry.")
-    out = {}
+    out, ground = {}, set()
     for class_id, entry in raw.items():
         if isinstance(class_id, bool) or not isinstance(class_id, int):
             raise ConfigError(f"{ctx}.classes: key {class_id!r} is not an integer class id.")
@@ -272,9 +320,16 @@ def _classes(raw: Any, ctx: str) -> dict[int, tuple[str, str]]:
             raise ConfigError(f"{ctx}.classes: id {class_id} outside [0, {MAX_CLASS_ID}].")
         if not isinstance(entry, dict):
             raise ConfigError(f"{ctx}.classes.{class_id} must be a mapping.")
-        _require_keys(entry, {"name", "material"}, f"{ctx}.classes.{class_id}")
+        _require_keys(
+            entry, {"name", "material"}, f"{ctx}.classes.{class_id}",
+            optional=frozenset({"ground"}),
+        )  # fmt: skip
+        if not isinstance(entry.get("ground", False), bool):
+            raise ConfigError(f"{ctx}.classes.{class_id}.ground must be true or false.")
         out[class_id] = (str(entry["name"]), str(entry["material"]))
-    return out
+        if entry.get("ground", False):
+            ground.add(class_id)
+    return out, ground
 
 
 def _require_keys(

@@ -14,6 +14,9 @@ docs/physics.md ("Severity presets"):
 - fog, meteorological optical range in m: 600, 150 and 50 m, i.e. extinction about 0.005, 0.02
   and 0.06 1/m (alpha = ln(20) / MOR), levels 1, 3 and 5 of 3D_Corruptions_AD's fog; all are
   fog by the WMO's definition (MOR < 1000 m).
+- wet ground, water film in mm: 0.2 (damp: the texture of dense asphalt, ~1 mm, partly
+  filled), 0.5 and 1.2 mm (the texture covered; Hahner et al. 2022's wet-ground default is
+  1-1.2 mm), all below the ~2.5 mm where aquaplaning starts.
 """
 
 from __future__ import annotations
@@ -29,6 +32,7 @@ PRESETS: dict[str, tuple[str, dict[str, float]]] = {
     "rain": ("rate_mm_h", {"light": 1.0, "moderate": 5.0, "heavy": 25.0}),
     "snow": ("rate_mm_h", {"light": 0.5, "moderate": 1.0, "heavy": 2.5}),
     "fog": ("visibility_m", {"light": 600.0, "moderate": 150.0, "heavy": 50.0}),
+    "wet_ground": ("water_film_mm", {"light": 0.2, "moderate": 0.5, "heavy": 1.2}),
 }
 
 

@@ -140,6 +140,8 @@ class SensorProfile:
         max_range_m: maximum range in m.
         range_accuracy_m: one-sigma range accuracy in m at the detection threshold.
         detection: the datasheet detection limit (`DetectionLimit`).
+        pulse_width_ns: full width at half power of the laser pulse, ns; volume (fog)
+            returns scale with it, hard-target returns do not.
         intensity: the dataset's intensity encoding.
         has_ring_column: scans carry a per-point ring (channel) column.
         sources: citations for the numbers above.
@@ -159,6 +161,7 @@ class SensorProfile:
     max_range_m: float
     range_accuracy_m: float
     detection: DetectionLimit
+    pulse_width_ns: float
     intensity: IntensityEncoding
     has_ring_column: bool
     sources: tuple[str, ...]
@@ -236,6 +239,7 @@ def _build(raw: dict[str, Any], path: Path) -> SensorProfile:
             max_range_m=float(raw["max_range_m"]),
             range_accuracy_m=float(raw["range_accuracy_m"]),
             detection=DetectionLimit(**{k: float(v) for k, v in raw["detection"].items()}),
+            pulse_width_ns=float(raw["pulse_width_ns"]),
             intensity=enc,
             has_ring_column=bool(raw["has_ring_column"]),
             sources=tuple(str(s) for s in raw["sources"]),
@@ -260,7 +264,10 @@ def _check(p: SensorProfile, path: Path) -> None:
     low, high = p.vertical_fov_deg
     if len(elev) and not (low <= elev.min() and elev.max() <= high):
         problems.append(f"elevations [{elev.min()}, {elev.max()}] fall outside vertical_fov_deg")
-    for key in ("wavelength_nm", "beam_divergence_mrad", "max_range_m", "range_accuracy_m"):
+    for key in (
+        "wavelength_nm", "beam_divergence_mrad", "max_range_m", "range_accuracy_m",
+        "pulse_width_ns",
+    ):  # fmt: skip
         if not getattr(p, key) > 0:
             problems.append(f"{key} must be > 0")
     if not 0 <= p.min_range_m < p.max_range_m:

@@ -11,12 +11,14 @@ from lads.errors import ConfigError
 from lads.stages.base import Stage
 from lads.stages.intensity import IntensityStage
 from lads.stages.weather import WeatherStage
+from lads.stages.wet_ground import WetGroundStage
 
 STAGES: dict[str, type] = {
     "rain": WeatherStage,
     "snow": WeatherStage,
     "fog": WeatherStage,
     "intensity": IntensityStage,
+    "wet_ground": WetGroundStage,
 }
 
 

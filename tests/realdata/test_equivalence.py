@@ -148,7 +148,7 @@ def test_fog_outcomes_match_direct_waveform_integration_beam_by_beam(kitti_frame
     r0, rho = beams.range_m[chosen], beams.reflectivity[chosen]
     brute = fb.simulate_beams(r0, rho, constants, p_min, modes=("strongest", "last"))
 
-    table_range, table_power, _ = soft_return_peak(r0, alpha, beta, params)
+    table_range, table_power, curvature = soft_return_peak(r0, alpha, beta, params)
     np.testing.assert_allclose(table_power, brute["peak_power"], rtol=0.01)
     np.testing.assert_allclose(table_range, brute["peak_range_m"], atol=0.01)
 
@@ -179,4 +179,10 @@ def test_fog_outcomes_match_direct_waveform_integration_beam_by_beam(kitti_frame
         is_fog = (fast[chosen] == PARTICLE) & (brute[mode] == PARTICLE)
         fog_range = np.linalg.norm(result.xyz[out_pos[is_fog]].astype(np.float64), axis=1)
         expected = brute["peak_range_m"][is_fog] - 0.5 * params.pulse_length_m
-        np.testing.assert_allclose(fog_range, expected, atol=0.02)
+        # The broad echo's peak is timed less precisely than the pulse (fog.py docstring):
+        # sigma = dR / sqrt(2 SNR) * kappa_pulse / kappa_fog; allow 5 sigma.
+        kappa_pulse = 2.0 * np.pi**2 / params.pulse_length_m**2
+        snr = table_power[is_fog] / p_min
+        sigma = (profile.range_accuracy_m / np.sqrt(2.0 * snr)
+                 * np.minimum(kappa_pulse / np.maximum(curvature[is_fog], 1e-12), 1e6))  # fmt: skip
+        assert np.all(np.abs(fog_range - expected) <= 0.02 + 5.0 * sigma)

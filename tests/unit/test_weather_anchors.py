@@ -155,9 +155,25 @@ def test_fog_returns_rise_as_visibility_falls(street):
                     rng=np.random.default_rng(0)),
                 len(xyz),
             )[1]
-            for v in (2000.0, 500.0, 100.0, 30.0)
+            for v in (2000.0, 500.0, 100.0, 50.0, 20.0)
         ]  # fmt: skip
-        assert np.all(np.diff(fog_share) > 0), (mode, fog_share)
+        # Thin fog's echo stays below the sensor's limit; denser fog returns more often.
+        assert fog_share[0] == 0.0, (mode, fog_share)
+        assert np.all(np.diff(fog_share) >= 0) and fog_share[-1] > fog_share[2] > 0, fog_share
+
+
+def test_dense_fog_loses_beams_whose_echo_the_sensor_misses(street):
+    """docs/physics.md §9.7: the fog echo is detected with probability p(P_f), so in dense
+    fog some beams lose their target and return nothing; thin fog takes only far, weak ones."""
+    xyz, intensity = street
+    lost = [
+        outcome_fractions(
+            fog(xyz, intensity, visibility_m=v, sensor="hdl64e", rng=np.random.default_rng(0)),
+            len(xyz),
+        )[0]
+        for v in (2000.0, 20.0)
+    ]
+    assert lost[1] > 0.01 and lost[1] > 3 * lost[0], lost
 
 
 # --- clear air and reproducibility ----------------------------------------------------------
