@@ -59,7 +59,8 @@ def test_unknown_variant_lists_the_valid_ones():
 
 
 def test_another_sources_pipeline_file_is_not_a_variant():
-    with pytest.raises(ConfigError, match="variants of 'nuscenes': fog, .*snow, wet-ground\\. Pass"):
+    listed = "variants of 'nuscenes': fog, .*snow, wet-ground\\. Pass"
+    with pytest.raises(ConfigError, match=listed):
         find_pipeline("nuscenes", "voxelscape-snow")
 
 
