@@ -270,7 +270,11 @@ def variants() -> None:
     "limit, nothing lost in clear air), frame (the frame's weakest return as threshold) or a "
     "fixed threshold in reflectivity / m^2 (docs/physics.md, 'Detection limits').",
 )  # fmt: skip
-@click.option("--mode", type=click.Choice(["strongest", "last"]), help="Override the return mode.")
+@click.option(
+    "--mode", type=click.Choice(["strongest", "last", "dual"]),
+    help="Override the return mode; dual writes a beam's strongest and, where it differs, last "
+    "return (physical points only).",
+)  # fmt: skip
 @click.option(
     "--points",
     type=click.Choice(["physical", "aligned"]),

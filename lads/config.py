@@ -24,7 +24,7 @@ from lads.resources import pipelines_dir
 
 SCHEMA_VERSION = 1
 POINT_MODES = ("physical", "aligned")
-RETURN_MODES = ("strongest", "last")
+RETURN_MODES = ("strongest", "last", "dual")
 
 # Parameters each stage accepts, with a validator per parameter.
 _WEATHER_PARAMS = {
@@ -91,6 +91,13 @@ class PipelineConfig:
         if self.points not in POINT_MODES:
             raise ConfigError(
                 f"writer.points is {self.points!r}; expected one of {', '.join(POINT_MODES)}."
+            )
+        dual = [s.stage for s in self.stages if s.params.get("mode") == "dual"]
+        if dual and self.points == "aligned":
+            raise ConfigError(
+                f"stage {dual[0]} has mode: dual, but writer.points is aligned: an aligned "
+                "tree keeps one row per source beam and cannot hold a beam's second return. "
+                "Use points: physical (both returns written, strongest first) or another mode."
             )
         if self.particle_label is not None and not 0 <= self.particle_label < 2**16:
             raise ConfigError(

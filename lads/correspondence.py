@@ -68,10 +68,16 @@ def aligned(
     return frame, np.arange(n, dtype=np.int64), outcome
 
 
-def outcome_counts(source_points: int, outcome: npt.NDArray[np.uint8], lost: int) -> dict[str, int]:
-    """Point counts for the manifest: source, output, kept, attenuated, particle, lost."""
+def outcome_counts(
+    source_points: int,
+    outcome: npt.NDArray[np.uint8],
+    lost: int,
+    source_index: npt.NDArray[np.int64] | None = None,
+) -> dict[str, int]:
+    """Point counts for the manifest: source, output, kept, attenuated, particle, lost, and
+    (dual-return trees only) second_returns, the output points that are a beam's second."""
     found = np.bincount(outcome, minlength=len(Outcome))
-    return {
+    counts = {
         "source": int(source_points),
         "output": int(outcome.size),
         "kept": int(found[Outcome.KEPT]),
@@ -79,3 +85,7 @@ def outcome_counts(source_points: int, outcome: npt.NDArray[np.uint8], lost: int
         "particle": int(found[Outcome.PARTICLE]),
         "lost": int(lost),
     }
+    second = 0 if source_index is None else int(np.count_nonzero(np.diff(source_index) == 0))
+    if second:
+        counts["second_returns"] = second
+    return counts

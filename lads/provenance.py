@@ -162,7 +162,8 @@ def item_intact(out_root: Path, row: dict, listed: dict[str, str] | None = None)
             "n_source": points.get("source"), "n_output": points.get("output")}  # fmt: skip
     if {k: attrs.get(k) for k in want} != want or source_index.shape != outcome.shape:
         return False
-    if outcome_counts(points.get("source", -1), outcome, points.get("lost", -1)) != points:
+    counts = outcome_counts(points.get("source", -1), outcome, points.get("lost", -1), source_index)
+    if counts != points:
         return False
     if listed:
         for path in group_files(out_root, relpath):

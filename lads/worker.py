@@ -150,7 +150,9 @@ def transform(
     clock.lap("encode")
     fields = {
         "item_id": item.item_id,
-        "points": correspondence.outcome_counts(source.n_source, outcome, frame.lost_index.size),
+        "points": correspondence.outcome_counts(
+            source.n_source, outcome, frame.lost_index.size, source_index
+        ),
         "stages": stage_rows,
     }
     return encoded_frame, files, fields, (source_index, outcome, source.n_source)

@@ -66,12 +66,12 @@ import numpy.typing as npt
 from lads.errors import ConfigError
 from lads.physics.beams import Beams, assemble, auto_threshold
 from lads.physics.detection import resolve_detection
-from lads.physics.result import Outcome, WeatherResult
+from lads.physics.result import Outcome, WeatherResult, merge_returns
 from lads.sensors.profile import SensorProfile
 
 SPEED_OF_LIGHT_M_S = 299_792_458.0
 KOSCHMIEDER_LN20 = math.log(20.0)
-MODES = ("strongest", "last")
+MODES = ("strongest", "last", "dual")
 BACKSCATTER_MODELS = ("mie", "hahner")
 MIE_SIZES = 1500  # Q_back ripples with size; ~1000 sizes converge S to +-1 % (measured)
 MIN_OUTPUT_RANGE_M = 1e-3
@@ -370,7 +370,8 @@ def simulate_fog(
         visibility_m: meteorological optical range (MOR), m; inf returns the input unchanged.
         rng: source of the detection draws and range noise; the same state gives
             byte-identical output.
-        mode: "strongest" or "last" return.
+        mode: "strongest", "last" or "dual" (the strongest return and, where the fog echo is
+            first, the target too).
         params: fog parameters (default `FogParams()`), detection rule included.
 
     Returns:
@@ -413,25 +414,26 @@ def simulate_fog(
     if mode == "strongest":
         fog = fog_ok & (p_fog > p_target)
         target = target_ok & ~fog
-    else:
+    elif mode == "last":
         target = target_ok
         fog = fog_ok & ~target_ok
-    code = np.full(idx.size, Outcome.LOST, dtype=np.uint8)
-    code[target] = Outcome.ATTENUATED
-    code[fog] = Outcome.PARTICLE
-    outcome[idx] = code
+    else:  # dual: the strongest return and, where it differs, the last (the target)
+        fog = fog_ok & ((p_fog > p_target) | ~target_ok)
+        target = target_ok
 
     noise = rng.standard_normal(int(target.sum()) + int(fog.sum()))
     k = int(target.sum())
     dr = sensor.range_accuracy_m
     extra_var = 0.5 * dr**2 * p_min * (1.0 / p_target[target] - 1.0 / p_clear[target])
     t_idx = idx[target]
-    new_range[t_idx] = np.maximum(
+    target_range, target_rho = np.zeros(n), np.zeros(n)
+    target_range[t_idx] = np.maximum(
         r0[target] + np.sqrt(np.maximum(extra_var, 0.0)) * noise[:k], MIN_OUTPUT_RANGE_M
     )
-    new_rho[t_idx] = rho[target] * t2[target]
+    target_rho[t_idx] = rho[target] * t2[target]
 
     f_idx = idx[fog]
+    fog_range, fog_rho = np.zeros(n), np.zeros(n)
     if f_idx.size:
         r0_fog, pf = r0[fog], p_fog[fog]
         reported = _lookup(table.peak_range_m, r0_fog, table)
@@ -441,9 +443,22 @@ def simulate_fog(
         kappa_fog = np.maximum(_lookup(table.relative_curvature_per_m2, r0_fog, table), 1e-12)
         sigma = dr / np.sqrt(2.0 * pf / p_min) * np.minimum(kappa_pulse / kappa_fog, 1e6)
         out_r = np.maximum(reported + sigma * noise[k:], MIN_OUTPUT_RANGE_M)
-        new_range[f_idx] = out_r
-        new_rho[f_idx] = pf * out_r**2
-    return assemble(
-        beams, sensor, outcome=outcome, range_m=new_range, reflectivity=new_rho,
-        extinction_per_m=alpha, detection_threshold=p_min,
+        fog_range[f_idx] = out_r
+        fog_rho[f_idx] = pf * out_r**2
+    common = {"extinction_per_m": alpha, "detection_threshold": p_min}
+    first = outcome.copy()
+    first[t_idx] = Outcome.ATTENUATED
+    first[f_idx] = Outcome.PARTICLE
+    first[idx[~target & ~fog]] = Outcome.LOST
+    is_fog = first == Outcome.PARTICLE
+    result = assemble(
+        beams, sensor, outcome=first, range_m=np.where(is_fog, fog_range, target_range),
+        reflectivity=np.where(is_fog, fog_rho, target_rho), **common,
     )  # fmt: skip
+    if mode != "dual":
+        return result
+    second = np.full(n, Outcome.LOST, dtype=np.uint8)
+    second[idx[fog & target]] = Outcome.ATTENUATED
+    last = assemble(beams, sensor, outcome=second, range_m=target_range,
+                    reflectivity=target_rho, **common)  # fmt: skip
+    return merge_returns(result, last)

@@ -21,7 +21,8 @@ with the conditional probability of the sensor's detection curve (default) or by
 threshold; a particle needs P_p >= P_min, the sensor's limit.
 Decision per beam (strongest return): particle return if the strongest detectable particle
 beats the attenuated target; else the target if detected; else lost. Last return: the
-target if detected, else the farthest detectable particle, else lost.
+target if detected, else the farthest detectable particle, else lost. Dual: both, where
+they differ (a flake in front of a detected target gives the flake and the target).
 Kept targets: intensity rho T^2 and the extra range noise that the lower SNR brings,
 variance (dR^2 / 2) (1 / SNR_w - 1 / SNR_clear), SNR = P_eff / P_min, so clear air is exact.
 """
@@ -39,11 +40,11 @@ from lads.physics.beams import Beams, assemble, auto_threshold, unchanged
 from lads.physics.detection import Detection, resolve_detection
 from lads.physics.mie import extinction_per_m
 from lads.physics.psd import SIZE_DISTRIBUTIONS, ExponentialPSD
-from lads.physics.result import Outcome, WeatherResult
+from lads.physics.result import Outcome, WeatherResult, merge_returns
 from lads.physics.thinning import ParticleOptics, sample_winning_particles
 from lads.sensors.profile import SensorProfile
 
-MODES = ("strongest", "last")
+MODES = ("strongest", "last", "dual")
 
 
 @dataclass(frozen=True, slots=True)
@@ -186,7 +187,7 @@ def simulate_particles(
         sensor: profile the frame was recorded with.
         rate_mm_h: precipitation rate, mm/h (water-equivalent for snow), >= 0.
         rng: the frame's generator; the same generator state gives the same bytes.
-        mode: "strongest" or "last" return.
+        mode: "strongest", "last" or "dual" (strongest and, where it differs, last).
         params: physical knobs.
     """
     if mode not in MODES:
@@ -205,6 +206,8 @@ def simulate_particles(
         beams.clear_power, two_way_ln, beams.active, rng
     )
 
+    if mode == "dual":
+        return _dual(beams, sensor, optics, detected, target_power, transmission, rng)
     # Strongest: a particle matters if it is detectable and beats the detected target.
     # Last: only on beams whose target is lost.
     if mode == "strongest":
@@ -223,12 +226,8 @@ def simulate_particles(
     outcome[kept] = Outcome.ATTENUATED
     outcome[particle_wins] = Outcome.PARTICLE
 
-    out_range = beams.range_m.copy()
-    out_refl = sensor.intensity.to_reflectivity(beams.intensity) * transmission
-    clear_power = optics.detection.effective_power(beams.clear_power)
-    noisy = out_range[kept] + _extra_range_noise(optics, clear_power, target_power, kept, rng)
-    # sigma <= dR / sqrt(2) is centimetres; the clamp only guards returns near the origin.
-    out_range[kept] = np.maximum(noisy, 0.5 * beams.range_m[kept])
+    out_range, out_refl = _target_returns(beams, sensor, optics, target_power, transmission,
+                                          kept, rng)  # fmt: skip
     out_range[particle_wins] = best_r[particle_wins]
     out_refl[particle_wins] = best_p[particle_wins] * best_r[particle_wins] ** 2
     return assemble(
@@ -237,9 +236,75 @@ def simulate_particles(
         outcome=outcome,
         range_m=out_range,
         reflectivity=out_refl,
-        extinction_per_m=alpha,
+        extinction_per_m=optics.particles.alpha_per_m,
         detection_threshold=optics.threshold,
     )
+
+
+def _target_returns(
+    beams: Beams,
+    sensor: SensorProfile,
+    optics: FrameOptics,
+    target_power: npt.NDArray[np.float64],
+    transmission: npt.NDArray[np.float64],
+    kept: npt.NDArray[np.bool_],
+    rng: np.random.Generator,
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    """(N,) range (m) and reflectivity of every beam's target return in weather: kept beams
+    get the SNR range noise, every beam its attenuated reflectivity rho T^2."""
+    out_range = beams.range_m.copy()
+    out_refl = sensor.intensity.to_reflectivity(beams.intensity) * transmission
+    clear_power = optics.detection.effective_power(beams.clear_power)
+    noisy = out_range[kept] + _extra_range_noise(optics, clear_power, target_power, kept, rng)
+    # sigma <= dR / sqrt(2) is centimetres; the clamp only guards returns near the origin.
+    out_range[kept] = np.maximum(noisy, 0.5 * beams.range_m[kept])
+    return out_range, out_refl
+
+
+def _dual(
+    beams: Beams,
+    sensor: SensorProfile,
+    optics: FrameOptics,
+    detected: npt.NDArray[np.bool_],
+    target_power: npt.NDArray[np.float64],
+    transmission: npt.NDArray[np.float64],
+    rng: np.random.Generator,
+) -> WeatherResult:
+    """Dual return: every beam's strongest return and, where it differs, its last.
+
+    All detectable particles are drawn once (floor P_min on the whole beam), so both returns
+    come from one realisation: the strongest is the strongest particle if it beats the
+    detected target (else the target), the last the target if detected (else the farthest
+    particle). A beam with two returns appears twice in source_index, strongest first.
+    """
+    n = beams.range_m.size
+    r0 = np.where(beams.active, beams.range_m, 0.0)
+    owner, r_p, p_p = sample_winning_particles(
+        optics.particles, r0, np.full(n, optics.threshold), rng
+    )
+    s_r, s_p, has_s = _best_per_beam(n, owner, r_p, p_p, "strongest")
+    l_r, l_p, has_l = _best_per_beam(n, owner, r_p, p_p, "last")
+    particle_first = has_s & beams.active & (~detected | (s_p > target_power))
+    target_range, target_refl = _target_returns(
+        beams, sensor, optics, target_power, transmission, detected, rng
+    )
+    first = np.full(n, Outcome.KEPT, dtype=np.uint8)
+    first[beams.active] = Outcome.LOST
+    first[detected] = Outcome.ATTENUATED
+    first[particle_first] = Outcome.PARTICLE
+    range1 = np.where(particle_first, s_r, target_range)
+    refl1 = np.where(particle_first, s_p * s_r**2, target_refl)
+    second = np.full(n, Outcome.LOST, dtype=np.uint8)
+    last_particle = particle_first & ~detected & has_l & (l_r != s_r)
+    second[particle_first & detected] = Outcome.ATTENUATED
+    second[last_particle] = Outcome.PARTICLE
+    range2 = np.where(last_particle, l_r, target_range)
+    refl2 = np.where(last_particle, l_p * l_r**2, target_refl)
+    common = {"extinction_per_m": optics.particles.alpha_per_m,
+              "detection_threshold": optics.threshold}  # fmt: skip
+    a = assemble(beams, sensor, outcome=first, range_m=range1, reflectivity=refl1, **common)
+    b = assemble(beams, sensor, outcome=second, range_m=range2, reflectivity=refl2, **common)
+    return merge_returns(a, b)
 
 
 def _best_per_beam(

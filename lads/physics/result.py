@@ -32,13 +32,15 @@ class WeatherResult:
     """Output of `lads.physics.weather.rain/snow/fog` for one frame of N input points.
 
     Attributes:
-        xyz: (M, 3) float32, metres, sensor frame. M <= N: one return per surviving beam.
+        xyz: (M, 3) float32, metres, sensor frame: one return per surviving beam (two where
+            a dual-return beam's strongest and last returns differ).
         intensity: (M,) float32 in the sensor profile's own encoding.
         source_index: (M,) int64, index of the input point (beam) each output point came
-            from; strictly increasing, so output order follows input order. Labels and extra
-            columns (ring, time) follow through it.
+            from; increasing, so output order follows input order (a dual-return beam's two
+            returns are adjacent, strongest first). Labels and extra columns (ring, time)
+            follow through it.
         outcome: (M,) uint8 `Outcome` code per output point (KEPT, ATTENUATED or PARTICLE).
-        lost_index: (K,) int64, input points with no return; N = M + K.
+        lost_index: (K,) int64, input points with no return; N = M + K - (second returns).
         extinction_per_m: extinction coefficient alpha used, in 1/m.
         detection_threshold: normalised detection threshold P_min used (reflectivity / m^2).
     """
@@ -51,8 +53,29 @@ class WeatherResult:
     extinction_per_m: float
     detection_threshold: float
 
+    @property
+    def second_returns(self) -> int:
+        """Output points that are a beam's second (dual-mode) return."""
+        return int(np.count_nonzero(np.diff(self.source_index) == 0))
+
     def counts(self) -> dict[str, int]:
         """Number of input beams per outcome, LOST included."""
         found = np.bincount(self.outcome, minlength=len(Outcome))
         found[Outcome.LOST] = self.lost_index.size
         return {o.name.lower(): int(found[o]) for o in Outcome}
+
+
+def merge_returns(first: WeatherResult, second: WeatherResult) -> WeatherResult:
+    """One result holding `first`'s returns and `second`'s (a subset of its beams), ordered
+    by beam with the first return first; lost beams are `first`'s."""
+    index = np.concatenate([first.source_index, second.source_index])
+    order = np.argsort(index, kind="stable")
+    return WeatherResult(
+        xyz=np.concatenate([first.xyz, second.xyz])[order],
+        intensity=np.concatenate([first.intensity, second.intensity])[order],
+        source_index=index[order],
+        outcome=np.concatenate([first.outcome, second.outcome])[order],
+        lost_index=first.lost_index,
+        extinction_per_m=first.extinction_per_m,
+        detection_threshold=first.detection_threshold,
+    )

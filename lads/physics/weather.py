@@ -132,7 +132,8 @@ def rain(
         rate_mm_h: rain rate in mm/h, >= 0.
         sensor: SensorProfile or shipped profile name ("hdl64e", "hdl32e", "wads64").
         rng: numpy Generator owned by this frame.
-        mode: "strongest" or "last" return.
+        mode: "strongest" or "last" return, or "dual" (the strongest and, where it differs,
+            the last: a beam may then give two output points, adjacent in source_index).
         params: physical knobs; defaults to RAIN_DEFAULTS.
 
     Returns:

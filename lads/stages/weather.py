@@ -22,7 +22,8 @@ class WeatherStage:
         name: "rain", "snow" or "fog".
         rate_mm_h: rain or snow rate in mm/h (water equivalent for snow); None for fog.
         visibility_m: fog meteorological optical range in m; None for rain and snow.
-        mode: "strongest" or "last" return.
+        mode: "strongest", "last" or "dual" return (dual: two points where a beam's strongest
+            and last returns differ, labels following the beam).
         severity: the preset the strength came from (lads.physics.severity), or None;
             recorded only: the physics runs on rate_mm_h / visibility_m.
         settings: "lads" (the shipped physics) or "lisa" (LISA's published model, rain and

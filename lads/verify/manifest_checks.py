@@ -163,7 +163,8 @@ def _check_points(
     rules = [("output == scan records", scan is None or o == scan.get("records"))]
     if mode == "physical":
         rules += [("kept+attenuated+particle == output", returned == o)]
-        rules += [("output + lost == source", o + lost == s)]
+        second = pts.get("second_returns", 0)
+        rules += [("output + lost == source + second_returns", o + lost == s + second)]
     elif mode == "aligned":
         rules += [("output == source", o == s)]
         rules += [("kept+attenuated+particle+lost == source", returned + lost == s)]

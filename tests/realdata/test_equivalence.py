@@ -36,6 +36,7 @@ from lads.physics.fog import (
     extinction_from_visibility,
     soft_return_peak,
 )
+from lads.physics.result import Outcome
 from lads.physics.weather import FOG_DEFAULTS, RAIN_DEFAULTS, fog
 from lads.sensors.profile import load_profile
 from tests.reference import fog_bruteforce as fb
@@ -186,3 +187,19 @@ def test_fog_outcomes_match_direct_waveform_integration_beam_by_beam(kitti_frame
         sigma = (profile.range_accuracy_m / np.sqrt(2.0 * snr)
                  * np.minimum(kappa_pulse / np.maximum(curvature[is_fog], 1e-12), 1e6))  # fmt: skip
         assert np.all(np.abs(fog_range - expected) <= 0.02 + 5.0 * sigma)
+    # Dual: the first return of every beam is the strongest's, and a second (the target)
+    # follows exactly where the fog echo is first and the target is still detected.
+    dual = fog(xyz, intensity, visibility_m=visibility_m, sensor=profile, mode="dual",
+               params=dataclasses.replace(FOG_DEFAULTS, detection_threshold="frame"),
+               rng=np.random.default_rng(0))  # fmt: skip
+    first = np.r_[True, np.diff(dual.source_index) != 0]
+    fast = np.full(len(xyz), LOST, dtype=np.uint8)
+    fast[dual.source_index[first]] = dual.outcome[first]
+    has_second = np.zeros(len(xyz), dtype=bool)
+    has_second[dual.source_index[~first]] = True
+    assert np.all(dual.outcome[~first] == Outcome.ATTENUATED)
+    expect_second = (brute["strongest"] == PARTICLE) & (brute["last"] == Outcome.ATTENUATED)
+    assert not ((fast[chosen] != brute["strongest"]) & ~ties).any()
+    assert not ((has_second[chosen] != expect_second) & ~ties).any()
+    if visibility_m <= 50.0:
+        assert expect_second.any()

@@ -33,6 +33,8 @@ CASES = [
     ("rain", 25.0, "strongest", "sensor"),
     ("snow", 10.0, "strongest", "sensor"),
     ("snow", 10.0, "last", "sensor"),
+    ("rain", 25.0, "dual", "frame"),
+    ("snow", 10.0, "dual", "sensor"),
 ]
 LOST, PARTICLE = int(Outcome.LOST), int(Outcome.PARTICLE)
 FINE_STEP = 1e-5
@@ -59,10 +61,14 @@ class Sample:
     intensities: list = dataclasses.field(default_factory=list)
     seconds: float = 0.0
 
-    def add(self, outcome, ranges, intensities):
+    def add(self, outcome, ranges, intensities, second=None):
+        """outcome: (N,) per beam (its first return); second: (N,) dual mode's second
+        returns (LOST = none). `particle` counts particle returns of either."""
         self.beams += outcome.size
         self.lost += int((outcome == LOST).sum())
         self.particle += int((outcome == PARTICLE).sum())
+        if second is not None:
+            self.particle += int((second == PARTICLE).sum())
         self.ranges.append(np.asarray(ranges, dtype=np.float64))
         self.intensities.append(np.asarray(intensities, dtype=np.float64))
 
@@ -93,13 +99,17 @@ def run_fast(xyz, intensity, weather, rate, mode, detection, seed, sample, profi
         rng=np.random.default_rng(seed),
     )  # fmt: skip
     sample.seconds += time.perf_counter() - t
+    first = np.r_[True, np.diff(result.source_index) != 0]
     outcome = np.full(len(xyz), LOST, dtype=np.uint8)
-    outcome[result.source_index] = result.outcome
+    outcome[result.source_index[first]] = result.outcome[first]
+    second = np.full(len(xyz), LOST, dtype=np.uint8)
+    second[result.source_index[~first]] = result.outcome[~first]
     is_particle = result.outcome == PARTICLE
     sample.add(
         outcome,
         np.linalg.norm(result.xyz[is_particle].astype(np.float64), axis=1),
         result.intensity[is_particle],
+        second=second,
     )
 
 
@@ -113,7 +123,13 @@ def run_brute(xyz, intensity, weather, rate, mode, detection, seed, sample, prof
     res = bf.simulate(beams, rho_out, constants, mode, np.random.default_rng(seed))
     sample.seconds += time.perf_counter() - t
     is_particle = res.outcome == PARTICLE
-    sample.add(res.outcome, res.range_m[is_particle], on_fine_grid(res.reflectivity[is_particle]))
+    second = res.second_outcome == PARTICLE
+    sample.add(
+        res.outcome,
+        np.r_[res.range_m[is_particle], res.second_range_m[second]],
+        on_fine_grid(np.r_[res.reflectivity[is_particle], res.second_reflectivity[second]]),
+        second=res.second_outcome,
+    )
     return res.particles_drawn
 
 

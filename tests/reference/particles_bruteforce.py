@@ -102,16 +102,30 @@ class BeamResult:
     range_m: np.ndarray  # (N,) float64; LOST: 0, KEPT: input range
     reflectivity: np.ndarray  # (N,) float64; LOST: 0
     particles_drawn: int  # total particles drawn, for the report
+    second_outcome: np.ndarray  # (N,) uint8: dual mode's second (last) return; LOST = none
+    second_range_m: np.ndarray  # (N,) float64
+    second_reflectivity: np.ndarray  # (N,) float64
 
 
 def simulate_beam(
     r0: float, rho: float, rho_out: float, c: Constants, mode: str, rng: np.random.Generator
 ) -> tuple[int, float, float, int]:
-    """One beam: (outcome, range, reflectivity, particles drawn).
+    """One beam: (outcome, range, reflectivity, particles drawn) of its strongest or last return.
 
     rho is the target reflectivity used for power (a stored 0 already replaced by the
     encoding's detection floor); rho_out the one that is attenuated into the output intensity.
     """
+    if mode not in ("strongest", "last"):
+        raise ValueError(mode)
+    strongest, last, k = beam_returns(r0, rho, rho_out, c, rng)
+    return (*(strongest if mode == "strongest" else last), k)
+
+
+def beam_returns(
+    r0: float, rho: float, rho_out: float, c: Constants, rng: np.random.Generator
+) -> tuple[tuple[int, float, float], tuple[int, float, float], int]:
+    """One beam, one draw of its particles: (strongest return, last return, particles drawn),
+    each return (outcome, range, reflectivity); a dual-return sensor reports both."""
     t2 = lambda r: np.exp(-2.0 * c.alpha_per_m * r)  # noqa: E731
     p_clear = rho / r0**2
     if c.setting == "sensor":
@@ -141,24 +155,22 @@ def simulate_beam(
     fill = np.minimum((d / beam_diameter_mm) ** 2, 1.0)
     p = c.overlap(r) * c.particle_reflectivity * t2(r) * fill / r**2
 
-    detectable = p >= c.threshold
-    if mode == "strongest":
-        floor = max(p_target, c.threshold) if target_detected else c.threshold
-        beats = p >= floor
-        if beats.any():
-            j = int(np.argmax(np.where(beats, p, -np.inf)))
-            return PARTICLE, float(r[j]), float(p[j] * r[j] ** 2), k
-    elif mode == "last":
-        if not target_detected and detectable.any():
-            j = int(np.argmax(np.where(detectable, r, -np.inf)))
-            return PARTICLE, float(r[j]), float(p[j] * r[j] ** 2), k
-    else:
-        raise ValueError(mode)
+    target: tuple[int, float, float] = (LOST, 0.0, 0.0)
     if target_detected:
         variance = 0.5 * c.range_accuracy_m**2 * c.threshold * (1 / p_target - 1 / p_clear)
         noisy = r0 + math.sqrt(max(variance, 0.0)) * rng.standard_normal()
-        return ATTENUATED, max(noisy, 0.5 * r0), rho_out * float(t2(r0)), k
-    return LOST, 0.0, 0.0, k
+        target = (ATTENUATED, max(noisy, 0.5 * r0), rho_out * float(t2(r0)))
+    detectable = p >= c.threshold
+    strongest, last = target, target
+    floor = max(p_target, c.threshold) if target_detected else c.threshold
+    beats = p >= floor
+    if beats.any():
+        j = int(np.argmax(np.where(beats, p, -np.inf)))
+        strongest = (PARTICLE, float(r[j]), float(p[j] * r[j] ** 2))
+    if not target_detected and detectable.any():
+        j = int(np.argmax(np.where(detectable, r, -np.inf)))
+        last = (PARTICLE, float(r[j]), float(p[j] * r[j] ** 2))
+    return strongest, last, k
 
 
 def simulate(
@@ -169,27 +181,34 @@ def simulate(
     rng: np.random.Generator,
     subset: np.ndarray | None = None,
 ) -> BeamResult:
-    """Run `simulate_beam` on every beam (or the `subset` of beam indices).
+    """Run every beam (or the `subset` of beam indices) in `mode`.
 
     Args:
         beams: prepared frame (`lads.physics.beams.prepare_beams`); zero-range beams
             (`beams.active` False) are passed through as KEPT.
         rho_out: (N,) reflectivity of the stored intensity (no detection floor).
+        mode: "strongest", "last" or "dual" (the strongest return in the main arrays, the
+            last one, where it differs, in the `second_*` arrays).
         subset: beam indices to simulate; the others are left KEPT at their input range.
     """
     n = beams.range_m.size
     outcome = np.full(n, KEPT, dtype=np.uint8)
     range_m = beams.range_m.copy()
     refl = np.zeros(n)
+    second = np.full(n, LOST, dtype=np.uint8)
+    second_range, second_refl = np.zeros(n), np.zeros(n)
     drawn = 0
     indices = np.arange(n) if subset is None else np.asarray(subset)
     for i in indices:
         if not beams.active[i]:
             continue
-        code, r, q, k = simulate_beam(
+        strongest, last, k = beam_returns(
             float(beams.range_m[i]), float(beams.reflectivity[i]), float(rho_out[i]),
-            constants, mode, rng,
+            constants, rng,
         )  # fmt: skip
-        outcome[i], range_m[i], refl[i] = code, r, q
+        first = last if mode == "last" else strongest
+        outcome[i], range_m[i], refl[i] = first
+        if mode == "dual" and last != strongest and last[0] != LOST:
+            second[i], second_range[i], second_refl[i] = last
         drawn += k
-    return BeamResult(outcome, range_m, refl, drawn)
+    return BeamResult(outcome, range_m, refl, drawn, second, second_range, second_refl)

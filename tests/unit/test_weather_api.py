@@ -113,9 +113,10 @@ def assert_contract(result, n):
     assert result.source_index.dtype == np.int64 and result.source_index.shape == (m,)
     assert result.outcome.dtype == np.uint8 and result.outcome.shape == (m,)
     assert result.lost_index.dtype == np.int64
-    assert m + result.lost_index.size == n
-    assert np.all(np.diff(result.source_index) > 0), "source_index is strictly increasing"
-    every = np.sort(np.r_[result.source_index, result.lost_index])
+    # Dual mode may give a beam two adjacent points; otherwise one point per surviving beam.
+    assert m + result.lost_index.size == n + result.second_returns
+    assert np.all(np.diff(result.source_index) >= 0), "source_index is increasing"
+    every = np.sort(np.r_[np.unique(result.source_index), result.lost_index])
     np.testing.assert_array_equal(every, np.arange(n))
     assert set(np.unique(result.outcome)) <= {Outcome.KEPT, Outcome.ATTENUATED, Outcome.PARTICLE}
 
@@ -128,7 +129,7 @@ def test_empty_frame_gives_an_empty_result(weather):
 
 
 @pytest.mark.parametrize("weather", WEATHERS)
-@pytest.mark.parametrize("mode", ["strongest", "last"])
+@pytest.mark.parametrize("mode", ["strongest", "last", "dual"])
 def test_labels_follow_their_beams_through_source_index(kitti_like, weather, mode):
     xyz, intensity = kitti_like
     labels = np.arange(len(xyz), dtype=np.uint32) * 7 + 3  # a label that names its point
@@ -292,3 +293,32 @@ def test_fog_has_no_lisa_settings_and_unknown_settings_are_refused():
         settings_for("fog", "lisa")
     with pytest.raises(ConfigError, match="expected one of"):
         settings_for("rain", "carla")
+
+
+@pytest.mark.parametrize("weather", WEATHERS)
+def test_dual_returns_hold_the_strongest_first_and_the_last_where_it_differs(kitti_like, weather):
+    """A dual frame's first returns are what the strongest mode gives for the same draw of
+    the weather; a second return follows only behind a particle or fog return."""
+    xyz, intensity = kitti_like
+    frame_rule = {"params": with_overrides(RAIN_DEFAULTS, detection_threshold="frame")}
+    kw = frame_rule if weather == "rain" else {}
+    dual = run(weather, xyz, intensity, mode="dual", **kw)
+    assert np.all(np.diff(dual.source_index) >= 0)
+    first = np.r_[True, np.diff(dual.source_index) != 0]
+    assert dual.second_returns == int((~first).sum()) > 0
+    # The return before a second one is a particle or fog echo; the second lies farther out.
+    before = np.flatnonzero(~first) - 1
+    assert np.all(dual.outcome[before] == Outcome.PARTICLE)
+    r = np.linalg.norm(dual.xyz.astype(np.float64), axis=1)
+    assert np.all(r[~first] > r[before])
+    # No beam is both lost and returned; every beam is accounted for once.
+    assert not np.isin(dual.lost_index, dual.source_index).any()
+    assert np.unique(dual.source_index).size + dual.lost_index.size == len(xyz)
+
+
+def test_dual_mode_is_refused_with_aligned_points():
+    from lads.config import PipelineConfig, StageConfig
+
+    with pytest.raises(ConfigError, match="aligned tree keeps one row per source beam"):
+        PipelineConfig(variant="x", stages=(StageConfig("snow", {"rate_mm_h": 1.0,
+                       "mode": "dual"}),), points="aligned")  # fmt: skip
