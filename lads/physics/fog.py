@@ -45,7 +45,9 @@ Model choices (see `FogParams`):
 - backscatter "mie" (default): beta_pi = alpha / S with the lidar ratio S from Mie theory
   (miepython) over a modified-gamma advection-fog size distribution, S ~ 18 sr (derived);
   "hahner": beta_pi = 0.046 / MOR, i.e. S = ln(20) / 0.046 = 65 sr, 3.6x less backscatter.
-- fog-return range noise: sigma = dR / sqrt(2 SNR) * kappa_pulse / kappa_fog. The
+- fog-return range noise: sigma = dR / sqrt(2 SNR) * kappa_pulse / kappa_fog, at most the
+  echo's half-width 1 / sqrt(kappa_fog), and the reported range at most half a pulse beyond
+  the target (the echo comes from fog in front of it). The
   peak-timing error of a shot-noise-limited peak detector scales as 1 / (sqrt(P) * |P''/P|);
   the sensor's dR / sqrt(2 SNR) holds for its own pulse (relative curvature
   kappa_pulse = 2 pi^2 / L^2), and the broader fog echo (smaller kappa_fog, tabulated) is
@@ -417,7 +419,7 @@ def simulate_fog(
     elif mode == "last":
         target = target_ok
         fog = fog_ok & ~target_ok
-    else:  # dual: the strongest return and, where it differs, the last (the target)
+    else:  # dual: the strongest return, then the last or the second strongest
         fog = fog_ok & ((p_fog > p_target) | ~target_ok)
         target = target_ok
 
@@ -439,10 +441,9 @@ def simulate_fog(
         reported = _lookup(table.peak_range_m, r0_fog, table)
         if params.report_pulse_centre:
             reported = reported - 0.5 * params.pulse_length_m
-        kappa_pulse = 2.0 * np.pi**2 / params.pulse_length_m**2
-        kappa_fog = np.maximum(_lookup(table.relative_curvature_per_m2, r0_fog, table), 1e-12)
-        sigma = dr / np.sqrt(2.0 * pf / p_min) * np.minimum(kappa_pulse / kappa_fog, 1e6)
-        out_r = np.maximum(reported + sigma * noise[k:], MIN_OUTPUT_RANGE_M)
+        kappa_fog = _lookup(table.relative_curvature_per_m2, r0_fog, table)
+        sigma = echo_sigma_m(pf / p_min, kappa_fog, params, dr)
+        out_r = _echo_range(reported + sigma * noise[k:], r0_fog, params)
         fog_range[f_idx] = out_r
         fog_rho[f_idx] = pf * out_r**2
     common = {"extinction_per_m": alpha, "detection_threshold": p_min}
@@ -457,8 +458,50 @@ def simulate_fog(
     )  # fmt: skip
     if mode != "dual":
         return result
+    # The second return: the target behind a first fog echo, or (Velodyne's second
+    # strongest) a detected fog echo in front of a target that is both strongest and last,
+    # where the two are a pulse length apart (closer, the receiver sees one return).
+    echo_second = target & ~fog & fog_ok
+    peak = _lookup(table.peak_range_m, r0, table)
+    if params.report_pulse_centre:
+        peak = peak - 0.5 * params.pulse_length_m
+    echo_second &= peak <= r0 - params.pulse_length_m
+    if echo_second.any():
+        e_idx = idx[echo_second]
+        r0_e, pf = r0[echo_second], p_fog[echo_second]
+        reported = peak[echo_second]
+        kappa_e = _lookup(table.relative_curvature_per_m2, r0_e, table)
+        sigma = echo_sigma_m(pf / p_min, kappa_e, params, dr)
+        out_r = _echo_range(reported + sigma * rng.standard_normal(e_idx.size), r0_e, params)
+        fog_range[e_idx], fog_rho[e_idx] = out_r, pf * out_r**2
     second = np.full(n, Outcome.LOST, dtype=np.uint8)
     second[idx[fog & target]] = Outcome.ATTENUATED
-    last = assemble(beams, sensor, outcome=second, range_m=target_range,
-                    reflectivity=target_rho, **common)  # fmt: skip
+    second[idx[echo_second]] = Outcome.PARTICLE
+    is_echo = second == Outcome.PARTICLE
+    last = assemble(beams, sensor, outcome=second,
+                    range_m=np.where(is_echo, fog_range, target_range),
+                    reflectivity=np.where(is_echo, fog_rho, target_rho), **common)  # fmt: skip
     return merge_returns(result, last)
+
+
+def echo_sigma_m(
+    snr: npt.NDArray[np.float64],
+    kappa_fog: npt.NDArray[np.float64],
+    params: FogParams,
+    range_accuracy_m: float,
+) -> npt.NDArray[np.float64]:
+    """Range noise of fog echoes, m: dR / sqrt(2 SNR) * kappa_pulse / kappa_fog (module
+    docstring), at most the echo's own half-width 1 / sqrt(kappa_fog): a weak, broad echo is
+    timed somewhere on it, not beyond it. snr = P_f / P_min; kappa in 1/m^2."""
+    kappa = np.maximum(kappa_fog, 1e-12)
+    kappa_pulse = 2.0 * np.pi**2 / params.pulse_length_m**2
+    timing = range_accuracy_m / np.sqrt(2.0 * snr) * np.minimum(kappa_pulse / kappa, 1e6)
+    return np.minimum(timing, 1.0 / np.sqrt(kappa))
+
+
+def _echo_range(
+    noisy_m: npt.NDArray[np.float64], r0: npt.NDArray[np.float64], params: FogParams
+) -> npt.NDArray[np.float64]:
+    """Reported fog-echo ranges, m: the echo comes from fog in front of the target, so it is
+    reported no farther than half a pulse beyond the target (and not at the origin)."""
+    return np.clip(noisy_m, MIN_OUTPUT_RANGE_M, r0 + 0.5 * params.pulse_length_m)

@@ -21,8 +21,9 @@ with the conditional probability of the sensor's detection curve (default) or by
 threshold; a particle needs P_p >= P_min, the sensor's limit.
 Decision per beam (strongest return): particle return if the strongest detectable particle
 beats the attenuated target; else the target if detected; else lost. Last return: the
-target if detected, else the farthest detectable particle, else lost. Dual: both, where
-they differ (a flake in front of a detected target gives the flake and the target).
+target if detected, else the farthest detectable particle, else lost. Dual (Velodyne): the
+strongest and the last, or the second strongest where they coincide, so a detectable flake
+in front of a detected target is always recorded beside it.
 Kept targets: intensity rho T^2 and the extra range noise that the lower SNR brings,
 variance (dR^2 / 2) (1 / SNR_w - 1 / SNR_clear), SNR = P_eff / P_min, so clear air is exact.
 """
@@ -270,12 +271,14 @@ def _dual(
     transmission: npt.NDArray[np.float64],
     rng: np.random.Generator,
 ) -> WeatherResult:
-    """Dual return: every beam's strongest return and, where it differs, its last.
+    """Dual return (Velodyne's convention): every beam's strongest return and its last, or
+    the second strongest where the strongest is also the last.
 
     All detectable particles are drawn once (floor P_min on the whole beam), so both returns
     come from one realisation: the strongest is the strongest particle if it beats the
     detected target (else the target), the last the target if detected (else the farthest
-    particle). A beam with two returns appears twice in source_index, strongest first.
+    particle); a detected target that is both has the strongest particle in front as its
+    second. A beam with two returns appears twice in source_index, strongest first.
     """
     n = beams.range_m.size
     r0 = np.where(beams.active, beams.range_m, 0.0)
@@ -296,10 +299,14 @@ def _dual(
     refl1 = np.where(particle_first, s_p * s_r**2, target_refl)
     second = np.full(n, Outcome.LOST, dtype=np.uint8)
     last_particle = particle_first & ~detected & has_l & (l_r != s_r)
+    # Target strongest and last: Velodyne's dual mode then reports the second strongest,
+    # the strongest flake in front (the WADS recording shows them, lads.calibration.wads).
+    behind_target = ~particle_first & detected & has_s
     second[particle_first & detected] = Outcome.ATTENUATED
-    second[last_particle] = Outcome.PARTICLE
-    range2 = np.where(last_particle, l_r, target_range)
-    refl2 = np.where(last_particle, l_p * l_r**2, target_refl)
+    second[last_particle | behind_target] = Outcome.PARTICLE
+    range2 = np.where(last_particle, l_r, np.where(behind_target, s_r, target_range))
+    refl2 = np.where(last_particle, l_p * l_r**2,
+                     np.where(behind_target, s_p * s_r**2, target_refl))  # fmt: skip
     common = {"extinction_per_m": optics.particles.alpha_per_m,
               "detection_threshold": optics.threshold}  # fmt: skip
     a = assemble(beams, sensor, outcome=first, range_m=range1, reflectivity=refl1, **common)

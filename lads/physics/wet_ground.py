@@ -36,7 +36,6 @@ from typing import Any
 
 import numpy as np
 import numpy.typing as npt
-from scipy import integrate
 
 from lads.errors import ConfigError
 from lads.physics.beams import assemble, auto_threshold, prepare_beams, resolve_sensor, unchanged
@@ -95,11 +94,11 @@ def internal_diffuse_reflectance(n: float) -> float:
     Light that escapes is the external-side view: by reciprocity the transmitted share equals
     (1 - R_e) / n^2 with R_e the cosine-weighted mean external reflectance.
     """
-    mean_external, _ = integrate.quad(
-        lambda t: float(fresnel_unpolarised(np.array([math.cos(t)]), n)[0])
-        * 2.0 * math.sin(t) * math.cos(t),
-        0.0, 0.5 * math.pi,
-    )  # fmt: skip
+    # Gauss-Legendre on [0, pi/2]; the integrand is smooth there, 64 nodes reach 1e-12.
+    nodes, weights = np.polynomial.legendre.leggauss(64)
+    theta = 0.25 * math.pi * (nodes + 1.0)
+    integrand = fresnel_unpolarised(np.cos(theta), n) * 2.0 * np.sin(theta) * np.cos(theta)
+    mean_external = 0.25 * math.pi * float(np.sum(weights * integrand))
     return 1.0 - (1.0 - mean_external) / n**2
 
 

@@ -117,15 +117,19 @@ def simulate_beam(
     """
     if mode not in ("strongest", "last"):
         raise ValueError(mode)
-    strongest, last, k = beam_returns(r0, rho, rho_out, c, rng)
+    strongest, last, _, k = beam_returns(r0, rho, rho_out, c, rng)
     return (*(strongest if mode == "strongest" else last), k)
 
 
 def beam_returns(
     r0: float, rho: float, rho_out: float, c: Constants, rng: np.random.Generator
-) -> tuple[tuple[int, float, float], tuple[int, float, float], int]:
-    """One beam, one draw of its particles: (strongest return, last return, particles drawn),
-    each return (outcome, range, reflectivity); a dual-return sensor reports both."""
+) -> tuple[
+    tuple[int, float, float], tuple[int, float, float], tuple[int, float, float] | None, int
+]:
+    """One beam, one draw of its particles: (strongest return, last return, strongest
+    detectable particle or None, particles drawn), each return (outcome, range,
+    reflectivity); a dual-return sensor reports the first two, or the first and the
+    particle where the target is both strongest and last."""
     t2 = lambda r: np.exp(-2.0 * c.alpha_per_m * r)  # noqa: E731
     p_clear = rho / r0**2
     if c.setting == "sensor":
@@ -170,7 +174,11 @@ def beam_returns(
     if not target_detected and detectable.any():
         j = int(np.argmax(np.where(detectable, r, -np.inf)))
         last = (PARTICLE, float(r[j]), float(p[j] * r[j] ** 2))
-    return strongest, last, k
+    best = None
+    if detectable.any():
+        j = int(np.argmax(np.where(detectable, p, -np.inf)))
+        best = (PARTICLE, float(r[j]), float(p[j] * r[j] ** 2))
+    return strongest, last, best, k
 
 
 def simulate(
@@ -187,8 +195,8 @@ def simulate(
         beams: prepared frame (`lads.physics.beams.prepare_beams`); zero-range beams
             (`beams.active` False) are passed through as KEPT.
         rho_out: (N,) reflectivity of the stored intensity (no detection floor).
-        mode: "strongest", "last" or "dual" (the strongest return in the main arrays, the
-            last one, where it differs, in the `second_*` arrays).
+        mode: "strongest", "last" or "dual" (the strongest return in the main arrays; the
+            last, or the second strongest where they coincide, in the `second_*` arrays).
         subset: beam indices to simulate; the others are left KEPT at their input range.
     """
     n = beams.range_m.size
@@ -202,7 +210,7 @@ def simulate(
     for i in indices:
         if not beams.active[i]:
             continue
-        strongest, last, k = beam_returns(
+        strongest, last, best, k = beam_returns(
             float(beams.range_m[i]), float(beams.reflectivity[i]), float(rho_out[i]),
             constants, rng,
         )  # fmt: skip
@@ -210,5 +218,8 @@ def simulate(
         outcome[i], range_m[i], refl[i] = first
         if mode == "dual" and last != strongest and last[0] != LOST:
             second[i], second_range[i], second_refl[i] = last
+        elif mode == "dual" and strongest[0] == ATTENUATED and best is not None:
+            # Velodyne: strongest = last, so the second strongest (the best particle).
+            second[i], second_range[i], second_refl[i] = best
         drawn += k
     return BeamResult(outcome, range_m, refl, drawn, second, second_range, second_refl)
