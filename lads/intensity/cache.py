@@ -41,7 +41,7 @@ from lads.intensity.features import (
     label_set_for,
 )
 from lads.intensity.splits import split_frames
-from lads.intensity.train_config import DomainSpec, TrainConfig
+from lads.intensity.train_config import DomainSpec, TrainConfig, weather_physics_version
 from lads.physics.projection import MIN_RANGE_M
 from lads.sensors.profile import SensorProfile, load_profile
 
@@ -68,6 +68,8 @@ class CacheJob:
     @property
     def key(self) -> str:
         payload = {"job": asdict(self), "features": FEATURE_VERSION}
+        if self.domain.weather:
+            payload["weather_physics"] = weather_physics_version()
         payload["job"]["domain"] = _hashed_domain(self.domain)
         return hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()[:20]
 

@@ -176,6 +176,7 @@ def train(
     ckpt_path = run / CHECKPOINT
     # Length and checkpoint spacing may change between runs: a run can be extended.
     resumable = {k: v for k, v in cfg.to_dict().items() if k not in ("steps", "checkpoint_every")}
+    resumable["data_hash"] = cfg.data_hash()  # checkpoints of other source frames never resume
     config_id = json.dumps(resumable, sort_keys=True, default=str)
     if ckpt_path.is_file():
         start, history = _resume(ckpt_path, config_id, nets, opt_g, opt_d, rng)

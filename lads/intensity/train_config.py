@@ -209,8 +209,19 @@ class TrainConfig:
             for role in ("source", "target"):
                 for domain in (pair[role], *pair[role]["also"]):
                     domain.pop("data_root")
-        payload = {"pairs": pairs, "n": self.range_exponent}
+        payload: dict[str, Any] = {"pairs": pairs, "n": self.range_exponent}
+        if any(p.source.weather or p.target.weather for p in self.pairs):
+            # Sources made by the physics weather change with it: stale caches must not match.
+            payload["weather_physics"] = weather_physics_version()
         return hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()[:16]
+
+
+def weather_physics_version() -> str:
+    """The weather stage's version (`WEATHER_STAGE_VERSION`): bumped whenever the physics
+    changes the bytes a weather stage makes, so it keys anything built from such frames."""
+    from lads.stages.weather import WEATHER_STAGE_VERSION  # the stages import this package
+
+    return WEATHER_STAGE_VERSION
 
 
 # The generator architectures (`lads.intensity.model`): a U-Net on the range image, or an MLP

@@ -130,7 +130,14 @@ def target_survival(
     out = np.ones_like(z)
     doubtful = np.flatnonzero(np.isfinite(z) & (z_weather < CERTAIN_Z))
     if doubtful.size:
-        out[doubtful] = np.exp(log_ndtr(z_weather[doubtful]) - log_ndtr(z[doubtful]))
+        zd, zw = z[doubtful], z_weather[doubtful]
+        # Phi(z) >= 1/2 for z >= 0 (every target under the sensor rule, P_eff >= P_lim): the
+        # plain ratio is exact there and cheaper; a z < 0 (another caller) takes the log form.
+        plain = zd >= 0.0
+        ratio = np.empty(doubtful.size)
+        ratio[plain] = ndtr(zw[plain]) / ndtr(zd[plain])
+        ratio[~plain] = np.exp(log_ndtr(zw[~plain]) - log_ndtr(zd[~plain]))
+        out[doubtful] = ratio
     return out
 
 

@@ -8,6 +8,7 @@ import pytest
 import yaml
 
 from lads.errors import ConfigError
+from lads.resources import train_configs_dir
 from lads.intensity.train_config import (
     DATA_ROOT_ENV,
     load_train_config,
@@ -77,3 +78,16 @@ def test_data_root_is_not_a_key_of_the_yaml(tmp_path):
 def test_an_unknown_name_lists_the_shipped_configs():
     with pytest.raises(ConfigError, match="synth-to-kitti, synth-to-nuscenes, weather"):
         load_train_config("no-such-config")
+
+
+def test_a_change_of_the_weather_physics_changes_the_data_hash_of_weather_models(monkeypatch):
+    """Weather sources are made by the physics stage: caches and checkpoints made with
+    other physics must not match (they would train on stale frames)."""
+    import lads.stages.weather as stage
+
+    weather = load_train_config(train_configs_dir() / "weather.yaml")
+    sensor = load_train_config(train_configs_dir() / "synth-to-kitti.yaml")
+    before = weather.data_hash(), sensor.data_hash()
+    monkeypatch.setattr(stage, "WEATHER_STAGE_VERSION", stage.WEATHER_STAGE_VERSION + "x")
+    assert weather.data_hash() != before[0]
+    assert sensor.data_hash() == before[1]  # no weather stage: nothing to go stale
