@@ -8,12 +8,12 @@ import pytest
 import yaml
 
 from lads.errors import ConfigError
-from lads.resources import train_configs_dir
 from lads.intensity.train_config import (
     DATA_ROOT_ENV,
     load_train_config,
     shipped_train_configs,
 )
+from lads.resources import train_configs_dir
 
 
 def test_the_shipped_configs_are_listed():
