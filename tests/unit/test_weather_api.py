@@ -313,14 +313,15 @@ def test_dual_returns_hold_the_strongest_first_and_the_last_where_it_differs(kit
     before = second - 1
     r = np.linalg.norm(dual.xyz.astype(np.float64), axis=1)
     behind = dual.outcome[before] == Outcome.PARTICLE
-    assert np.all(r[second][behind] > r[before][behind])
-    assert np.all(dual.outcome[before][~behind] == Outcome.ATTENUATED)
-    assert np.all(dual.outcome[second][~behind] == Outcome.PARTICLE)
-    # A flake or fog echo in front: nearer than its target (a fog echo, timed less
-    # precisely, is reported at most half a pulse beyond the target, fog.py).
     reach = 0.5 * FOG_DEFAULTS.resolved_for(load_profile("hdl64e")).pulse_length_m
     slack = (reach if weather == "fog" else 0.0) + 1e-4  # float32 coordinates
-    assert np.all(r[second][~behind] <= r[before][~behind] + slack)
+    assert np.all(r[second][behind] > r[before][behind] - slack)
+    assert np.all(dual.outcome[before][~behind] == Outcome.ATTENUATED)
+    assert np.all(dual.outcome[second][~behind] == Outcome.PARTICLE)
+    # A flake or fog echo in front: nearer than its target's source range (a fog echo, timed
+    # less precisely, is reported at most half a pulse beyond it, fog.py).
+    r_target = np.linalg.norm(xyz[dual.source_index[second]].astype(np.float64), axis=1)
+    assert np.all(r[second][~behind] <= r_target[~behind] + slack)
     # No beam is both lost and returned; every beam is accounted for once.
     assert not np.isin(dual.lost_index, dual.source_index).any()
     assert np.unique(dual.source_index).size + dual.lost_index.size == len(xyz)
