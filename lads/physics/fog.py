@@ -403,55 +403,31 @@ def simulate_fog(
     beta = backscatter_from_visibility(visibility_m, params)
     idx = np.flatnonzero(beams.active)
     r0, rho = beams.range_m[idx], beams.reflectivity[idx]
-    p_clear = detection.effective_power(rho / r0**2)
     two_way_ln = -2.0 * alpha * r0
-    t2 = np.exp(two_way_ln)
     target_ok, p_target = detection.targets_detected(
         beams.clear_power[idx], two_way_ln, np.ones(idx.size, dtype=bool), rng
     )
     table = soft_return_table(alpha, params)
     p_fog = np.pi * beta * _lookup(table.peak_unit, r0, table)
     p_fog[r0 < params.overlap_start_m] = 0.0
-    fog_ok = detection.faint_detected(p_fog, rng)
-    if mode == "strongest":
-        fog = fog_ok & (p_fog > p_target)
-        target = target_ok & ~fog
-    elif mode == "last":
-        target = target_ok
-        fog = fog_ok & ~target_ok
-    else:  # dual: the strongest return, then the last or the second strongest
-        fog = fog_ok & ((p_fog > p_target) | ~target_ok)
-        target = target_ok
-
+    b = _FogBeams(
+        n=n, idx=idx, r0=r0, rho=rho, p_clear=detection.effective_power(rho / r0**2),
+        t2=np.exp(two_way_ln), p_target=p_target, target_ok=target_ok, p_fog=p_fog,
+        fog_ok=detection.faint_detected(p_fog, rng), table=table, params=params,
+        p_min=p_min, range_accuracy_m=sensor.range_accuracy_m,
+    )  # fmt: skip
+    target, fog = _choose(mode, b)
     noise = rng.standard_normal(int(target.sum()) + int(fog.sum()))
     k = int(target.sum())
-    dr = sensor.range_accuracy_m
-    extra_var = 0.5 * dr**2 * p_min * (1.0 / p_target[target] - 1.0 / p_clear[target])
-    t_idx = idx[target]
-    target_range, target_rho = np.zeros(n), np.zeros(n)
-    target_range[t_idx] = np.maximum(
-        r0[target] + np.sqrt(np.maximum(extra_var, 0.0)) * noise[:k], MIN_OUTPUT_RANGE_M
-    )
-    target_rho[t_idx] = rho[target] * t2[target]
-
-    f_idx = idx[fog]
+    target_range, target_rho = _target_returns(b, target, noise[:k])
     fog_range, fog_rho = np.zeros(n), np.zeros(n)
-    if f_idx.size:
-        r0_fog, pf = r0[fog], p_fog[fog]
-        reported = _lookup(table.peak_range_m, r0_fog, table)
-        if params.report_pulse_centre:
-            reported = reported - 0.5 * params.pulse_length_m
-        kappa_fog = _lookup(table.relative_curvature_per_m2, r0_fog, table)
-        sigma = echo_sigma_m(pf / p_min, kappa_fog, params, dr)
-        out_r = _echo_range(reported + sigma * noise[k:], r0_fog, params)
-        fog_range[f_idx] = out_r
-        fog_rho[f_idx] = pf * out_r**2
-    common = {"extinction_per_m": alpha, "detection_threshold": p_min}
+    _echo_returns(b, fog, noise[k:], _reported_peak(b, fog), fog_range, fog_rho)
     first = outcome.copy()
-    first[t_idx] = Outcome.ATTENUATED
-    first[f_idx] = Outcome.PARTICLE
-    first[idx[~target & ~fog]] = Outcome.LOST
+    first[b.idx[target]] = Outcome.ATTENUATED
+    first[b.idx[fog]] = Outcome.PARTICLE
+    first[b.idx[~target & ~fog]] = Outcome.LOST
     is_fog = first == Outcome.PARTICLE
+    common = {"extinction_per_m": alpha, "detection_threshold": p_min}
     result = assemble(
         beams, sensor, outcome=first, range_m=np.where(is_fog, fog_range, target_range),
         reflectivity=np.where(is_fog, fog_rho, target_rho), **common,
@@ -461,27 +437,94 @@ def simulate_fog(
     # The second return: the target behind a first fog echo, or (Velodyne's second
     # strongest) a detected fog echo in front of a target that is both strongest and last,
     # where the two are a pulse length apart (closer, the receiver sees one return).
-    echo_second = target & ~fog & fog_ok
-    peak = _lookup(table.peak_range_m, r0, table)
-    if params.report_pulse_centre:
-        peak = peak - 0.5 * params.pulse_length_m
-    echo_second &= peak <= r0 - params.pulse_length_m
+    peak = _reported_peak(b, np.ones(b.idx.size, dtype=bool))
+    echo_second = target & ~fog & b.fog_ok & (peak <= r0 - params.pulse_length_m)
     if echo_second.any():
-        e_idx = idx[echo_second]
-        r0_e, pf = r0[echo_second], p_fog[echo_second]
-        reported = peak[echo_second]
-        kappa_e = _lookup(table.relative_curvature_per_m2, r0_e, table)
-        sigma = echo_sigma_m(pf / p_min, kappa_e, params, dr)
-        out_r = _echo_range(reported + sigma * rng.standard_normal(e_idx.size), r0_e, params)
-        fog_range[e_idx], fog_rho[e_idx] = out_r, pf * out_r**2
+        noise_e = rng.standard_normal(int(echo_second.sum()))
+        _echo_returns(b, echo_second, noise_e, peak[echo_second], fog_range, fog_rho)
     second = np.full(n, Outcome.LOST, dtype=np.uint8)
-    second[idx[fog & target]] = Outcome.ATTENUATED
-    second[idx[echo_second]] = Outcome.PARTICLE
+    second[b.idx[fog & target]] = Outcome.ATTENUATED
+    second[b.idx[echo_second]] = Outcome.PARTICLE
     is_echo = second == Outcome.PARTICLE
     last = assemble(beams, sensor, outcome=second,
                     range_m=np.where(is_echo, fog_range, target_range),
                     reflectivity=np.where(is_echo, fog_rho, target_rho), **common)  # fmt: skip
     return merge_returns(result, last)
+
+
+@dataclass(frozen=True, slots=True)
+class _FogBeams:
+    """The active beams of one foggy frame (arrays (A,), one per active beam, `idx` their
+    rows in the frame of n beams): target range r0 (m) and reflectivity rho, effective clear
+    power and two-way transmission, target and fog-echo peak powers and detections."""
+
+    n: int
+    idx: npt.NDArray[np.int64]
+    r0: npt.NDArray[np.float64]
+    rho: npt.NDArray[np.float64]
+    p_clear: npt.NDArray[np.float64]
+    t2: npt.NDArray[np.float64]
+    p_target: npt.NDArray[np.float64]
+    target_ok: npt.NDArray[np.bool_]
+    p_fog: npt.NDArray[np.float64]
+    fog_ok: npt.NDArray[np.bool_]
+    table: SoftReturnTable
+    params: FogParams
+    p_min: float
+    range_accuracy_m: float
+
+
+def _choose(mode: str, b: _FogBeams) -> tuple[npt.NDArray[np.bool_], npt.NDArray[np.bool_]]:
+    """(target returned, fog echo returned as the first return) per active beam."""
+    if mode == "strongest":
+        fog = b.fog_ok & (b.p_fog > b.p_target)
+        return b.target_ok & ~fog, fog
+    if mode == "last":
+        return b.target_ok, b.fog_ok & ~b.target_ok
+    # dual: the strongest return first (the echo where it beats or replaces the target)
+    return b.target_ok, b.fog_ok & ((b.p_fog > b.p_target) | ~b.target_ok)
+
+
+def _target_returns(
+    b: _FogBeams, target: npt.NDArray[np.bool_], noise: npt.NDArray[np.float64]
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    """(n,) range (m) and reflectivity of the returned targets: the SNR drop's extra range
+    noise (one standard normal per returned target) and intensity rho T^2."""
+    dr = b.range_accuracy_m
+    extra_var = 0.5 * dr**2 * b.p_min * (1.0 / b.p_target[target] - 1.0 / b.p_clear[target])
+    t_idx = b.idx[target]
+    target_range, target_rho = np.zeros(b.n), np.zeros(b.n)
+    target_range[t_idx] = np.maximum(
+        b.r0[target] + np.sqrt(np.maximum(extra_var, 0.0)) * noise, MIN_OUTPUT_RANGE_M
+    )
+    target_rho[t_idx] = b.rho[target] * b.t2[target]
+    return target_range, target_rho
+
+
+def _reported_peak(b: _FogBeams, mask: npt.NDArray[np.bool_]) -> npt.NDArray[np.float64]:
+    """Range at which the sensor reports the fog echo of the `mask` beams, m (pulse centre)."""
+    peak = _lookup(b.table.peak_range_m, b.r0[mask], b.table)
+    return peak - 0.5 * b.params.pulse_length_m if b.params.report_pulse_centre else peak
+
+
+def _echo_returns(
+    b: _FogBeams,
+    mask: npt.NDArray[np.bool_],
+    noise: npt.NDArray[np.float64],
+    reported: npt.NDArray[np.float64],
+    out_range: npt.NDArray[np.float64],
+    out_rho: npt.NDArray[np.float64],
+) -> None:
+    """Write the fog echoes of the `mask` beams into out_range (m) and out_rho (n,): the
+    reported peak plus timing noise (one standard normal per echo), intensity P_f r^2."""
+    if not mask.any():
+        return
+    r0, pf = b.r0[mask], b.p_fog[mask]
+    kappa = _lookup(b.table.relative_curvature_per_m2, r0, b.table)
+    sigma = echo_sigma_m(pf / b.p_min, kappa, b.params, b.range_accuracy_m)
+    out_r = _echo_range(reported + sigma * noise, r0, b.params)
+    out_range[b.idx[mask]] = out_r
+    out_rho[b.idx[mask]] = pf * out_r**2
 
 
 def echo_sigma_m(
