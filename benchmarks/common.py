@@ -32,6 +32,20 @@ def kitti_frames() -> list[np.ndarray]:
     return [np.fromfile(p, dtype=np.float32).reshape(-1, 4) for p in KITTI_SCANS]
 
 
+def kitti_labels() -> list[np.ndarray]:
+    """The labels of the KITTI_SCANS, (N,) uint32 each, read by the SemanticKITTI reader."""
+    from lads.readers import get_reader
+
+    root = SHARED_DATA / "semantickitti"
+    reader = get_reader("semantickitti", root)
+    wanted = [p.relative_to(root).as_posix() for p in KITTI_SCANS]
+    items = {item.relpath: item for item in reader.items()}
+    missing = [w for w in wanted if w not in items]
+    if missing:
+        raise InputDataError(f"benchmark data missing under {root}: {missing}.")
+    return [reader.read(items[w]).labels for w in wanted]
+
+
 def machine_info() -> dict[str, Any]:
     import numba
 

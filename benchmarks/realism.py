@@ -126,21 +126,12 @@ def _simulate(
         lost.append(is_lost)
         out_range.append(np.linalg.norm(result.xyz.astype(np.float64), axis=1))
         particle.append(result.outcome == Outcome.PARTICLE)
-        att = result.outcome == Outcome.ATTENUATED
-        src = result.source_index[att]
-        before = profile.intensity.to_reflectivity(points[src, 3])
-        after = profile.intensity.to_reflectivity(result.intensity[att])
-        ok = before > 0
-        ratios.append(after[ok] / before[ok])
-        materials.append(material_index_for_labels(labels[src][ok], "semantickitti"))
+        ratio, material = _attenuated_ratios(result, points, labels, profile)
+        ratios.append(ratio)
+        materials.append(material)
     r_in, is_lost = np.concatenate(src_range), np.concatenate(lost)
     r_out, is_particle = np.concatenate(out_range), np.concatenate(particle)
-    ratio, material = np.concatenate(ratios), np.concatenate(materials)
-    names = material_names()
-    per_material = {
-        names[m]: round(float(np.median(ratio[material == m])), 4)
-        for m in np.unique(material) if (material == m).sum() >= MIN_CLASS_POINTS
-    }  # fmt: skip
+    per_material = _median_per_material(np.concatenate(ratios), np.concatenate(materials))
     return {
         key: value,
         "lost_share": round(float(is_lost.mean()), 5),
@@ -149,6 +140,30 @@ def _simulate(
         "particle_share_per_range_bin": _share_per_bin(r_out, is_particle),
         "attenuated_intensity_ratio_median_per_material": per_material,
     }
+
+
+def _attenuated_ratios(
+    result: Any, points: npt.NDArray[np.float32], labels: npt.NDArray[np.uint32], profile: Any
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.int64]]:
+    """Output / input reflectivity of a result's ATTENUATED points (input > 0) and their
+    material indices."""
+    att = result.outcome == Outcome.ATTENUATED
+    src = result.source_index[att]
+    before = profile.intensity.to_reflectivity(points[src, 3])
+    after = profile.intensity.to_reflectivity(result.intensity[att])
+    ok = before > 0
+    return after[ok] / before[ok], material_index_for_labels(labels[src][ok], "semantickitti")
+
+
+def _median_per_material(
+    ratio: npt.NDArray[np.float64], material: npt.NDArray[np.int64]
+) -> dict[str, float]:
+    """Median ratio per material with at least MIN_CLASS_POINTS points."""
+    names = material_names()
+    return {
+        names[m]: round(float(np.median(ratio[material == m])), 4)
+        for m in np.unique(material) if (material == m).sum() >= MIN_CLASS_POINTS
+    }  # fmt: skip
 
 
 def _wet_ground(severity: str, frames: list[Any]) -> dict[str, Any]:
@@ -166,25 +181,19 @@ def _wet_ground(severity: str, frames: list[Any]) -> dict[str, Any]:
         ground.append(wet_surface_for_labels(labels, "semantickitti")[0])
         lost.append(is_lost)
         src_range.append(np.linalg.norm(points[:, :3].astype(np.float64), axis=1))
-        att = res.outcome == Outcome.ATTENUATED
-        src = res.source_index[att]
-        before, after = points[src, 3].astype(np.float64), res.intensity[att].astype(np.float64)
-        ok = before > 0
-        ratios.append(after[ok] / before[ok])
-        materials.append(material_index_for_labels(labels[src][ok], "semantickitti"))
+        ratio, material = _attenuated_ratios(res, points, labels, profile)
+        ratios.append(ratio)
+        materials.append(material)
     is_ground, is_lost, r = np.concatenate(ground), np.concatenate(lost), np.concatenate(src_range)
-    ratio, material = np.concatenate(ratios), np.concatenate(materials)
-    names = material_names()
     return {
         key: film,
         "lost_share": round(float(is_lost.mean()), 5),
         "lost_share_of_ground": round(float(is_lost[is_ground].mean()), 5),
         "ground_lost_share_per_source_range_bin": _share_per_bin(r[is_ground], is_lost[is_ground]),
-        "wet_intensity_ratio_median_per_material": {
-            names[m]: round(float(np.median(ratio[material == m])), 4)
-            for m in np.unique(material) if (material == m).sum() >= MIN_CLASS_POINTS
-        },
-    }  # fmt: skip
+        "wet_intensity_ratio_median_per_material": _median_per_material(
+            np.concatenate(ratios), np.concatenate(materials)
+        ),
+    }
 
 
 def _wads_reference() -> dict[str, Any]:

@@ -17,7 +17,7 @@ from typing import Any  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from benchmarks.common import KITTI_SCANS, kitti_frames, machine_info, write_result  # noqa: E402
+from benchmarks.common import kitti_frames, kitti_labels, machine_info, write_result  # noqa: E402
 from lads.physics import weather  # noqa: E402
 from lads.physics.wet_ground import WetGroundParams, wet_ground  # noqa: E402
 from lads.sensors.profile import load_profile  # noqa: E402
@@ -100,10 +100,7 @@ def time_setting(
 
 def main(out_dir: Path | None = None) -> dict[str, Any]:
     frames = kitti_frames()
-    labels = [
-        np.fromfile(str(p).replace("velodyne", "labels").replace(".bin", ".label"), np.uint32)
-        for p in KITTI_SCANS
-    ]
+    labels = kitti_labels()
     rows = [time_setting(frames, labels, *setting) for setting in SETTINGS + MODE_SETTINGS]
     payload = {
         "what": "wall time of lads.physics.weather.{rain,snow,fog} and "

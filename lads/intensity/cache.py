@@ -34,15 +34,11 @@ from tqdm.auto import tqdm
 
 from lads.errors import ConfigError, LadsError, TrainingError
 from lads.frame import Frame, Item
-from lads.intensity.features import (
-    FEATURE_VERSION,
-    FrameImage,
-    frame_image,
-    label_set_for,
-)
+from lads.intensity.features import FEATURE_VERSION, FrameImage, frame_image
 from lads.intensity.splits import split_frames
 from lads.intensity.train_config import DomainSpec, TrainConfig, weather_physics_version
 from lads.physics.projection import MIN_RANGE_M
+from lads.readers import label_set_for
 from lads.sensors.profile import SensorProfile, load_profile
 
 CACHE_NAME = "cache.zarr"

@@ -36,7 +36,6 @@ import numpy.typing as npt
 
 from lads.errors import ConfigError, InvalidPointsError
 from lads.physics.materials import (
-    LABEL_SETS,
     default_material,
     material_index_for_labels,
     material_names,
@@ -45,7 +44,6 @@ from lads.physics.materials import (
 from lads.physics.modalities import _incidence, physics_intensity
 from lads.physics.projection import RangeImage, channels_of, checked_xyz, organise
 from lads.physics.result import Outcome
-from lads.readers import READERS
 from lads.sensors.profile import SensorProfile
 
 FEATURE_VERSION = "2"  # 2: the material channel
@@ -68,15 +66,6 @@ FloatArray = npt.NDArray[np.float32]
 def channel_names(styles: bool) -> tuple[str, ...]:
     """Input channel names of a sensor model (styles=False) or a weather model (True)."""
     return BASE_CHANNELS + (STYLES if styles else ())
-
-
-def label_set_for(dataset: str) -> str | None:
-    """The material label set of a dataset's labels (a reader's `label_set`; other names,
-    such as "synth", when they are label sets themselves), None for unlabelled datasets."""
-    reader = READERS.get(dataset)
-    if reader is not None:
-        return reader.label_set
-    return dataset if dataset in LABEL_SETS else None
 
 
 @dataclass(frozen=True)

@@ -85,12 +85,11 @@ class Detection:
         Returns:
             detected (N,) bool and P_eff T^2 (N,) float64.
         """
-        power = self.effective_power(clear_power) * np.exp(two_way_ln)
+        effective = self.effective_power(clear_power)
+        power = effective * np.exp(two_way_ln)
         if self.setting != "sensor":
             return active & (power >= self.threshold), power
-        survival = target_survival(
-            self.effective_power(clear_power), two_way_ln, self.threshold, self.spread_ln
-        )
+        survival = target_survival(effective, two_way_ln, self.threshold, self.spread_ln)
         detected = active.copy()
         uncertain = np.flatnonzero(active & (survival < 1.0))
         if uncertain.size:

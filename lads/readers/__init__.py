@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from lads.errors import ConfigError
+from lads.physics.materials import LABEL_SETS
 from lads.readers.base import EncodedFile, Reader
 from lads.readers.nuscenes import NuScenesReader
 from lads.readers.nuscenes_kitti import NuScenesKittiReader
@@ -27,6 +28,15 @@ READERS: dict[str, type] = {
     "wads": WadsReader,
     "radiate": RadiateReader,
 }
+
+
+def label_set_for(dataset: str) -> str | None:
+    """The material label set of a dataset's labels (a reader's `label_set`; other names,
+    such as "synth", when they are label sets themselves), None for unlabelled datasets."""
+    reader = READERS.get(dataset)
+    if reader is not None:
+        return reader.label_set  # type: ignore[no-any-return]
+    return dataset if dataset in LABEL_SETS else None
 
 
 def get_reader(name: str, root: str | Path, **options: Any) -> Reader:
@@ -53,4 +63,4 @@ def get_reader(name: str, root: str | Path, **options: Any) -> Reader:
     return cls(root, **options)
 
 
-__all__ = ["READERS", "EncodedFile", "Reader", "get_reader"]
+__all__ = ["READERS", "EncodedFile", "Reader", "get_reader", "label_set_for"]

@@ -117,8 +117,8 @@ class IntensityStage:
     def _request(self, frame: Frame) -> tuple[PointRequest, np.ndarray]:
         """The generator's inputs for one frame, and the (N,) mask of points it predicts
         (every point not at zero range)."""
-        from lads.intensity.features import label_set_for
         from lads.intensity.predict import PointRequest
+        from lads.readers import label_set_for
 
         where = frame.item.item_id
         try:

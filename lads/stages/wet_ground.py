@@ -9,7 +9,7 @@ import numpy as np
 from lads.config import StageConfig
 from lads.frame import Frame
 from lads.physics.wet_ground import WetGroundParams, wet_ground
-from lads.readers import READERS
+from lads.readers import label_set_for
 
 # Bump when the physics changes the bytes produced for the same input and seed.
 WET_GROUND_STAGE_VERSION = "1"
@@ -40,8 +40,7 @@ class WetGroundStage:
         """Wet road-like points darkened (or lost); every other point unchanged. A frame
         without labels cannot tell road from anything else: it passes unchanged, and its
         conditions say so."""
-        reader = READERS.get(frame.item.dataset)
-        label_set = None if reader is None else reader.label_set
+        label_set = label_set_for(frame.item.dataset)
         if frame.labels is None or label_set is None:
             return replace(frame, conditions=frame.conditions + (("wet_ground", "no labels"),))
         result = wet_ground(
