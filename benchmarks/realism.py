@@ -42,10 +42,21 @@ from benchmarks.common import RESULTS, SHARED_DATA, machine_info, write_result
 from lads.calibration import radiate, wads
 from lads.errors import InputDataError
 from lads.physics import weather as wx
+from lads.physics.fog import (
+    backscatter_from_visibility,
+    extinction_from_visibility,
+    soft_return_peak,
+)
 from lads.physics.materials import material_index_for_labels, material_names, wet_surface_for_labels
 from lads.physics.result import Outcome
 from lads.physics.severity import PRESETS, SEVERITIES, preset
-from lads.physics.wet_ground import WetGroundParams, wet_ground
+from lads.physics.wet_ground import WATER_REFRACTIVE_INDEX as WATER_N
+from lads.physics.wet_ground import (
+    WetGroundParams,
+    internal_diffuse_reflectance,
+    wet_ground,
+    wet_ratio,
+)
 from lads.readers import get_reader
 from lads.sensors.profile import load_profile
 
@@ -196,6 +207,37 @@ def _wet_ground(severity: str, frames: list[Any]) -> dict[str, Any]:
     }
 
 
+def _model_facts(frames: list[Any]) -> dict[str, Any]:
+    """Numbers docs/physics.md quotes about the detection and wet-ground models: the share
+    of KITTI returns stored with remission 0 per range bin (why a point is never taken as
+    weaker than the detection limit), the fog echo over each profile's limit per preset
+    visibility, and the wet/dry backscatter ratio of asphalt under a covering film."""
+    r = np.concatenate([np.linalg.norm(p[:, :3].astype(np.float64), axis=1) for p, _ in frames])
+    zero = np.concatenate([p[:, 3] == 0 for p, _ in frames])
+    echo: dict[str, dict[str, float]] = {}
+    for name in ("hdl64e", "hdl32e"):
+        profile = load_profile(name)
+        params = wx.FOG_DEFAULTS.resolved_for(profile)
+        echo[name] = {}
+        for severity in SEVERITIES:
+            mor = preset("fog", severity)[1]
+            alpha = extinction_from_visibility(mor)
+            beta = backscatter_from_visibility(mor, params)
+            _, power, _ = soft_return_peak(np.array([100.0]), alpha, beta, params)
+            echo[name][f"mor_{mor:g}_m"] = round(float(power[0] / profile.detection.power), 3)
+    degrees = (0.0, 60.0, 78.0, 87.0)
+    ratio = wet_ratio(np.cos(np.radians(degrees)), np.full(4, 0.10), np.full(4, 1.0),
+                      WetGroundParams(1.2))  # fmt: skip
+    return {
+        "kitti_zero_remission_share_per_range_bin": _share_per_bin(r, zero),
+        "fog_echo_over_detection_limit": echo,
+        "wet_over_dry_asphalt_1_2mm_by_incidence_deg": {
+            f"{d:g}": round(float(g), 3) for d, g in zip(degrees, ratio, strict=True)
+        },
+        "water_internal_diffuse_reflectance": round(internal_diffuse_reflectance(WATER_N), 4),
+    }
+
+
 def _wads_reference() -> dict[str, Any]:
     r_all, snow = [], []
     for root in WADS_ROOTS:
@@ -247,6 +289,9 @@ def _nuscenes_fog() -> dict[str, Any]:
         }  # fmt: skip
     clear = [len(p) / NUSCENES_FIRINGS for p in frames]
     out["clear_returns_per_fired_beam"] = round(float(np.mean(clear)), 4)
+    r = np.concatenate([np.linalg.norm(p[:, :3].astype(np.float64), axis=1) for p in frames])
+    counts = np.histogram(r, bins=np.asarray(RANGE_BINS_M))[0]
+    out["clear_share_of_returns_per_range_bin"] = [round(float(c / r.size), 5) for c in counts]
     return out
 
 
@@ -332,6 +377,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         "simulated": simulated,
         "simulated_lisa_settings": lisa,
         "wet_ground": {s: _wet_ground(s, frames) for s in SEVERITIES},
+        "model_facts": _model_facts(frames),
         "heavy_lost_share_by_detection_rule": sensitivity,
         "references": {"wads_falling_snow": _wads_reference(), "radiate_fog": _radiate_reference()},
         "fog_on_real_nuscenes_hdl32e": _nuscenes_fog(),
