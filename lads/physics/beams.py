@@ -17,7 +17,7 @@ import numpy as np
 import numpy.typing as npt
 
 from lads.errors import InvalidPointsError
-from lads.physics.kernels import scaled_survivors
+from lads.physics.kernels import dual_survivors, scaled_survivors
 from lads.physics.result import Outcome, WeatherResult
 from lads.sensors.profile import SensorProfile, load_profile
 
@@ -149,6 +149,38 @@ def assemble(
         source_index=survive.astype(np.int64),
         outcome=out.astype(np.uint8),
         lost_index=np.flatnonzero(outcome == Outcome.LOST).astype(np.int64),
+        extinction_per_m=float(extinction_per_m),
+        detection_threshold=float(detection_threshold),
+    )
+
+
+def assemble_dual(
+    beams: Beams,
+    sensor: SensorProfile,
+    *,
+    first: tuple[npt.NDArray[np.uint8], npt.NDArray[np.float64], npt.NDArray[np.float64]],
+    second: tuple[npt.NDArray[np.uint8], npt.NDArray[np.float64], npt.NDArray[np.float64]],
+    extinction_per_m: float,
+    detection_threshold: float,
+) -> WeatherResult:
+    """`assemble` for a dual-return frame: per beam its first return, then its second.
+
+    Args:
+        first, second: (outcome, range_m, reflectivity), each (N,), as `assemble` takes
+            them; a beam whose second outcome is LOST gives one output point (or none if
+            its first is LOST too). Lost beams are those whose first return is LOST.
+    """
+    source, outcome, refl, xyz = dual_survivors(beams.xyz, beams.range_m, *first, *second)
+    intensity = beams.intensity[source]
+    moved = np.flatnonzero(outcome != Outcome.KEPT)
+    if moved.size:
+        intensity[moved] = sensor.intensity.from_reflectivity(refl[moved])
+    return WeatherResult(
+        xyz=xyz,
+        intensity=intensity,
+        source_index=source,
+        outcome=outcome,
+        lost_index=np.flatnonzero(first[0] == Outcome.LOST).astype(np.int64),
         extinction_per_m=float(extinction_per_m),
         detection_threshold=float(detection_threshold),
     )

@@ -66,9 +66,9 @@ import numpy as np
 import numpy.typing as npt
 
 from lads.errors import ConfigError
-from lads.physics.beams import Beams, assemble, auto_threshold
+from lads.physics.beams import Beams, assemble, assemble_dual, auto_threshold
 from lads.physics.detection import resolve_detection
-from lads.physics.result import Outcome, WeatherResult, merge_returns
+from lads.physics.result import Outcome, WeatherResult
 from lads.sensors.profile import SensorProfile
 
 SPEED_OF_LIGHT_M_S = 299_792_458.0
@@ -309,11 +309,8 @@ def soft_return_table(extinction_per_m: float, params: FogParams) -> SoftReturnT
 def _lookup(
     values: npt.NDArray[np.float64], r0: npt.NDArray[np.float64], table: SoftReturnTable
 ) -> npt.NDArray[np.float64]:
-    # Only near targets need interpolation; beyond the grid the peak is the r0 = inf one.
-    out = np.full(r0.shape, values[-1])
-    near = r0 < table.target_range_m[-1]
-    out[near] = np.interp(r0[near], table.target_range_m, values)
-    return out
+    # Beyond the grid the peak is the r0 = inf one: np.interp holds the last value there.
+    return np.interp(r0, table.target_range_m, values)
 
 
 def soft_return_peak(
@@ -421,23 +418,24 @@ def simulate_fog(
     k = int(target.sum())
     target_range, target_rho = _target_returns(b, target, noise[:k])
     fog_range, fog_rho = np.zeros(n), np.zeros(n)
-    _echo_returns(b, fog, noise[k:], _reported_peak(b, fog), fog_range, fog_rho)
+    # Dual mode needs every active beam's echo range (for second returns too): look up once.
+    peak = _reported_peak(b, np.ones(b.idx.size, dtype=bool)) if mode == "dual" else None
+    _echo_returns(b, fog, noise[k:], _reported_peak(b, fog) if peak is None else peak[fog],
+                  fog_range, fog_rho)  # fmt: skip
     first = outcome.copy()
     first[b.idx[target]] = Outcome.ATTENUATED
     first[b.idx[fog]] = Outcome.PARTICLE
     first[b.idx[~target & ~fog]] = Outcome.LOST
     is_fog = first == Outcome.PARTICLE
     common = {"extinction_per_m": alpha, "detection_threshold": p_min}
-    result = assemble(
-        beams, sensor, outcome=first, range_m=np.where(is_fog, fog_range, target_range),
-        reflectivity=np.where(is_fog, fog_rho, target_rho), **common,
-    )  # fmt: skip
+    first_returns = (first, np.where(is_fog, fog_range, target_range),
+                     np.where(is_fog, fog_rho, target_rho))  # fmt: skip
     if mode != "dual":
-        return result
+        return assemble(beams, sensor, outcome=first_returns[0], range_m=first_returns[1],
+                        reflectivity=first_returns[2], **common)  # fmt: skip
     # The second return: the target behind a first fog echo, or (Velodyne's second
     # strongest) a detected fog echo in front of a target that is both strongest and last,
     # where the two are a pulse length apart (closer, the receiver sees one return).
-    peak = _reported_peak(b, np.ones(b.idx.size, dtype=bool))
     echo_second = target & ~fog & b.fog_ok & (peak <= r0 - params.pulse_length_m)
     if echo_second.any():
         noise_e = rng.standard_normal(int(echo_second.sum()))
@@ -446,10 +444,9 @@ def simulate_fog(
     second[b.idx[fog & target]] = Outcome.ATTENUATED
     second[b.idx[echo_second]] = Outcome.PARTICLE
     is_echo = second == Outcome.PARTICLE
-    last = assemble(beams, sensor, outcome=second,
-                    range_m=np.where(is_echo, fog_range, target_range),
-                    reflectivity=np.where(is_echo, fog_rho, target_rho), **common)  # fmt: skip
-    return merge_returns(result, last)
+    second_returns = (second, np.where(is_echo, fog_range, target_range),
+                      np.where(is_echo, fog_rho, target_rho))  # fmt: skip
+    return assemble_dual(beams, sensor, first=first_returns, second=second_returns, **common)
 
 
 @dataclass(frozen=True, slots=True)

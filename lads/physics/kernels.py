@@ -58,6 +58,58 @@ def scaled_survivors(
     return survive, out
 
 
+@numba.njit(cache=True, nogil=True)
+def dual_survivors(
+    xyz: npt.NDArray[np.float32],
+    range_old_m: npt.NDArray[np.float64],
+    codes1: npt.NDArray[np.uint8],
+    range1_m: npt.NDArray[np.float64],
+    refl1: npt.NDArray[np.float64],
+    codes2: npt.NDArray[np.uint8],
+    range2_m: npt.NDArray[np.float64],
+    refl2: npt.NDArray[np.float64],
+) -> tuple[
+    npt.NDArray[np.int64], npt.NDArray[np.uint8], npt.NDArray[np.float64], npt.NDArray[np.float32]
+]:
+    """`scaled_survivors` for two returns per beam in one pass: each beam's first return
+    (if not LOST), then its second (if not LOST), in beam order.
+
+    Args:
+        codes1, range1_m, refl1: (N,) first return's Outcome (uint8), new range (m) and
+            reflectivity (float64); codes2, range2_m, refl2 the second's.
+
+    Returns:
+        source (M,) int64 non-decreasing, outcome (M,) uint8, reflectivity (M,) float64,
+        out_xyz (M, 3) float32.
+    """
+    n = range_old_m.size
+    m = 0
+    for i in range(n):
+        m += (codes1[i] != _LOST) + (codes2[i] != _LOST)
+    source = np.empty(m, dtype=np.int64)
+    outcome = np.empty(m, dtype=np.uint8)
+    reflectivity = np.empty(m)
+    out = np.empty((m, 3), dtype=np.float32)
+    j = 0
+    for i in range(n):
+        for k in range(2):
+            code = codes1[i] if k == 0 else codes2[i]
+            if code == _LOST:
+                continue
+            r_new = range1_m[i] if k == 0 else range2_m[i]
+            source[j], outcome[j] = i, code
+            reflectivity[j] = refl1[i] if k == 0 else refl2[i]
+            if code != _KEPT and r_new != range_old_m[i]:
+                scale = r_new / range_old_m[i]
+                for c in range(3):
+                    out[j, c] = np.float32(xyz[i, c] * scale)
+            else:
+                for c in range(3):
+                    out[j, c] = xyz[i, c]
+            j += 1
+    return source, outcome, reflectivity, out
+
+
 # Above this mean the inversion's exp(-mu) loses all precision; the caller redraws.
 MAX_INVERSION_MEAN = 30.0
 

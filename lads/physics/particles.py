@@ -37,11 +37,11 @@ import numpy as np
 import numpy.typing as npt
 
 from lads.errors import ConfigError
-from lads.physics.beams import Beams, assemble, auto_threshold, unchanged
+from lads.physics.beams import Beams, assemble, assemble_dual, auto_threshold, unchanged
 from lads.physics.detection import Detection, resolve_detection
 from lads.physics.mie import extinction_per_m
 from lads.physics.psd import SIZE_DISTRIBUTIONS, ExponentialPSD
-from lads.physics.result import Outcome, WeatherResult, merge_returns
+from lads.physics.result import Outcome, WeatherResult
 from lads.physics.thinning import ParticleOptics, sample_winning_particles
 from lads.sensors.profile import SensorProfile
 
@@ -309,9 +309,8 @@ def _dual(
                      np.where(behind_target, s_p * s_r**2, target_refl))  # fmt: skip
     common = {"extinction_per_m": optics.particles.alpha_per_m,
               "detection_threshold": optics.threshold}  # fmt: skip
-    a = assemble(beams, sensor, outcome=first, range_m=range1, reflectivity=refl1, **common)
-    b = assemble(beams, sensor, outcome=second, range_m=range2, reflectivity=refl2, **common)
-    return merge_returns(a, b)
+    return assemble_dual(beams, sensor, first=(first, range1, refl1),
+                         second=(second, range2, refl2), **common)  # fmt: skip
 
 
 def _best_per_beam(

@@ -63,19 +63,3 @@ class WeatherResult:
         found = np.bincount(self.outcome, minlength=len(Outcome))
         found[Outcome.LOST] = self.lost_index.size
         return {o.name.lower(): int(found[o]) for o in Outcome}
-
-
-def merge_returns(first: WeatherResult, second: WeatherResult) -> WeatherResult:
-    """One result holding `first`'s returns and `second`'s (a subset of its beams), ordered
-    by beam with the first return first; lost beams are `first`'s."""
-    index = np.concatenate([first.source_index, second.source_index])
-    order = np.argsort(index, kind="stable")
-    return WeatherResult(
-        xyz=np.concatenate([first.xyz, second.xyz])[order],
-        intensity=np.concatenate([first.intensity, second.intensity])[order],
-        source_index=index[order],
-        outcome=np.concatenate([first.outcome, second.outcome])[order],
-        lost_index=first.lost_index,
-        extinction_per_m=first.extinction_per_m,
-        detection_threshold=first.detection_threshold,
-    )
