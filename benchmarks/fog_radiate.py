@@ -7,6 +7,11 @@ exist for these frames, so only a bound is computed: the smallest visibility (MO
 our fog model, run on the frame's clean half (azimuth 0..180 deg) with the frame's own
 detection threshold, produces no more near (< 3 m) fog returns than the real frame shows,
 for several overlap ranges R2 and both backscatter models (lads.calibration.radiate).
+
+Then a RADIATE-like fog (lads.calibration.radiate_share): fog on real clear nuScenes frames
+(the same HDL-32E), its visibility fitted to frame 000018 by return share alone and by range
+profile alone, each fit scored on frames 000019-20 by both measures; figure
+benchmarks/results/fog_radiate.png.
 """
 
 from __future__ import annotations
@@ -14,15 +19,90 @@ from __future__ import annotations
 import time
 from typing import Any
 
-from benchmarks.common import SHARED_DATA, machine_info, write_result
+from benchmarks.common import RESULTS, SHARED_DATA, machine_info, write_result
+from benchmarks.realism import NUSCENES_FIRINGS, NUSCENES_STRIDE
 from lads.calibration import radiate as R
+from lads.calibration import radiate_share as S
 from lads.errors import InputDataError
 from lads.physics.fog import FogParams
 from lads.physics.weather import FAINT_FULL_M, FAINT_ONSET_M, FOG_DEFAULTS
+from lads.readers import get_reader
+from lads.sensors.profile import load_profile
 
 FOLDER = SHARED_DATA / "radiate" / "tiny_foggy" / "velo_lidar"
 FRAMES = ("000018", "000019", "000020")
 OVERLAP_FULL_M = (1.0, 2.0, 3.0, 5.0, 8.0)
+FIT_FRAME = "000018"  # the other frames score the fit
+NUSCENES = SHARED_DATA / "nuscenes-kittifmt"
+
+
+def radiate_like_fog(frames: list[R.RadiateFrame]) -> dict[str, Any]:
+    """Visibility fitted to one RADIATE frame by share or by range profile, scored on the
+    others by both (lads.calibration.radiate_share)."""
+    if not NUSCENES.is_dir():
+        raise InputDataError(f"real nuScenes frames missing at {NUSCENES} (../shared/data).")
+    reader = get_reader("nuscenes-kitti", NUSCENES)
+    clear = []
+    for item in reader.items()[::NUSCENES_STRIDE]:
+        points = reader.read(item).points
+        clear.append((points[:, :3].copy(), points[:, 3].copy()))
+    curve = S.simulated_curve(clear, NUSCENES_FIRINGS, load_profile(R.SENSOR))
+    real = {f.name: S.radiate_profile(f) for f in frames}
+    fits = {}
+    for by in S.FIT_MEASURES:
+        mor = S.fit_visibility(real[FIT_FRAME], curve, by)
+        fits[f"by_{by}"] = {
+            "visibility_m": mor,
+            "simulated": curve[mor].as_dict(),
+            "held_out": {
+                name: {"returns_per_fired_beam_error": round(curve[mor].share - p.share, 4),
+                       "range_profile_distance": round(S.profile_distance(curve[mor], p), 4)}
+                for name, p in real.items() if name != FIT_FRAME
+            },
+        }  # fmt: skip
+    return {
+        "clear_frames": {"folder": "nuscenes-kittifmt", "frames": len(clear),
+                         "stride": NUSCENES_STRIDE, "firings_per_sweep": NUSCENES_FIRINGS},
+        "range_bins_m": [str(b) for b in S.RANGE_BINS_M],
+        "real_clean_half": {name: p.as_dict() for name, p in real.items()},
+        "simulated_per_visibility_m": {f"{mor:g}": p.as_dict() for mor, p in curve.items()},
+        "fit_frame": FIT_FRAME,
+        "fits": fits,
+    }  # fmt: skip
+
+
+def figure(result: dict[str, Any], path: Any) -> None:
+    """Return share vs visibility beside RADIATE's, and the range profiles of both fits."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    sim = result["simulated_per_visibility_m"]
+    mors = [float(m) for m in sim]
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    axes[0].semilogx(mors, [sim[m]["returns_per_fired_beam"] for m in sim], "o-",
+                     label="fog on real nuScenes frames (HDL-32E)")  # fmt: skip
+    for p in result["real_clean_half"].values():
+        axes[0].axhline(p["returns_per_fired_beam"], color="k", lw=0.8, ls=":")
+    axes[0].axhline(float("nan"), color="k", lw=0.8, ls=":", label="RADIATE fog_6_0 (3 frames)")
+    axes[0].set(xlabel="visibility (MOR), m", ylim=(0, 1),
+                ylabel=f"returns per fired beam (beyond {S.BODY_M} m)")  # fmt: skip
+    axes[0].legend(fontsize=8)
+    labels = [f"{a}-{b}" for a, b in zip(result["range_bins_m"][:-1], result["range_bins_m"][1:],
+                                          strict=True)]  # fmt: skip
+    x = range(len(labels))
+    real = result["real_clean_half"][result["fit_frame"]]["share_per_range_bin"]
+    axes[1].plot(x, real, "ks-", label=f"RADIATE {result['fit_frame']}")
+    for key, fit in result["fits"].items():
+        label = f"fitted {key.replace('_', ' ')}: MOR {fit['visibility_m']:g} m"
+        axes[1].plot(x, fit["simulated"]["share_per_range_bin"], "o--", label=label)
+    axes[1].set_xticks(list(x), labels, fontsize=8)
+    axes[1].set(xlabel="range bin, m", ylabel="share of returns")
+    axes[1].legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
@@ -59,6 +139,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         "real": {f.name: R.frame_stats(f) for f in frames},
         "detection_threshold_per_frame": {f.name: R.frame_threshold(f) for f in frames},
         "visibility_bounds": bounds,
+        "radiate_like_fog": radiate_like_fog(frames),
         "findings": [
             "~28 % of returns lie within 3 m, but 95 % of them come from azimuths -180..0 deg "
             "with a spike at 0.50-0.55 m: the vehicle's own structure, not fog. The clean "
@@ -75,10 +156,19 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             "it trivially, and whether this HDL-32E shows fog echoes there cannot be told "
             "apart from scene returns in these frames.",
             "The visibility bounds use each frame's own weakest return as the threshold (an "
-            "upper bound on the sensor's). With the default rule (the sensor's detection "
-            "limit, docs/physics.md 9.7) dense fog still returns a fog echo on every beam "
-            "whose target is lost, while real foggy frames return on only ~29 % of beams: "
-            "fog beam loss is not modelled yet.",
+            "upper bound on the sensor's), not the default rule (the HDL-32E profile's "
+            "detection limit, docs/physics.md 9.7).",
+            "RADIATE-like fog (radiate_like_fog): fog on real clear nuScenes HDL-32E frames "
+            "matches RADIATE's return share (0.28-0.30 of fired beams beyond 1.5 m in the clean "
+            "half) only at MOR ~8 m, where almost every return is a fog echo or a target "
+            "within 10 m; it matches RADIATE's range profile (most returns at 5-20 m, ~5 % at "
+            "20-40 m) only at MOR 100-200 m, where 0.6 of the beams still return. RADIATE "
+            "loses most of its near ground (rings below -13 deg return on under 0.3 of their "
+            "firings, at 4-12 m) while keeping walls and cars at 10-25 m: no homogeneous fog "
+            "in this model does both. Candidates, not decided by three frames: a darker wet "
+            "road at grazing incidence than the film model gives, a less sensitive HDL-32E "
+            "than its assumed limit, or structure of the recording vehicle beyond the "
+            "azimuths set aside.",
         ],
         "cannot_show": [
             "extinction: no clear twin and no visibility record, so lost points and "
@@ -96,6 +186,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         "machine": machine_info(),
     }
     write_result("fog_radiate.json", payload)
+    figure(payload["radiate_like_fog"], RESULTS / "fog_radiate.png")
     return payload
 
 

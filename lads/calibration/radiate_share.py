@@ -1,0 +1,115 @@
+"""Which fog visibility makes clear HDL-32E frames look like RADIATE's foggy ones?
+
+RADIATE's foggy frames (`lads.calibration.radiate`) have no clear twin, so the fog model is
+run on other real HDL-32E frames (nuScenes, the same sensor) and two things a foggy frame
+shows are compared, each as a function of the visibility (MOR):
+
+- the **return share**: returns per fired beam; RADIATE's counted in the half of the sweep
+  without the recording vehicle's structure (azimuth 0..180 deg, `radiate.CLEAN_AZIMUTH_DEG`),
+  the simulated ones over the whole sweep;
+- the **range profile**: how those returns spread over range bins.
+
+Returns nearer than BODY_M are left out of both: in both datasets they are the vehicle's
+own body. A visibility is fitted to one real frame by each measure alone (the grid value
+closest to it) and scored on the other frames with both measures, so a model that can
+match one only by missing the other shows it. The scenes differ (Edinburgh vs Boston and
+Singapore streets), which both measures inherit: this is a comparison of shapes, not a
+twin experiment.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from lads.calibration.radiate import CLEAN_AZIMUTH_DEG, FIRINGS_PER_SWEEP, RadiateFrame
+from lads.errors import ConfigError
+from lads.physics import weather as wx
+from lads.sensors.profile import SensorProfile
+
+# Returns nearer than this are the recording vehicle's body (RADIATE: a spike at 0.5 m;
+# nuScenes: the roof around LIDAR_TOP).
+BODY_M = 1.5
+RANGE_BINS_M = (BODY_M, 5.0, 10.0, 20.0, 40.0, np.inf)
+# Visibilities tried (MOR, m): dense fog to light haze.
+MOR_GRID_M = (6.0, 8.0, 10.0, 12.0, 15.0, 20.0, 30.0, 50.0, 100.0, 200.0, 600.0)
+FIT_MEASURES = ("share", "profile")
+
+
+@dataclass(frozen=True, slots=True)
+class ReturnProfile:
+    """share: returns beyond BODY_M per fired beam; per_bin: (len(RANGE_BINS_M) - 1,) share
+    of those returns per range bin (sums to 1, zeros when there are none)."""
+
+    share: float
+    per_bin: tuple[float, ...]
+
+    def as_dict(self) -> dict[str, object]:
+        return {"returns_per_fired_beam": round(self.share, 4),
+                "share_per_range_bin": [round(v, 4) for v in self.per_bin]}  # fmt: skip
+
+
+def returns_profile(xyz: npt.NDArray[np.floating], firings: int) -> ReturnProfile:
+    """Profile of the returns xyz (N, 3) m out of `firings` fired beams."""
+    if firings <= 0:
+        raise ConfigError(f"firings = {firings}: expected the number of beams fired, > 0.")
+    r = np.linalg.norm(np.asarray(xyz, dtype=np.float64), axis=1)
+    r = r[r >= BODY_M]
+    counts = np.histogram(r, bins=np.asarray(RANGE_BINS_M))[0]
+    per_bin = counts / r.size if r.size else np.zeros(counts.size)
+    return ReturnProfile(r.size / firings, tuple(float(v) for v in per_bin))
+
+
+def radiate_profile(frame: RadiateFrame) -> ReturnProfile:
+    """Profile of a RADIATE frame's clean half (half the beams of a sweep)."""
+    xyz = frame.xyz.astype(np.float64)
+    az = np.degrees(np.arctan2(xyz[:, 1], xyz[:, 0]))
+    clean = (az >= CLEAN_AZIMUTH_DEG[0]) & (az < CLEAN_AZIMUTH_DEG[1])
+    return returns_profile(xyz[clean], FIRINGS_PER_SWEEP * 32 // 2)
+
+
+def profile_distance(a: ReturnProfile, b: ReturnProfile) -> float:
+    """Total-variation distance between two range profiles, in [0, 1]."""
+    return 0.5 * float(np.abs(np.subtract(a.per_bin, b.per_bin)).sum())
+
+
+def simulated_curve(
+    frames: Sequence[tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]],
+    firings: int,
+    sensor: SensorProfile,
+    mor_grid_m: Sequence[float] = MOR_GRID_M,
+) -> dict[float, ReturnProfile]:
+    """Mean profile of the fogged clear frames (xyz (N, 3) m, intensity (N,)) per MOR (m).
+
+    Fog runs with the shipped defaults (strongest return, the sensor's detection rule); frame
+    k at every MOR draws from the generator seeded (k, MOR in mm), so curves are repeatable.
+    """
+    curve = {}
+    for mor in mor_grid_m:
+        profiles = []
+        for k, (xyz, intensity) in enumerate(frames):
+            rng = np.random.default_rng([k, int(round(mor * 1000))])
+            out = wx.fog(xyz, intensity, visibility_m=float(mor), sensor=sensor, rng=rng)
+            profiles.append(returns_profile(out.xyz, firings))
+        curve[float(mor)] = ReturnProfile(
+            float(np.mean([p.share for p in profiles])),
+            tuple(float(v) for v in np.mean([p.per_bin for p in profiles], axis=0)),
+        )
+    return curve
+
+
+def fit_visibility(real: ReturnProfile, curve: dict[float, ReturnProfile], by: str) -> float:
+    """The MOR (m) of `curve` closest to `real` by return share or by range profile.
+
+    Raises:
+        ConfigError: `by` not in FIT_MEASURES, or an empty curve.
+    """
+    if by not in FIT_MEASURES or not curve:
+        raise ConfigError(f"fit by {by!r} on {len(curve)} visibilities: expected one of "
+                          f"{FIT_MEASURES} and a non-empty curve.")  # fmt: skip
+    if by == "share":
+        return min(curve, key=lambda mor: abs(curve[mor].share - real.share))
+    return min(curve, key=lambda mor: profile_distance(curve[mor], real))

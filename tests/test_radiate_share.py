@@ -1,0 +1,77 @@
+"""RADIATE-like fog: return share and range profile, and the visibility fit by each."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from lads.calibration import radiate, radiate_share
+from lads.calibration.radiate_share import (
+    BODY_M,
+    ReturnProfile,
+    fit_visibility,
+    profile_distance,
+    returns_profile,
+    simulated_curve,
+)
+from lads.errors import ConfigError
+from lads.sensors.profile import load_profile
+
+
+def _points_at(ranges_m: list[float]) -> np.ndarray:
+    return np.array([[r, 0.0, 0.0] for r in ranges_m], dtype=np.float32)
+
+
+def test_profile_counts_returns_beyond_the_body_per_fired_beam() -> None:
+    xyz = _points_at([0.5, 1.0, 3.0, 7.0, 15.0, 30.0, 50.0])
+    p = returns_profile(xyz, firings=10)
+    assert p.share == pytest.approx(0.5)  # the two within BODY_M are the vehicle
+    assert p.per_bin == pytest.approx((0.2, 0.2, 0.2, 0.2, 0.2))
+    assert returns_profile(_points_at([0.2]), firings=4).per_bin == (0.0,) * 5
+    with pytest.raises(ConfigError, match="firings"):
+        returns_profile(xyz, firings=0)
+
+
+def test_profile_distance_is_total_variation() -> None:
+    a = ReturnProfile(0.3, (1.0, 0.0, 0.0, 0.0, 0.0))
+    b = ReturnProfile(0.3, (0.0, 0.5, 0.5, 0.0, 0.0))
+    assert profile_distance(a, a) == 0.0
+    assert profile_distance(a, b) == pytest.approx(1.0)
+
+
+def test_fit_picks_the_closest_visibility_by_each_measure() -> None:
+    curve = {
+        10.0: ReturnProfile(0.30, (0.9, 0.1, 0.0, 0.0, 0.0)),
+        100.0: ReturnProfile(0.60, (0.1, 0.5, 0.4, 0.0, 0.0)),
+    }
+    real = ReturnProfile(0.28, (0.0, 0.6, 0.4, 0.0, 0.0))
+    assert fit_visibility(real, curve, "share") == 10.0
+    assert fit_visibility(real, curve, "profile") == 100.0
+    with pytest.raises(ConfigError, match="expected one of"):
+        fit_visibility(real, curve, "both")
+    with pytest.raises(ConfigError):
+        fit_visibility(real, {}, "share")
+
+
+def test_dense_fog_removes_far_returns_and_curves_repeat() -> None:
+    # A grey wall 50 m away on every beam of a fan.
+    az = np.radians(np.linspace(0, 90, 400))
+    xyz = np.stack([50 * np.cos(az), 50 * np.sin(az), np.zeros_like(az)], axis=1)
+    frame = (xyz.astype(np.float32), np.full(az.size, 40.0, dtype=np.float32))
+    sensor = load_profile("hdl32e")
+    curve = simulated_curve([frame], 400, sensor, (6.0, 600.0))
+    assert curve[600.0].per_bin[-1] > 0.5  # light haze: the wall is still seen
+    assert curve[6.0].per_bin[-1] == 0.0  # dense fog: nothing beyond 40 m
+    assert simulated_curve([frame], 400, sensor, (6.0, 600.0)) == curve
+
+
+def test_radiate_frames_return_on_a_fifth_to_two_fifths_of_clean_beams(shared_data: Path) -> None:
+    folder = shared_data / "radiate" / "tiny_foggy" / "velo_lidar"
+    for path in sorted(folder.glob("*.csv")):
+        p = radiate_share.radiate_profile(radiate.load_frame(path))
+        assert 0.2 <= p.share <= 0.4
+        assert sum(p.per_bin) == pytest.approx(1.0)
+        assert p.per_bin[-1] < 0.01  # nothing of note beyond 40 m in this fog
+    assert BODY_M < radiate.NEAR_M
