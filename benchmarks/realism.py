@@ -21,12 +21,14 @@ Real references (other sensors, places and weather strengths: shapes to set besi
 simulation, not targets it is scored on):
 - WADS falling snow (label 110, wads64): share of the unique returns (dual-return duplicates
   removed), overall and per range bin;
-- RADIATE fog (HDL-32E): returns per fired beam (2170 firings x 32 lasers per sweep) and the
-  share of returns per range bin.
+- RADIATE fog (HDL-32E): returns beyond the vehicle's body per fired beam (2170 firings x 32
+  lasers per sweep) in the half of the sweep free of the vehicle's structure, and their
+  share per range bin (lads.calibration.radiate_share).
 A KITTI frame holds only the beams that returned in clear air, so the simulated shares are
 relative to those, and a real foggy frame's share is relative to every beam fired. Fog runs
-again on real nuScenes frames (the HDL-32E, RADIATE's sensor), which record a return on
-nearly every firing, so there its share of fired beams that return is RADIATE's measure.
+again on real nuScenes frames (the HDL-32E, RADIATE's sensor), which store a point for
+nearly every firing, so there the share of fired beams returning beyond the vehicle's body
+is RADIATE's measure (benchmarks/fog_radiate.py fits a visibility to it).
 """
 
 from __future__ import annotations
@@ -40,6 +42,8 @@ import numpy.typing as npt
 
 from benchmarks.common import RESULTS, SHARED_DATA, machine_info, write_result
 from lads.calibration import radiate, wads
+from lads.calibration.radiate_share import BODY_M, radiate_profile
+from lads.calibration.radiate_share import RANGE_BINS_M as SHARE_BINS_M
 from lads.errors import InputDataError
 from lads.physics import weather as wx
 from lads.physics.fog import (
@@ -67,7 +71,7 @@ MIN_CLASS_POINTS = 1000
 NUSCENES_FIRINGS = 32 * 1084  # HDL-32E lasers x firings per 20 Hz sweep (hdl32e.yaml)
 NUSCENES_STRIDE = 4  # every 4th of the 40 frames: 0.2 s apart, enough for shares
 NUSCENES_FOG_MOR_M = (20.0, 50.0, 150.0, 600.0)
-SPREADS_LN = (0.25, 0.5, 1.0)  # around the profiles' assumed spread of the detection curve
+SPREADS_LN = (0.25, 0.5, 1.0)  # around the spread measured on the HDL-32E (0.39)
 SIMULATE = {"rain": wx.rain, "snow": wx.snow, "fog": wx.fog}
 WEATHERS = tuple(SIMULATE)
 
@@ -125,7 +129,7 @@ def _simulate(
     profile = load_profile("hdl64e")
     if spread_ln is not None:
         profile = replace(profile, detection=replace(profile.detection, spread_ln=spread_ln))
-    src_range, lost, out_range, particle, ratios, materials = [], [], [], [], [], []
+    src_range, lost, out_range, particle, ratios, materials, src_material = ([] for _ in range(7))
     for k, (points, labels) in enumerate(frames):
         rng = np.random.default_rng([k, list(PRESETS).index(weather), SEVERITIES.index(severity)])
         result = SIMULATE[weather](points[:, :3], points[:, 3], sensor=profile, rng=rng,
@@ -134,6 +138,7 @@ def _simulate(
         is_lost = np.zeros(len(points), dtype=bool)
         is_lost[result.lost_index] = True
         src_range.append(r_in)
+        src_material.append(material_index_for_labels(labels, "semantickitti"))
         lost.append(is_lost)
         out_range.append(np.linalg.norm(result.xyz.astype(np.float64), axis=1))
         particle.append(result.outcome == Outcome.PARTICLE)
@@ -147,10 +152,23 @@ def _simulate(
         key: value,
         "lost_share": round(float(is_lost.mean()), 5),
         "lost_share_per_source_range_bin": _share_per_bin(r_in, is_lost),
+        "lost_share_per_material": _lost_per_material(is_lost, np.concatenate(src_material)),
         "particle_share_of_output": round(float(is_particle.mean()), 5),
         "particle_share_per_range_bin": _share_per_bin(r_out, is_particle),
         "attenuated_intensity_ratio_median_per_material": per_material,
     }
+
+
+def _lost_per_material(
+    is_lost: npt.NDArray[np.bool_], material: npt.NDArray[np.int64]
+) -> dict[str, float]:
+    """Share of each material's source points that the weather lost (materials with at
+    least MIN_CLASS_POINTS points)."""
+    names = material_names()
+    return {
+        names[m]: round(float(is_lost[material == m].mean()), 5)
+        for m in np.unique(material) if (material == m).sum() >= MIN_CLASS_POINTS
+    }  # fmt: skip
 
 
 def _attenuated_ratios(
@@ -261,8 +279,10 @@ def _wads_reference() -> dict[str, Any]:
 def _nuscenes_fog() -> dict[str, Any]:
     """Fog on real nuScenes frames (HDL-32E, RADIATE's sensor): returns per fired beam.
 
-    nuScenes stores a return for nearly every firing (32 lasers x 1084 per 20 Hz sweep), so
-    points out / firings is the share of fired beams that return, RADIATE's measure.
+    nuScenes stores a point for nearly every firing (32 lasers x 1084 per 20 Hz sweep), about
+    a quarter of them the vehicle's own roof within BODY_M; returns beyond BODY_M per firing
+    are the share of fired beams that see the scene (lads.calibration.radiate_share, which
+    also fits a RADIATE-like visibility).
     """
     folder = SHARED_DATA / "nuscenes-kittifmt"
     if not folder.is_dir():
@@ -270,16 +290,19 @@ def _nuscenes_fog() -> dict[str, Any]:
     reader = get_reader("nuscenes-kitti", folder)
     frames = [reader.read(item).points[:, :4].copy() for item in reader.items()[::NUSCENES_STRIDE]]
     profile = load_profile("hdl32e")
-    out: dict[str, Any] = {"frames": len(frames), "firings_per_sweep": NUSCENES_FIRINGS}
+    out: dict[str, Any] = {"frames": len(frames), "firings_per_sweep": NUSCENES_FIRINGS,
+                           "returns_counted_beyond_m": BODY_M}  # fmt: skip
     for visibility in NUSCENES_FOG_MOR_M:
         returned, echoes, ranges = [], [], []
         for k, points in enumerate(frames):
             rng = np.random.default_rng([k, int(visibility)])
             res = wx.fog(points[:, :3], points[:, 3], visibility_m=visibility, sensor=profile,
                          rng=rng)  # fmt: skip
-            returned.append(len(res.xyz) / NUSCENES_FIRINGS)
-            echoes.append(float((res.outcome == Outcome.PARTICLE).mean()))
-            ranges.append(np.linalg.norm(res.xyz.astype(np.float64), axis=1))
+            r = np.linalg.norm(res.xyz.astype(np.float64), axis=1)
+            scene = r >= BODY_M
+            returned.append(int(scene.sum()) / NUSCENES_FIRINGS)
+            echoes.append(float((res.outcome[scene] == Outcome.PARTICLE).mean()))
+            ranges.append(r[scene])
         r = np.concatenate(ranges)
         counts = np.histogram(r, bins=np.asarray(RANGE_BINS_M))[0]
         out[f"mor_{visibility:g}_m"] = {
@@ -287,30 +310,33 @@ def _nuscenes_fog() -> dict[str, Any]:
             "fog_echo_share_of_returns": round(float(np.mean(echoes)), 4),
             "share_of_returns_per_range_bin": [round(float(c / r.size), 5) for c in counts],
         }  # fmt: skip
-    clear = [len(p) / NUSCENES_FIRINGS for p in frames]
-    out["clear_returns_per_fired_beam"] = round(float(np.mean(clear)), 4)
-    r = np.concatenate([np.linalg.norm(p[:, :3].astype(np.float64), axis=1) for p in frames])
-    counts = np.histogram(r, bins=np.asarray(RANGE_BINS_M))[0]
-    out["clear_share_of_returns_per_range_bin"] = [round(float(c / r.size), 5) for c in counts]
+    clear_r = [np.linalg.norm(p[:, :3].astype(np.float64), axis=1) for p in frames]
+    clear_r = [r[r >= BODY_M] for r in clear_r]
+    out["clear_returns_per_fired_beam"] = round(
+        float(np.mean([r.size / NUSCENES_FIRINGS for r in clear_r])), 4
+    )
+    counts = np.histogram(np.concatenate(clear_r), bins=np.asarray(RANGE_BINS_M))[0]
+    out["clear_share_of_returns_per_range_bin"] = [
+        round(float(c / counts.sum()), 5) for c in counts
+    ]
     return out
 
 
 def _radiate_reference() -> dict[str, Any]:
+    """RADIATE's foggy frames as lads.calibration.radiate_share counts them: returns beyond
+    BODY_M per fired beam in the half of the sweep free of the vehicle's structure."""
     folder = SHARED_DATA / "radiate" / "tiny_foggy" / "velo_lidar"
     paths = sorted(folder.glob("*.csv"))
     if not paths:
         raise InputDataError(f"RADIATE foggy frames missing at {folder}.")
-    shares, ranges = [], []
-    for path in paths:
-        frame = radiate.load_frame(path)
-        shares.append(len(frame.xyz) / (radiate.FIRINGS_PER_SWEEP * 32))
-        ranges.append(np.linalg.norm(frame.xyz.astype(np.float64), axis=1))
-    r = np.concatenate(ranges)
-    counts = np.histogram(r, bins=np.asarray(RANGE_BINS_M))[0]
+    profiles = [radiate_profile(radiate.load_frame(path)) for path in paths]
     return {
         "frames": len(paths),
-        "returns_per_fired_beam": [round(s, 4) for s in shares],
-        "share_of_returns_per_range_bin": [round(float(c / r.size), 5) for c in counts],
+        "returns_per_fired_beam": [round(p.share, 4) for p in profiles],
+        "range_bins_m": [str(b) for b in SHARE_BINS_M],
+        "share_of_returns_per_range_bin": [
+            round(float(v), 5) for v in np.mean([p.per_bin for p in profiles], axis=0)
+        ],
     }
 
 

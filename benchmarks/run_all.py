@@ -4,6 +4,7 @@ speed.json        ms per real SemanticKITTI frame per weather and rate (one core
 equivalence.json  fast path vs the brute-force reference: speed-up and two-sample tests
 anchors.json      rain extinction vs Ulbrich-Atlas, Q_ext, incidence on a real frame
 wads_snow.json    simulated vs real falling snow (WADS), fitted defaults vs LISA settings
+detection_limit.json  sensor detection limits measured on real clear frames (HDL-32E)
 fog_radiate.json  fog model vs real fog (RADIATE), with what that data cannot show
 realism.json      each weather and severity on real KITTI frames beside WADS snow and RADIATE fog
 build_speed.json  lads build end to end: frames/s with 1 and 2 jobs, memory, projected hours
@@ -32,6 +33,7 @@ BENCHMARKS = (
     "equivalence",
     "anchors",
     "wads_snow",
+    "detection_limit",
     "fog_radiate",
     "realism",
     "build_speed",

@@ -4,7 +4,7 @@
     .venv/bin/python -m benchmarks.wads_snow --no-fit   # evaluate the shipped knobs only
 
 Writes benchmarks/results/wads_snow.json and wads_snow.png. The fit (flake optics and the
-WADS sensor's detection limit, dual-return emulation: WADS is a dual-return recording) uses
+WADS sensor's detection limit, in the dual-return mode: WADS is a dual-return recording) uses
 three frames of the weather model's WADS training split; the held-out rows are its
 validation and test frames, never fitted. All frames are one 1.1 s clip of one place, so
 held-out frames test frame-to-frame noise, not new places, rates or sensors.
@@ -48,12 +48,12 @@ def _load(names: tuple[str, ...]) -> list[W.SnowScene]:
 def _settings(fitted: W.SnowKnobs) -> dict[str, Any]:
     sensor = fitted.sensor()
     return {
-        "ours_dual_emulation": ("dual", fitted.params(), sensor),
+        "ours_dual": ("dual", fitted.params(), sensor),
         "ours_strongest": ("strongest", fitted.params(), sensor),
         "shipped_snow_defaults_strongest": ("strongest", SNOW_DEFAULTS, W.SENSOR),
-        "shipped_snow_defaults_dual_emulation": ("dual", SNOW_DEFAULTS, W.SENSOR),
+        "shipped_snow_defaults_dual": ("dual", SNOW_DEFAULTS, W.SENSOR),
         "lisa_paper_strongest": ("strongest", W.LISA_SNOW, sensor),
-        "lisa_paper_dual_emulation": ("dual", W.LISA_SNOW, sensor),
+        "lisa_paper_dual": ("dual", W.LISA_SNOW, sensor),
         "lisa_hahner_strongest": ("strongest", W.LISA_HAHNER_SNOW, sensor),
     }
 
@@ -81,8 +81,8 @@ def _figure(scenes, fitted: W.SnowKnobs, path) -> None:
     ax.hist(real, bins, density=True, histtype="stepfilled", alpha=0.35, color="k",
             label=f"WADS label 110 (n={real.size})")  # fmt: skip
     for label, mode, params, color in (
-        ("ours (dual-return emulation, fitted)", "dual", fitted.params(), "C0"),
-        ("LISA settings (dual-return emulation)", "dual", W.LISA_SNOW, "C3"),
+        ("ours (dual return, fitted)", "dual", fitted.params(), "C0"),
+        ("LISA settings (dual return)", "dual", W.LISA_SNOW, "C3"),
     ):
         sim = np.concatenate([
             W.simulate(s, params, rate_mm_h=W.ASSUMED_RATE_MM_H,
@@ -148,7 +148,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             "One 1.1 s clip of one place: the held-out frames test frame noise, not "
             "generalisation to other scenes, rates or sensors.",
             "WADS is dual-return (42 % duplicate rows; snow rows 30 % duplicated vs 86 % for "
-            "others), so the fit runs the dual-return emulation; a single-return sensor "
+            'others), so the fit runs weather.snow(mode="dual"); a single-return sensor '
             "(weather.snow(), mode strongest) records only flakes that beat their target, "
             "hence the lower share in the strongest rows.",
             "Flakes with no target behind (duplicated 110 rows, ~17 % of unique snow points, "
@@ -170,6 +170,6 @@ if __name__ == "__main__":
 
     out = main(sys.argv[1:])
     r = out["results"]
-    for name in ("ours_dual_emulation", "ours_strongest", "lisa_paper_dual_emulation"):
+    for name in ("ours_dual", "ours_strongest", "lisa_paper_dual"):
         print(name, {k: r[name][k]["ks_range"] for k in ("fit", "held_out")},
               "fraction ratio", r[name]["held_out"]["fraction_ratio"])  # fmt: skip

@@ -266,7 +266,7 @@ def variants() -> None:
 )  # fmt: skip
 @click.option(
     "--detection", callback=lambda _ctx, _param, value: _detection_rule(value),
-    help="Detection rule of the weather stage: sensor (the default: the profile's datasheet "
+    help="Detection rule of the weather stage: sensor (the default: the profile's detection "
     "limit, nothing lost in clear air), frame (the frame's weakest return as threshold) or a "
     "fixed threshold in reflectivity / m^2 (docs/physics.md, 'Detection limits').",
 )  # fmt: skip

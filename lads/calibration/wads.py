@@ -13,9 +13,9 @@ target) but only 30 % of snow rows; and 99 % of the non-duplicated snow points h
 return on the same ray (the target behind the flake). Velodyne dual mode stores the last and
 the strongest return, or the second-strongest when the strongest is also the last. A flake
 in front of a target is therefore recorded whenever it is the strongest particle above the
-threshold, whether or not it beats the target. `simulate(mode="dual")` emulates that with
-the library's exact particle sampler; `mode="strongest"` is the public `weather.snow()` (a
-single-return sensor, where a flake must beat the target). Duplicated snow rows (a flake
+threshold, whether or not it beats the target: `simulate(mode="dual")` is `weather.snow()` in
+that dual mode; `mode="strongest"` is a single-return sensor, where a flake must beat the
+target. Duplicated snow rows (a flake
 that is both returns: beams with no target behind, mostly upward beams into the sky) cannot
 be simulated from the clear scene, which has no beam there; they are reported, not fitted.
 
@@ -60,10 +60,9 @@ import numpy as np
 import numpy.typing as npt
 from scipy import optimize, stats
 
-from lads.physics.beams import prepare_beams
-from lads.physics.particles import ParticleParams, resolve_optics
+from lads.errors import ConfigError, InputDataError
+from lads.physics.particles import ParticleParams
 from lads.physics.result import Outcome
-from lads.physics.thinning import sample_winning_particles
 from lads.physics.weather import LISA_SNOW, SNOW_DEFAULTS, snow, with_overrides
 from lads.sensors.profile import DetectionLimit, SensorProfile, load_profile
 
@@ -107,7 +106,10 @@ def load_frame(bin_path: str | Path, label_path: str | Path) -> WadsFrame:
     points = np.fromfile(bin_path, dtype=np.float32).reshape(-1, 4)
     labels = np.fromfile(label_path, dtype=np.uint32) & 0xFFFF
     if labels.size != len(points):
-        raise ValueError(f"{label_path}: {labels.size} labels for {len(points)} points")
+        raise InputDataError(
+            f"{label_path}: {labels.size} labels for the {len(points)} points of {bin_path}; "
+            "expected one uint32 label per point: check that the two files belong together."
+        )
     return WadsFrame(Path(bin_path).stem, points, labels)
 
 
@@ -242,15 +244,15 @@ class SnowKnobs:
         return replace(base, detection=limit)
 
 
-# Result of `benchmarks.wads_snow` (dual-return emulation, the WADS sensor's detection limit
+# Result of `benchmarks.wads_snow` (dual-return mode, the WADS sensor's detection limit
 # fitted with the flake optics on the fit frames at ASSUMED_RATE_MM_H), rounded. The optics
 # are SNOW_DEFAULTS' and the limit is wads64.yaml's `detection`.
 FITTED_SNOW_KNOBS = SnowKnobs(
-    particle_reflectivity=0.00625,
-    beam_divergence_mrad=1.23,
-    min_range_m=2.73,
-    overlap_full_m=7.44,
-    detection_threshold=6.86e-6,
+    particle_reflectivity=0.00855,
+    beam_divergence_mrad=1.56,
+    min_range_m=3.25,
+    overlap_full_m=7.29,
+    detection_threshold=8.69e-6,
 )
 
 
@@ -273,43 +275,28 @@ def simulate(
     mode: str = "dual",
     sensor: SensorProfile | str = SENSOR,
 ) -> SimulatedSnow:
-    """Let it snow on the clear scene; return the simulated flake returns.
+    """Let it snow on the clear scene with `weather.snow()`; return the simulated flakes.
 
-    mode "strongest": `weather.snow()` as shipped (single-return sensor); fraction = particle
-    returns / output points. mode "dual": Velodyne dual return, a beam records its
-    strongest particle above P_min in front of the target whether or not it beats the
-    target; fraction = flakes / (detected targets + flakes), as `SnowScene.target_fraction`.
-    Targets are detected by the rule `params.detection_threshold` names
-    (`lads.physics.detection`).
+    mode "dual" (as WADS records): the library's dual return, a beam's strongest return and
+    its last (or second strongest), so a beam's strongest flake above the limit is recorded
+    whether or not it beats the target; "strongest": a single-return sensor, where a flake
+    must beat the target. fraction = flake returns / output points, as
+    `SnowScene.target_fraction` counts the real frame. Targets are detected by the rule
+    `params.detection_threshold` names (`lads.physics.detection`).
+
+    Raises:
+        ConfigError: mode not in MODES.
     """
+    if mode not in MODES:
+        raise ConfigError(f"mode {mode!r}: expected one of {MODES}.")
     profile = load_profile(sensor) if isinstance(sensor, str) else sensor
-    if mode == "strongest":
-        res = snow(
-            scene.clear_xyz, scene.clear_intensity, rate_mm_h=rate_mm_h, sensor=profile,
-            rng=rng, params=params,
-        )  # fmt: skip
-        m = res.outcome == Outcome.PARTICLE
-        r = np.linalg.norm(res.xyz[m].astype(np.float64), axis=1)
-        return SimulatedSnow(r, res.intensity[m], float(m.mean()), res.detection_threshold)
-    if mode != "dual":
-        raise ValueError(f"mode {mode!r}: expected one of {MODES}")
-    beams = prepare_beams(scene.clear_xyz, scene.clear_intensity, profile)
-    optics = resolve_optics(beams, profile, rate_mm_h, params)
-    r0 = np.where(beams.active, beams.range_m, 0.0)
-    detected, _ = optics.detection.targets_detected(
-        beams.clear_power, -2.0 * optics.particles.alpha_per_m * r0, beams.active, rng
-    )
-    floor = np.full(r0.size, optics.threshold)
-    owner, r_p, p_p = sample_winning_particles(optics.particles, r0, floor, rng)
-    if owner.size:
-        order = np.lexsort((p_p, owner))  # strongest particle per beam
-        last = order[np.r_[owner[order][1:] != owner[order][:-1], True]]
-        r_best, p_best = r_p[last], p_p[last]
-    else:
-        r_best = p_best = np.zeros(0)
-    inten = profile.intensity.from_reflectivity(p_best * r_best**2)
-    fraction = r_best.size / max(int(detected.sum()) + r_best.size, 1)
-    return SimulatedSnow(r_best, inten, fraction, optics.threshold)
+    res = snow(
+        scene.clear_xyz, scene.clear_intensity, rate_mm_h=rate_mm_h, sensor=profile, rng=rng,
+        params=params, mode=mode,
+    )  # fmt: skip
+    flake = res.outcome == Outcome.PARTICLE
+    r = np.linalg.norm(res.xyz[flake].astype(np.float64), axis=1)
+    return SimulatedSnow(r, res.intensity[flake], float(flake.mean()), res.detection_threshold)
 
 
 def compare(

@@ -137,17 +137,15 @@ def assemble(
         reflectivity: (N,) new intensity of each return as reflectivity (ignored for KEPT
             and LOST).
     """
-    survive, xyz = scaled_survivors(beams.xyz, beams.range_m, range_m, outcome)
-    out = outcome[survive]
-    intensity = beams.intensity[survive]
-    moved = np.flatnonzero(out != Outcome.KEPT)
-    if moved.size:
-        intensity[moved] = sensor.intensity.from_reflectivity(reflectivity[survive[moved]])
+    source, out, xyz, intensity = scaled_survivors(
+        beams.xyz, beams.range_m, beams.intensity, sensor.intensity.compiled, outcome, range_m,
+        reflectivity,
+    )  # fmt: skip
     return WeatherResult(
         xyz=xyz,
         intensity=intensity,
-        source_index=survive.astype(np.int64),
-        outcome=out.astype(np.uint8),
+        source_index=source,
+        outcome=out,
         lost_index=np.flatnonzero(outcome == Outcome.LOST).astype(np.int64),
         extinction_per_m=float(extinction_per_m),
         detection_threshold=float(detection_threshold),
@@ -170,11 +168,9 @@ def assemble_dual(
             them; a beam whose second outcome is LOST gives one output point (or none if
             its first is LOST too). Lost beams are those whose first return is LOST.
     """
-    source, outcome, refl, xyz = dual_survivors(beams.xyz, beams.range_m, *first, *second)
-    intensity = beams.intensity[source]
-    moved = np.flatnonzero(outcome != Outcome.KEPT)
-    if moved.size:
-        intensity[moved] = sensor.intensity.from_reflectivity(refl[moved])
+    source, outcome, xyz, intensity = dual_survivors(
+        beams.xyz, beams.range_m, beams.intensity, sensor.intensity.compiled, *first, *second
+    )
     return WeatherResult(
         xyz=xyz,
         intensity=intensity,

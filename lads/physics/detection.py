@@ -134,7 +134,11 @@ def target_survival(
         # plain ratio is exact there and cheaper; a z < 0 (another caller) takes the log form.
         plain = zd >= 0.0
         ratio = np.empty(doubtful.size)
-        ratio[plain] = ndtr(zw[plain]) / ndtr(zd[plain])
+        # Phi(z) is exactly 1 beyond CERTAIN_Z: the ratio is then Phi(z - d) itself.
+        sure = zd >= CERTAIN_Z
+        ratio[sure] = ndtr(zw[sure])
+        part = plain & ~sure
+        ratio[part] = ndtr(zw[part]) / ndtr(zd[part])
         ratio[~plain] = np.exp(log_ndtr(zw[~plain]) - log_ndtr(zd[~plain]))
         out[doubtful] = ratio
     return out

@@ -30,8 +30,8 @@ from lads.sensors.profile import SensorProfile
 # from FAINT_ONSET_M to FAINT_FULL_M (fitted on WADS by lads.calibration.wads, see
 # benchmarks/results/wads_snow.json). Bright hard targets still pass at short range. The same
 # sensor-side onset serves rain, snow and fog, since no rain recording exists to fit it.
-FAINT_ONSET_M = 2.73
-FAINT_FULL_M = 7.44
+FAINT_ONSET_M = 3.25
+FAINT_FULL_M = 7.29
 
 # Rain: Marshall-Palmer drops, water Mie extinction, Fresnel backscatter (LISA). No real
 # rain recording is available to calibrate particle_reflectivity; the Fresnel value is the
@@ -46,18 +46,18 @@ RAIN_DEFAULTS = ParticleParams(
 
 # Snow: Gunn-Marshall melted diameters widened to flakes of 0.1 g/cm^3, ice Mie extinction,
 # and the knobs fitted to real falling snow (WADS seq 36, a dual-return recording, fitted in
-# the dual-return emulation together with the WADS sensor's detection limit at an assumed
+# the dual-return mode together with the WADS sensor's detection limit at an assumed
 # 2.5 mm/h; `python -m benchmarks.wads_snow`, held-out frames reported there): effective
-# flake reflectivity 0.00625 (below ice Fresnel 0.0173: real flakes read ~0 intensity, and
-# only rho_p / P_lim sets the flake count), divergence 1.23 mrad (trades off against the
-# reflectivity), onset 2.73 -> 7.44 m. These are effective values of a single-scattering
+# flake reflectivity 0.00855 (below ice Fresnel 0.0173: real flakes read ~0 intensity, and
+# only rho_p / P_lim sets the flake count), divergence 1.56 mrad (trades off against the
+# reflectivity), onset 3.25 -> 7.29 m. These are effective values of a single-scattering
 # model at an assumed rate; the reflectivity is only meaningful together with that rate.
 SNOW_DEFAULTS = ParticleParams(
     size_distribution="gunn_marshall",
     material="ice",
-    particle_reflectivity=0.00625,
+    particle_reflectivity=0.00855,
     diameter_ratio=flake_diameter_ratio(),
-    beam_divergence_mrad=1.23,
+    beam_divergence_mrad=1.56,
     min_range_m=FAINT_ONSET_M,
     overlap_full_m=FAINT_FULL_M,
 )

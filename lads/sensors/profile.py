@@ -59,16 +59,19 @@ class IntensityEncoding:
         so they are the very float32 numbers the datasets store (KITTI's 0.29 is
         float32(0.29), not float32(29) * float32(0.01), which differs in the last bit).
         """
-        steps = np.asarray(reflectivity, dtype=np.float32) * np.float32(
-            self.reflectivity_full_scale / self.step
-        )
+        scale, levels = self.compiled
+        steps = np.asarray(reflectivity, dtype=np.float32) * scale
         np.rint(steps, out=steps)
-        np.clip(steps, 0.0, self._levels.size - 1, out=steps)
-        return self._levels[steps.astype(np.intp)]
+        np.clip(steps, 0.0, levels.size - 1, out=steps)
+        return levels[steps.astype(np.intp)]
 
     @property
-    def _levels(self) -> npt.NDArray[np.float32]:
-        return _encoding_levels(self.step, self.max_value)
+    def compiled(self) -> tuple[np.float32, npt.NDArray[np.float32]]:
+        """(scale, levels) of `from_reflectivity` for compiled loops: the encoded value of
+        rho is levels[clip(rint(float32(rho) * scale))]."""
+        return np.float32(self.reflectivity_full_scale / self.step), _encoding_levels(
+            self.step, self.max_value
+        )
 
     @property
     def detection_floor(self) -> float:
@@ -101,8 +104,9 @@ class DetectionLimit:
     """The sensor's hard-target detection limit (docs/physics.md §9.7).
 
     Attributes:
-        reflectivity: rho_lim, a diffuse target reflectivity the datasheet quotes a range for.
-        range_m: r_lim, the range out to which such a target is detected, m.
+        reflectivity: rho_lim, a diffuse target reflectivity (quoted by a datasheet, or the
+            reference of a measured limit).
+        range_m: r_lim, the range at which such a target is detected (half the time), m.
         spread_ln: s, width of the detection probability curve Phi((ln P - ln P_lim) / s) in
             ln-power units (detection rises from 10 % to 90 % over a factor exp(2.56 s)).
     """
@@ -139,7 +143,7 @@ class SensorProfile:
             targets survive but faint particle and fog returns mostly do not.
         max_range_m: maximum range in m.
         range_accuracy_m: one-sigma range accuracy in m at the detection threshold.
-        detection: the datasheet detection limit (`DetectionLimit`).
+        detection: the detection limit, measured or from the datasheet (`DetectionLimit`).
         pulse_width_ns: full width at half power of the laser pulse, ns; volume (fog)
             returns scale with it, hard-target returns do not.
         intensity: the dataset's intensity encoding.

@@ -11,7 +11,7 @@ from lads.frame import Frame
 from lads.physics import weather as wx
 
 # Bump when the physics changes the bytes produced for the same input and seed.
-WEATHER_STAGE_VERSION = "4"
+WEATHER_STAGE_VERSION = "5"
 
 
 @dataclass(frozen=True, slots=True)

@@ -164,16 +164,24 @@ def test_fog_returns_rise_as_visibility_falls(street):
 
 def test_dense_fog_loses_beams_whose_echo_the_sensor_misses(street):
     """docs/physics.md §9.7: the fog echo is detected with probability p(P_f), so in dense
-    fog some beams lose their target and return nothing; thin fog takes only far, weak ones."""
+    fog some beams lose even near, bright targets and return nothing; thin fog takes only
+    far targets that were already close to the sensor's limit."""
     xyz, intensity = street
-    lost = [
-        outcome_fractions(
-            fog(xyz, intensity, visibility_m=v, sensor="hdl64e", rng=np.random.default_rng(0)),
-            len(xyz),
-        )[0]
+    profile = load_profile("hdl64e")
+    range_m = np.linalg.norm(xyz, axis=1)
+    rho = np.maximum(
+        profile.intensity.to_reflectivity(intensity), profile.intensity.detection_floor
+    )
+    above_limit = rho / range_m**2 / profile.detection.power
+    lost = {
+        v: fog(xyz, intensity, visibility_m=v, sensor=profile,
+               rng=np.random.default_rng(0)).lost_index
         for v in (2000.0, 20.0)
-    ]
-    assert lost[1] > 0.01 and lost[1] > 3 * lost[0], lost
+    }  # fmt: skip
+    dense, thin = lost[20.0], lost[2000.0]
+    assert dense.size > 0.005 * len(xyz)
+    assert above_limit[dense].max() > 10 and np.median(range_m[dense]) < 30
+    assert thin.size and above_limit[thin].max() < 5 and np.median(range_m[thin]) > 40
 
 
 # --- clear air and reproducibility ----------------------------------------------------------

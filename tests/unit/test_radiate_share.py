@@ -2,14 +2,10 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 
-from lads.calibration import radiate, radiate_share
 from lads.calibration.radiate_share import (
-    BODY_M,
     ReturnProfile,
     fit_visibility,
     profile_distance,
@@ -65,13 +61,3 @@ def test_dense_fog_removes_far_returns_and_curves_repeat() -> None:
     assert curve[600.0].per_bin[-1] > 0.5  # light haze: the wall is still seen
     assert curve[6.0].per_bin[-1] == 0.0  # dense fog: nothing beyond 40 m
     assert simulated_curve([frame], 400, sensor, (6.0, 600.0)) == curve
-
-
-def test_radiate_frames_return_on_a_fifth_to_two_fifths_of_clean_beams(shared_data: Path) -> None:
-    folder = shared_data / "radiate" / "tiny_foggy" / "velo_lidar"
-    for path in sorted(folder.glob("*.csv")):
-        p = radiate_share.radiate_profile(radiate.load_frame(path))
-        assert 0.2 <= p.share <= 0.4
-        assert sum(p.per_bin) == pytest.approx(1.0)
-        assert p.per_bin[-1] < 0.01  # nothing of note beyond 40 m in this fog
-    assert BODY_M < radiate.NEAR_M
