@@ -53,7 +53,7 @@ def test_real_wads_statistics_match_the_documented_ones(scenes):
 
 
 def test_fitted_knobs_reproduce_held_out_wads_snow_far_better_than_lisa(held_out):
-    """Dual-return emulation (WADS records dual returns) on frames the fit never saw."""
+    """The dual-return mode (WADS records dual returns) on frames the fit never saw."""
     knobs = W.FITTED_SNOW_KNOBS
     ours = W.evaluate(held_out, knobs.params(), mode="dual", seeds=(0,), sensor=knobs.sensor())
     lisa = W.evaluate(held_out, W.LISA_SNOW, mode="dual", seeds=(0,), sensor=knobs.sensor())
