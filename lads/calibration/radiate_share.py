@@ -37,6 +37,9 @@ RANGE_BINS_M = (BODY_M, 5.0, 10.0, 20.0, 40.0, np.inf)
 # Visibilities tried (MOR, m): dense fog to light haze.
 MOR_GRID_M = (6.0, 8.0, 10.0, 12.0, 15.0, 20.0, 30.0, 50.0, 100.0, 200.0, 600.0)
 FIT_MEASURES = ("share", "profile")
+# Near-ground channels: HDL-32E beams between these elevations meet a flat road 5-9 m away
+# (sensor ~2 m up); steeper ones are blocked by RADIATE's vehicle even in its clean half.
+NEAR_GROUND_ELEVATION_DEG = (-20.5, -13.0)
 
 
 @dataclass(frozen=True, slots=True)
@@ -63,12 +66,31 @@ def returns_profile(xyz: npt.NDArray[np.floating], firings: int) -> ReturnProfil
     return ReturnProfile(r.size / firings, tuple(float(v) for v in per_bin))
 
 
-def radiate_profile(frame: RadiateFrame) -> ReturnProfile:
-    """Profile of a RADIATE frame's clean half (half the beams of a sweep)."""
+def clean_half(frame: RadiateFrame) -> npt.NDArray[np.float64]:
+    """(M, 3) m: a RADIATE frame's returns in the half of the sweep free of the vehicle's
+    structure (`radiate.CLEAN_AZIMUTH_DEG`), FIRINGS_PER_SWEEP / 2 firings per channel."""
     xyz = frame.xyz.astype(np.float64)
     az = np.degrees(np.arctan2(xyz[:, 1], xyz[:, 0]))
-    clean = (az >= CLEAN_AZIMUTH_DEG[0]) & (az < CLEAN_AZIMUTH_DEG[1])
-    return returns_profile(xyz[clean], FIRINGS_PER_SWEEP * 32 // 2)
+    return xyz[(az >= CLEAN_AZIMUTH_DEG[0]) & (az < CLEAN_AZIMUTH_DEG[1])]
+
+
+def radiate_profile(frame: RadiateFrame) -> ReturnProfile:
+    """Profile of a RADIATE frame's clean half (half the beams of a sweep)."""
+    return returns_profile(clean_half(frame), FIRINGS_PER_SWEEP * 32 // 2)
+
+
+def near_ground_share(
+    xyz: npt.NDArray[np.floating], firings_per_channel: int, sensor: SensorProfile
+) -> float:
+    """Returns beyond BODY_M per fired beam of the near-ground channels (channel by the
+    sensor's elevation table, NEAR_GROUND_ELEVATION_DEG); xyz (N, 3) m."""
+    xyz = np.asarray(xyz, dtype=np.float64)
+    elevation = np.asarray(sensor.elevation_deg)
+    lo, hi = NEAR_GROUND_ELEVATION_DEG
+    channels = np.flatnonzero((elevation > lo) & (elevation < hi))
+    seen = np.linalg.norm(xyz, axis=1) >= BODY_M
+    hits = np.isin(sensor.channel_of(xyz[seen]), channels).sum()
+    return float(hits / (channels.size * firings_per_channel))
 
 
 def profile_distance(a: ReturnProfile, b: ReturnProfile) -> float:

@@ -6,8 +6,10 @@ import numpy as np
 import pytest
 
 from lads.calibration.radiate_share import (
+    NEAR_GROUND_ELEVATION_DEG,
     ReturnProfile,
     fit_visibility,
+    near_ground_share,
     profile_distance,
     returns_profile,
     simulated_curve,
@@ -61,3 +63,22 @@ def test_dense_fog_removes_far_returns_and_curves_repeat() -> None:
     assert curve[600.0].per_bin[-1] > 0.5  # light haze: the wall is still seen
     assert curve[6.0].per_bin[-1] == 0.0  # dense fog: nothing beyond 40 m
     assert simulated_curve([frame], 400, sensor, (6.0, 600.0)) == curve
+
+
+def test_near_ground_share_counts_only_the_near_ground_channels():
+    sensor = load_profile("hdl32e")
+    elevation = np.radians(np.asarray(sensor.elevation_deg))
+    lo, hi = NEAR_GROUND_ELEVATION_DEG
+    channels = np.flatnonzero((np.degrees(elevation) > lo) & (np.degrees(elevation) < hi))
+    az = np.radians(np.arange(100) * 3.6)
+
+    def ring(k: int, range_m: float, count: int) -> np.ndarray:
+        a = az[:count]
+        return range_m * np.stack([np.cos(elevation[k]) * np.cos(a),
+                                   np.cos(elevation[k]) * np.sin(a),
+                                   np.full(count, np.sin(elevation[k]))], axis=1)  # fmt: skip
+
+    # Half the firings of every near-ground channel return from the road; the body (1 m) and
+    # the horizon channel do not count.
+    parts = [ring(k, 7.0, 50) for k in channels] + [ring(channels[0], 1.0, 50), ring(23, 30.0, 100)]
+    assert near_ground_share(np.vstack(parts), 100, sensor) == pytest.approx(0.5)
