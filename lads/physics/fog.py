@@ -68,6 +68,7 @@ import numpy.typing as npt
 from lads.errors import ConfigError
 from lads.physics.beams import Beams, assemble, assemble_dual, auto_threshold
 from lads.physics.detection import resolve_detection
+from lads.physics.fog_kernels import echo_ranges
 from lads.physics.result import Outcome, WeatherResult
 from lads.sensors.profile import SensorProfile
 
@@ -516,32 +517,11 @@ def _echo_returns(
     reported peak plus timing noise (one standard normal per echo), intensity P_f r^2."""
     if not mask.any():
         return
-    r0, pf = b.r0[mask], b.p_fog[mask]
-    kappa = _lookup(b.table.relative_curvature_per_m2, r0, b.table)
-    sigma = echo_sigma_m(pf / b.p_min, kappa, b.params, b.range_accuracy_m)
-    out_r = _echo_range(reported + sigma * noise, r0, b.params)
+    kappa_pulse = 2.0 * np.pi**2 / b.params.pulse_length_m**2
+    out_r, rho = echo_ranges(
+        b.r0[mask], b.p_fog[mask], reported, noise, b.table.target_range_m,
+        b.table.relative_curvature_per_m2, b.p_min, kappa_pulse, b.range_accuracy_m,
+        0.5 * b.params.pulse_length_m, MIN_OUTPUT_RANGE_M,
+    )  # fmt: skip
     out_range[b.idx[mask]] = out_r
-    out_rho[b.idx[mask]] = pf * out_r**2
-
-
-def echo_sigma_m(
-    snr: npt.NDArray[np.float64],
-    kappa_fog: npt.NDArray[np.float64],
-    params: FogParams,
-    range_accuracy_m: float,
-) -> npt.NDArray[np.float64]:
-    """Range noise of fog echoes, m: dR / sqrt(2 SNR) * kappa_pulse / kappa_fog (module
-    docstring), at most the echo's own half-width 1 / sqrt(kappa_fog): a weak, broad echo is
-    timed somewhere on it, not beyond it. snr = P_f / P_min; kappa in 1/m^2."""
-    kappa = np.maximum(kappa_fog, 1e-12)
-    kappa_pulse = 2.0 * np.pi**2 / params.pulse_length_m**2
-    timing = range_accuracy_m / np.sqrt(2.0 * snr) * np.minimum(kappa_pulse / kappa, 1e6)
-    return np.minimum(timing, 1.0 / np.sqrt(kappa))
-
-
-def _echo_range(
-    noisy_m: npt.NDArray[np.float64], r0: npt.NDArray[np.float64], params: FogParams
-) -> npt.NDArray[np.float64]:
-    """Reported fog-echo ranges, m: the echo comes from fog in front of the target, so it is
-    reported no farther than half a pulse beyond the target (and not at the origin)."""
-    return np.clip(noisy_m, MIN_OUTPUT_RANGE_M, r0 + 0.5 * params.pulse_length_m)
+    out_rho[b.idx[mask]] = rho
