@@ -16,6 +16,7 @@ from pathlib import Path  # noqa: E402
 from typing import Any  # noqa: E402
 
 import numpy as np  # noqa: E402
+from tqdm import tqdm  # noqa: E402
 
 from benchmarks.common import kitti_frames, kitti_labels, machine_info, write_result  # noqa: E402
 from lads.physics import weather  # noqa: E402
@@ -54,40 +55,32 @@ def _wet(labels: np.ndarray) -> Any:
     return simulate
 
 
-def time_setting(
-    frames: list[np.ndarray],
-    labels: list[np.ndarray],
-    name: str,
-    key: str,
-    value: float,
-    mode: str = "strongest",
-) -> dict[str, Any]:
-    """Median / min / p90 wall time per frame over REPEATS runs of every frame."""
+def _call(frames: list[np.ndarray], labels: list[np.ndarray], f_index: int,
+          setting: tuple[Any, ...]) -> Any:  # fmt: skip
+    """One frame's simulation under one setting, as a function of the generator."""
+    name, key, value, *rest = setting
+    mode = rest[0] if rest else "strongest"
     profile = load_profile("hdl64e")
-    times_ms: list[float] = []
-    counts = []
-    for f_index, points in enumerate(frames):
-        simulate = _wet(labels[f_index]) if name == "wet_ground" else getattr(weather, name)
-        xyz, intensity = points[:, :3], points[:, 3]
-        kw = {key: value} if name == "wet_ground" else {key: value, "mode": mode}
-        simulate(xyz, intensity, sensor=profile, rng=np.random.default_rng(0), **kw)
-        for rep in range(REPEATS):
-            rng = np.random.default_rng([f_index, rep])
-            start = time.perf_counter()
-            result = simulate(xyz, intensity, sensor=profile, rng=rng, **kw)
-            times_ms.append(1e3 * (time.perf_counter() - start))
-        counts.append(result.counts())
+    simulate = _wet(labels[f_index]) if name == "wet_ground" else getattr(weather, name)
+    points = frames[f_index]
+    kw = {key: value} if name == "wet_ground" else {key: value, "mode": mode}
+    return lambda rng: simulate(points[:, :3], points[:, 3], sensor=profile, rng=rng, **kw)
+
+
+def _summary(setting: tuple[Any, ...], times_ms: list[float], counts: list[dict[str, int]],
+             n_points: int, n_frames: int) -> dict[str, Any]:  # fmt: skip
+    """Median / min / p90 wall time per frame of one setting, and what it did."""
+    name, key, value, *rest = setting
     arr = np.asarray(times_ms)
-    n_points = sum(p.shape[0] for p in frames)
     summary: dict[str, Any] = {
         "weather": name,
         key: value,
-        "mode": mode,
+        "mode": rest[0] if rest else "strongest",
         "median_ms_per_frame": round(float(np.median(arr)), 2),
         "min_ms": round(float(arr.min()), 2),
         "p90_ms": round(float(np.percentile(arr, 90)), 2),
         "runs": int(arr.size),
-        "points_per_frame_mean": round(n_points / len(frames)),
+        "points_per_frame_mean": round(n_points / n_frames),
         "particle_fraction": round(sum(c["particle"] for c in counts) / n_points, 5),
         "lost_fraction": round(sum(c["lost"] for c in counts) / n_points, 5),
     }
@@ -98,16 +91,41 @@ def time_setting(
     return summary
 
 
+def time_settings(
+    frames: list[np.ndarray], labels: list[np.ndarray], settings: tuple[tuple[Any, ...], ...]
+) -> list[dict[str, Any]]:
+    """Every setting on every frame, REPEATS rounds, round-robin: a shared machine's slow
+    spells then fall on all settings alike, so modes and weathers compare fairly."""
+    calls = [[_call(frames, labels, f, s) for f in range(len(frames))] for s in settings]
+    for per_setting in calls:  # warm-up: tables and numba caches built
+        for call in per_setting:
+            call(np.random.default_rng(0))
+    times: list[list[float]] = [[] for _ in settings]
+    counts: list[list[dict[str, int]]] = [[{}] * len(frames) for _ in settings]
+    for rep in tqdm(range(REPEATS), desc="speed rounds", unit="round"):
+        for k, per_setting in enumerate(calls):
+            for f, call in enumerate(per_setting):
+                rng = np.random.default_rng([f, rep])
+                start = time.perf_counter()
+                result = call(rng)
+                times[k].append(1e3 * (time.perf_counter() - start))
+                counts[k][f] = result.counts()
+    n_points = sum(p.shape[0] for p in frames)
+    return [_summary(s, times[k], counts[k], n_points, len(frames))
+            for k, s in enumerate(settings)]  # fmt: skip
+
+
 def main(out_dir: Path | None = None) -> dict[str, Any]:
     frames = kitti_frames()
     labels = kitti_labels()
-    rows = [time_setting(frames, labels, *setting) for setting in SETTINGS + MODE_SETTINGS]
+    rows = time_settings(frames, labels, SETTINGS + MODE_SETTINGS)
     payload = {
         "what": "wall time of lads.physics.weather.{rain,snow,fog} and "
         "lads.physics.wet_ground.wet_ground per real SemanticKITTI "
         "frame (sequence 00, frames 000000-000002), HDL-64E profile, strongest return "
         "unless `mode` says otherwise, "
-        "one thread, after one warm-up call per frame (table and numba caches built)",
+        "one thread, after one warm-up call per frame (table and numba caches built), "
+        "settings timed round-robin (each round runs every setting on every frame)",
         "machine": machine_info(),
         "results": rows,
     }

@@ -17,7 +17,7 @@ import numpy as np
 import numpy.typing as npt
 
 from lads.errors import InvalidPointsError
-from lads.physics.kernels import dual_survivors, scaled_survivors
+from lads.physics.kernels import survivors
 from lads.physics.result import Outcome, WeatherResult
 from lads.sensors.profile import SensorProfile, load_profile
 
@@ -137,9 +137,10 @@ def assemble(
         reflectivity: (N,) new intensity of each return as reflectivity (ignored for KEPT
             and LOST).
     """
-    source, out, xyz, intensity = scaled_survivors(
-        beams.xyz, beams.range_m, beams.intensity, sensor.intensity.compiled, outcome, range_m,
-        reflectivity,
+    none = np.full(outcome.size, Outcome.LOST, dtype=np.uint8)  # no second returns
+    source, out, xyz, intensity = survivors(
+        beams.xyz, beams.range_m, beams.intensity, *sensor.intensity.compiled, outcome, range_m,
+        reflectivity, none, range_m, reflectivity,
     )  # fmt: skip
     return WeatherResult(
         xyz=xyz,
@@ -168,8 +169,8 @@ def assemble_dual(
             them; a beam whose second outcome is LOST gives one output point (or none if
             its first is LOST too). Lost beams are those whose first return is LOST.
     """
-    source, outcome, xyz, intensity = dual_survivors(
-        beams.xyz, beams.range_m, beams.intensity, sensor.intensity.compiled, *first, *second
+    source, outcome, xyz, intensity = survivors(
+        beams.xyz, beams.range_m, beams.intensity, *sensor.intensity.compiled, *first, *second
     )
     return WeatherResult(
         xyz=xyz,

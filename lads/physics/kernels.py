@@ -17,97 +17,13 @@ _LOST = np.uint8(3)
 _KEPT = np.uint8(0)
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
-def _encode(reflectivity: float, scale: np.float32, levels: npt.NDArray[np.float32]) -> np.float32:
-    """`IntensityEncoding.from_reflectivity` of one value, the same float32 steps."""
-    steps = np.rint(np.float32(reflectivity) * scale)
-    if not steps > 0:
-        steps = np.float32(0.0)
-    elif steps > levels.size - 1:
-        steps = np.float32(levels.size - 1)
-    return levels[int(steps)]
-
-
-@numba.njit(cache=True, nogil=True, inline="always")
-def _put(  # type: ignore[no-untyped-def]
-    j,
-    i,
-    code,
-    range_new_m,
-    reflectivity,
-    xyz,
-    range_old_m,
-    intensity,
-    scale,
-    levels,
-    source,
-    outcome,
-    out_xyz,
-    out_intensity,
-):
-    """Output point j from beam i's return: KEPT keeps the input bytes; any other outcome is
-    moved along the ray to range_new_m (unless unchanged) and its reflectivity encoded."""
-    source[j], outcome[j] = i, code
-    if code != _KEPT and range_new_m != range_old_m[i]:
-        ratio = range_new_m / range_old_m[i]
-        for c in range(3):
-            out_xyz[j, c] = np.float32(xyz[i, c] * ratio)
-    else:
-        for c in range(3):
-            out_xyz[j, c] = xyz[i, c]
-    out_intensity[j] = intensity[i] if code == _KEPT else _encode(reflectivity, scale, levels)
-
-
 @numba.njit(cache=True, nogil=True)
-def scaled_survivors(
+def survivors(
     xyz: npt.NDArray[np.float32],
     range_old_m: npt.NDArray[np.float64],
     intensity: npt.NDArray[np.float32],
-    encoding: tuple[np.float32, npt.NDArray[np.float32]],
-    codes: npt.NDArray[np.uint8],
-    range_new_m: npt.NDArray[np.float64],
-    reflectivity: npt.NDArray[np.float64],
-) -> tuple[
-    npt.NDArray[np.int64], npt.NDArray[np.uint8], npt.NDArray[np.float32], npt.NDArray[np.float32]
-]:
-    """Non-LOST beams with their output xyz, moved along the ray to the new range, and
-    intensity. KEPT beams and beams whose range did not change keep their input xyz bytes;
-    KEPT beams keep their intensity, the others get their reflectivity encoded.
-
-    Args:
-        xyz: (N, 3) float32 input points, m; range_old_m: (N,) float64, m; intensity: (N,)
-            float32 input intensities; encoding: `IntensityEncoding.compiled` (scale, levels).
-        codes: (N,) uint8 Outcome codes; range_new_m: (N,) float64, m; reflectivity: (N,)
-            float64 reflectivity of each return.
-
-    Returns:
-        source (M,) int64 ascending, outcome (M,) uint8, out_xyz (M, 3) float32 and
-        out_intensity (M,) float32.
-    """
-    scale, levels = encoding
-    n = codes.size
-    m = 0
-    for i in range(n):
-        m += codes[i] != _LOST
-    source = np.empty(m, dtype=np.int64)
-    outcome = np.empty(m, dtype=np.uint8)
-    out_xyz = np.empty((m, 3), dtype=np.float32)
-    out_intensity = np.empty(m, dtype=np.float32)
-    j = 0
-    for i in range(n):
-        if codes[i] != _LOST:
-            _put(j, i, codes[i], range_new_m[i], reflectivity[i], xyz, range_old_m, intensity,
-                 scale, levels, source, outcome, out_xyz, out_intensity)  # fmt: skip
-            j += 1
-    return source, outcome, out_xyz, out_intensity
-
-
-@numba.njit(cache=True, nogil=True)
-def dual_survivors(
-    xyz: npt.NDArray[np.float32],
-    range_old_m: npt.NDArray[np.float64],
-    intensity: npt.NDArray[np.float32],
-    encoding: tuple[np.float32, npt.NDArray[np.float32]],
+    scale: np.float32,
+    levels: npt.NDArray[np.float32],
     codes1: npt.NDArray[np.uint8],
     range1_m: npt.NDArray[np.float64],
     refl1: npt.NDArray[np.float64],
@@ -117,14 +33,25 @@ def dual_survivors(
 ) -> tuple[
     npt.NDArray[np.int64], npt.NDArray[np.uint8], npt.NDArray[np.float32], npt.NDArray[np.float32]
 ]:
-    """`scaled_survivors` for two returns per beam in one pass: each beam's first return
-    (if not LOST), then its second (if not LOST), in beam order; source non-decreasing.
+    """The output points of up to two returns per beam, in beam order, first return first.
+
+    A return whose code is LOST gives no point. KEPT keeps the input xyz and intensity bytes;
+    any other outcome is moved along the ray to its new range (unless unchanged) and its
+    reflectivity encoded as `IntensityEncoding.from_reflectivity` does (the same float32
+    steps: levels[clip(rint(float32(rho) * scale))]). The body is written out once, not
+    split into helper calls: numba's per-call array reference counting made those 4x slower.
 
     Args:
+        xyz: (N, 3) float32 input points, m; range_old_m: (N,) float64, m; intensity: (N,)
+            float32 input intensities; scale, levels: `IntensityEncoding.compiled`.
         codes1, range1_m, refl1: (N,) the first return's Outcome (uint8), new range (m) and
-            reflectivity (float64); codes2, range2_m, refl2 the second's.
+            reflectivity (float64); codes2, range2_m, refl2 the second's (all LOST: one
+            return per beam).
+
+    Returns:
+        source (M,) int64 non-decreasing, outcome (M,) uint8, out_xyz (M, 3) float32 and
+        out_intensity (M,) float32.
     """
-    scale, levels = encoding
     n = range_old_m.size
     m = 0
     for i in range(n):
@@ -133,15 +60,31 @@ def dual_survivors(
     outcome = np.empty(m, dtype=np.uint8)
     out_xyz = np.empty((m, 3), dtype=np.float32)
     out_intensity = np.empty(m, dtype=np.float32)
+    top = np.float32(levels.size - 1)
     j = 0
     for i in range(n):
-        if codes1[i] != _LOST:
-            _put(j, i, codes1[i], range1_m[i], refl1[i], xyz, range_old_m, intensity, scale,
-                 levels, source, outcome, out_xyz, out_intensity)  # fmt: skip
-            j += 1
-        if codes2[i] != _LOST:
-            _put(j, i, codes2[i], range2_m[i], refl2[i], xyz, range_old_m, intensity, scale,
-                 levels, source, outcome, out_xyz, out_intensity)  # fmt: skip
+        for k in range(2):
+            code = codes1[i] if k == 0 else codes2[i]
+            if code == _LOST:
+                continue
+            r_new = range1_m[i] if k == 0 else range2_m[i]
+            source[j], outcome[j] = i, code
+            if code != _KEPT and r_new != range_old_m[i]:
+                ratio = r_new / range_old_m[i]
+                for c in range(3):
+                    out_xyz[j, c] = np.float32(xyz[i, c] * ratio)
+            else:
+                for c in range(3):
+                    out_xyz[j, c] = xyz[i, c]
+            if code == _KEPT:
+                out_intensity[j] = intensity[i]
+            else:
+                steps = np.rint(np.float32(refl1[i] if k == 0 else refl2[i]) * scale)
+                if not steps > 0:
+                    steps = np.float32(0.0)
+                elif steps > top:
+                    steps = top
+                out_intensity[j] = levels[int(steps)]
             j += 1
     return source, outcome, out_xyz, out_intensity
 
