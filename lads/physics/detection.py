@@ -73,6 +73,7 @@ class Detection:
         two_way_ln: npt.NDArray[np.float64],
         active: npt.NDArray[np.bool_],
         rng: np.random.Generator,
+        transmission: npt.NDArray[np.float64] | None = None,
     ) -> tuple[npt.NDArray[np.bool_], npt.NDArray[np.float64]]:
         """Which hard targets are still detected, and their effective weather power.
 
@@ -81,12 +82,13 @@ class Detection:
             two_way_ln: (N,) ln T^2 = -2 alpha r, <= 0.
             active: (N,) beams the weather acts on.
             rng: the frame's generator; "sensor" draws one uniform per uncertain beam.
+            transmission: (N,) exp(two_way_ln) where the caller has it already.
 
         Returns:
             detected (N,) bool and P_eff T^2 (N,) float64.
         """
         effective = self.effective_power(clear_power)
-        power = effective * np.exp(two_way_ln)
+        power = effective * (np.exp(two_way_ln) if transmission is None else transmission)
         if self.setting != "sensor":
             return active & (power >= self.threshold), power
         survival = target_survival(effective, two_way_ln, self.threshold, self.spread_ln)

@@ -68,7 +68,7 @@ import numpy.typing as npt
 from lads.errors import ConfigError
 from lads.physics.beams import Beams, assemble, assemble_dual, auto_threshold
 from lads.physics.detection import resolve_detection
-from lads.physics.fog_kernels import echo_ranges
+from lads.physics.fog_kernels import echo_ranges, target_returns
 from lads.physics.result import Outcome, WeatherResult
 from lads.sensors.profile import SensorProfile
 
@@ -402,15 +402,16 @@ def simulate_fog(
     idx = np.flatnonzero(beams.active)
     r0, rho = beams.range_m[idx], beams.reflectivity[idx]
     two_way_ln = -2.0 * alpha * r0
+    t2 = np.exp(two_way_ln)
     target_ok, p_target = detection.targets_detected(
-        beams.clear_power[idx], two_way_ln, np.ones(idx.size, dtype=bool), rng
+        beams.clear_power[idx], two_way_ln, np.ones(idx.size, dtype=bool), rng, t2
     )
     table = soft_return_table(alpha, params)
     p_fog = np.pi * beta * _lookup(table.peak_unit, r0, table)
     p_fog[r0 < params.overlap_start_m] = 0.0
     b = _FogBeams(
         n=n, idx=idx, r0=r0, rho=rho, p_clear=detection.effective_power(rho / r0**2),
-        t2=np.exp(two_way_ln), p_target=p_target, target_ok=target_ok, p_fog=p_fog,
+        t2=t2, p_target=p_target, target_ok=target_ok, p_fog=p_fog,
         fog_ok=detection.faint_detected(p_fog, rng), table=table, params=params,
         p_min=p_min, range_accuracy_m=sensor.range_accuracy_m,
     )  # fmt: skip
@@ -488,15 +489,9 @@ def _target_returns(
 ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
     """(n,) range (m) and reflectivity of the returned targets: the SNR drop's extra range
     noise (one standard normal per returned target) and intensity rho T^2."""
-    dr = b.range_accuracy_m
-    extra_var = 0.5 * dr**2 * b.p_min * (1.0 / b.p_target[target] - 1.0 / b.p_clear[target])
-    t_idx = b.idx[target]
-    target_range, target_rho = np.zeros(b.n), np.zeros(b.n)
-    target_range[t_idx] = np.maximum(
-        b.r0[target] + np.sqrt(np.maximum(extra_var, 0.0)) * noise, MIN_OUTPUT_RANGE_M
-    )
-    target_rho[t_idx] = b.rho[target] * b.t2[target]
-    return target_range, target_rho
+    noise_scale = 0.5 * b.range_accuracy_m**2 * b.p_min
+    return target_returns(b.n, b.idx, target, b.r0, b.rho, b.t2, b.p_target, b.p_clear, noise,
+                          noise_scale, MIN_OUTPUT_RANGE_M)  # fmt: skip
 
 
 def _reported_peak(b: _FogBeams, mask: npt.NDArray[np.bool_]) -> npt.NDArray[np.float64]:

@@ -77,3 +77,37 @@ def echo_ranges(
         out_r[i] = r
         out_rho[i] = p_fog[i] * (r * r)
     return out_r, out_rho
+
+
+@numba.njit(cache=True, nogil=True)
+def target_returns(
+    n: int,
+    idx: npt.NDArray[np.int64],
+    target: npt.NDArray[np.bool_],
+    r0_m: npt.NDArray[np.float64],
+    rho: npt.NDArray[np.float64],
+    t2: npt.NDArray[np.float64],
+    p_target: npt.NDArray[np.float64],
+    p_clear: npt.NDArray[np.float64],
+    noise: npt.NDArray[np.float64],
+    noise_scale: float,
+    min_range_m: float,
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    """(n,) range (m) and reflectivity of the returned targets, `fog._target_returns`.
+
+    Per active beam a (rows idx of the frame's n beams) whose target returns, in order, with
+    the next standard normal: range max(r0 + sqrt(max(c (1/P_w - 1/P_clear), 0)) noise,
+    min_range), c = noise_scale = dR^2 P_min / 2; reflectivity rho T^2. Zeros elsewhere.
+    """
+    out_r = np.zeros(n)
+    out_rho = np.zeros(n)
+    k = 0
+    for a in range(idx.size):
+        if not target[a]:
+            continue
+        extra_var = noise_scale * (1.0 / p_target[a] - 1.0 / p_clear[a])
+        r = r0_m[a] + math.sqrt(max(extra_var, 0.0)) * noise[k]
+        k += 1
+        out_r[idx[a]] = max(r, min_range_m)
+        out_rho[idx[a]] = rho[a] * t2[a]
+    return out_r, out_rho

@@ -204,7 +204,7 @@ def simulate_particles(
     two_way_ln = -2.0 * alpha * r0
     transmission = np.exp(two_way_ln)
     detected, target_power = optics.detection.targets_detected(
-        beams.clear_power, two_way_ln, beams.active, rng
+        beams.clear_power, two_way_ln, beams.active, rng, transmission
     )
 
     if mode == "dual":

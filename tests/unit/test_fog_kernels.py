@@ -40,3 +40,29 @@ def test_echo_ranges_match_numpy_bit_for_bit_on_every_branch():
     assert np.array_equal(got_r.view(np.uint64), want_r.view(np.uint64))
     assert np.array_equal(got_rho.view(np.uint64), want_rho.view(np.uint64))
     assert (want_r == 1e-3).any() and (want_r == r0 + 0.3).any()
+
+
+def test_target_returns_match_numpy_bit_for_bit():
+    from lads.physics.fog_kernels import target_returns
+
+    rng = np.random.default_rng(3)
+    n, active = 5000, 4000
+    idx = np.sort(rng.choice(n, active, replace=False))
+    target = rng.random(active) < 0.7
+    r0 = rng.uniform(0.5, 80.0, active)
+    rho = rng.random(active)
+    t2 = np.exp(-2 * 0.06 * r0)
+    p_clear = rho / r0**2 + 1e-7
+    p_target = p_clear * t2 * rng.uniform(0.5, 2.0, active)  # some above clear: no noise
+    noise = rng.standard_normal(int(target.sum())) * 1e4  # large: the range floor is reached
+    got_r, got_rho = target_returns(n, idx, target, r0, rho, t2, p_target, p_clear, noise,
+                                    0.5 * 0.02**2 * 4e-5, 1e-3)  # fmt: skip
+    # The rule as numpy expressions.
+    extra_var = 0.5 * 0.02**2 * 4e-5 * (1.0 / p_target[target] - 1.0 / p_clear[target])
+    want_r, want_rho = np.zeros(n), np.zeros(n)
+    want_r[idx[target]] = np.maximum(r0[target] + np.sqrt(np.maximum(extra_var, 0.0)) * noise,
+                                     1e-3)  # fmt: skip
+    want_rho[idx[target]] = rho[target] * t2[target]
+    assert np.array_equal(got_r.view(np.uint64), want_r.view(np.uint64))
+    assert np.array_equal(got_rho.view(np.uint64), want_rho.view(np.uint64))
+    assert (want_r[idx[target]] == 1e-3).any()
