@@ -419,35 +419,33 @@ def simulate_fog(
     noise = rng.standard_normal(int(target.sum()) + int(fog.sum()))
     k = int(target.sum())
     target_range, target_rho = _target_returns(b, target, noise[:k])
-    fog_range, fog_rho = np.zeros(n), np.zeros(n)
+    # The first return: the target's, or the fog echo written over it on the echo beams.
+    first_range, first_rho = target_range.copy(), target_rho.copy()
     # Dual mode needs every active beam's echo range (for second returns too): look up once.
     peak = _reported_peak(b, np.ones(b.idx.size, dtype=bool)) if mode == "dual" else None
     _echo_returns(b, fog, noise[k:], _reported_peak(b, fog) if peak is None else peak[fog],
-                  fog_range, fog_rho)  # fmt: skip
+                  first_range, first_rho)  # fmt: skip
     first = outcome.copy()
     first[b.idx[target]] = Outcome.ATTENUATED
     first[b.idx[fog]] = Outcome.PARTICLE
     first[b.idx[~target & ~fog]] = Outcome.LOST
-    is_fog = first == Outcome.PARTICLE
     common = {"extinction_per_m": alpha, "detection_threshold": p_min}
-    first_returns = (first, np.where(is_fog, fog_range, target_range),
-                     np.where(is_fog, fog_rho, target_rho))  # fmt: skip
+    first_returns = (first, first_range, first_rho)
     if mode != "dual":
-        return assemble(beams, sensor, outcome=first_returns[0], range_m=first_returns[1],
-                        reflectivity=first_returns[2], **common)  # fmt: skip
+        return assemble(beams, sensor, outcome=first, range_m=first_range,
+                        reflectivity=first_rho, **common)  # fmt: skip
     # The second return: the target behind a first fog echo, or (Velodyne's second
     # strongest) a detected fog echo in front of a target that is both strongest and last,
     # where the two are a pulse length apart (closer, the receiver sees one return).
     echo_second = target & ~fog & b.fog_ok & (peak <= r0 - params.pulse_length_m)
+    # The second return: the target's (behind a first echo), or the echo written over it.
     if echo_second.any():
         noise_e = rng.standard_normal(int(echo_second.sum()))
-        _echo_returns(b, echo_second, noise_e, peak[echo_second], fog_range, fog_rho)
+        _echo_returns(b, echo_second, noise_e, peak[echo_second], target_range, target_rho)
     second = np.full(n, Outcome.LOST, dtype=np.uint8)
     second[b.idx[fog & target]] = Outcome.ATTENUATED
     second[b.idx[echo_second]] = Outcome.PARTICLE
-    is_echo = second == Outcome.PARTICLE
-    second_returns = (second, np.where(is_echo, fog_range, target_range),
-                      np.where(is_echo, fog_rho, target_rho))  # fmt: skip
+    second_returns = (second, target_range, target_rho)
     return assemble_dual(beams, sensor, first=first_returns, second=second_returns, **common)
 
 
