@@ -62,19 +62,17 @@ def load_frame(csv_path: str | Path) -> RadiateFrame:
     )  # fmt: skip
 
 
-def _azimuth_deg(xyz: npt.NDArray[np.float32]) -> npt.NDArray[np.float64]:
-    return np.degrees(np.arctan2(xyz[:, 1].astype(np.float64), xyz[:, 0]))
-
-
-def _in_clean(az: npt.NDArray[np.float64]) -> npt.NDArray[np.bool_]:
+def in_clean_half(xyz: npt.NDArray[np.floating]) -> npt.NDArray[np.bool_]:
+    """(N,) True for points (N, 3) m in the half of the sweep free of the vehicle's structure
+    (azimuth in CLEAN_AZIMUTH_DEG)."""
+    az = np.degrees(np.arctan2(xyz[:, 1].astype(np.float64), xyz[:, 0]))
     return (az >= CLEAN_AZIMUTH_DEG[0]) & (az < CLEAN_AZIMUTH_DEG[1])
 
 
 def frame_stats(frame: RadiateFrame) -> dict[str, Any]:
     """Point count, ranges, intensities, and near returns per azimuth half."""
     r = np.linalg.norm(frame.xyz.astype(np.float64), axis=1)
-    az = _azimuth_deg(frame.xyz)
-    clean = _in_clean(az)
+    clean = in_clean_half(frame.xyz)
     near = r < NEAR_M
     beams_half = FIRINGS_PER_SWEEP * 32 / 2
     return {
@@ -107,7 +105,7 @@ def clean_half_beams(
     per beam that returned nothing.
     """
     r = np.linalg.norm(frame.xyz.astype(np.float64), axis=1)
-    keep = _in_clean(_azimuth_deg(frame.xyz)) & (r >= NEAR_M)
+    keep = in_clean_half(frame.xyz) & (r >= NEAR_M)
     xyz, inten = frame.xyz[keep], frame.intensity[keep]
     profile = load_profile(SENSOR)
     n_missing = max(FIRINGS_PER_SWEEP * 16 - int(keep.sum()), 0)

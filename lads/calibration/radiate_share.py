@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from lads.calibration.radiate import CLEAN_AZIMUTH_DEG, FIRINGS_PER_SWEEP, RadiateFrame
+from lads.calibration.radiate import FIRINGS_PER_SWEEP, RadiateFrame, in_clean_half
 from lads.errors import ConfigError
 from lads.physics import weather as wx
 from lads.sensors.profile import SensorProfile
@@ -69,9 +69,7 @@ def returns_profile(xyz: npt.NDArray[np.floating], firings: int) -> ReturnProfil
 def clean_half(frame: RadiateFrame) -> npt.NDArray[np.float64]:
     """(M, 3) m: a RADIATE frame's returns in the half of the sweep free of the vehicle's
     structure (`radiate.CLEAN_AZIMUTH_DEG`), FIRINGS_PER_SWEEP / 2 firings per channel."""
-    xyz = frame.xyz.astype(np.float64)
-    az = np.degrees(np.arctan2(xyz[:, 1], xyz[:, 0]))
-    return xyz[(az >= CLEAN_AZIMUTH_DEG[0]) & (az < CLEAN_AZIMUTH_DEG[1])]
+    return frame.xyz.astype(np.float64)[in_clean_half(frame.xyz)]
 
 
 def radiate_profile(frame: RadiateFrame) -> ReturnProfile:
