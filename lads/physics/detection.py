@@ -32,6 +32,7 @@ returns weaker than P_min.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -40,6 +41,7 @@ import numpy.typing as npt
 from scipy.special import log_ndtr, ndtr
 
 from lads.errors import ConfigError
+from lads.physics.kernels import APPROX, EXACT, survival_screen
 
 DETECTION_SETTINGS = ("sensor", "frame")
 # Phi(z) for z beyond this is 1 in float64 (1 - Phi(8.3) < 2^-53): survival is exactly 1.
@@ -91,12 +93,7 @@ class Detection:
         power = effective * (np.exp(two_way_ln) if transmission is None else transmission)
         if self.setting != "sensor":
             return active & (power >= self.threshold), power
-        survival = target_survival(effective, two_way_ln, self.threshold, self.spread_ln)
-        detected = active.copy()
-        uncertain = np.flatnonzero(active & (survival < 1.0))
-        if uncertain.size:
-            detected[uncertain] = rng.random(uncertain.size) < survival[uncertain]
-        return detected, power
+        return _draw_survivals(effective, two_way_ln, active, self, rng), power
 
     def faint_detected(
         self, power: npt.NDArray[np.float64], rng: np.random.Generator
@@ -125,25 +122,93 @@ def target_survival(
 
     Beams with z - d beyond CERTAIN_Z survive with probability exactly 1 and cost nothing.
     """
-    with np.errstate(divide="ignore", invalid="ignore"):
-        z = np.log(effective_power / limit_power) / spread_ln
-    z_weather = z + two_way_ln / spread_ln
+    z, z_weather = _z_scores(effective_power, two_way_ln, limit_power, spread_ln)
     out = np.ones_like(z)
     doubtful = np.flatnonzero(np.isfinite(z) & (z_weather < CERTAIN_Z))
     if doubtful.size:
-        zd, zw = z[doubtful], z_weather[doubtful]
-        # Phi(z) >= 1/2 for z >= 0 (every target under the sensor rule, P_eff >= P_lim): the
-        # plain ratio is exact there and cheaper; a z < 0 (another caller) takes the log form.
-        plain = zd >= 0.0
-        ratio = np.empty(doubtful.size)
-        # Phi(z) is exactly 1 beyond CERTAIN_Z: the ratio is then Phi(z - d) itself.
-        sure = zd >= CERTAIN_Z
-        ratio[sure] = ndtr(zw[sure])
-        part = plain & ~sure
-        ratio[part] = ndtr(zw[part]) / ndtr(zd[part])
-        ratio[~plain] = np.exp(log_ndtr(zw[~plain]) - log_ndtr(zd[~plain]))
-        out[doubtful] = ratio
+        out[doubtful] = _survival_ratio(z[doubtful], z_weather[doubtful])
     return out
+
+
+def _z_scores(
+    effective_power: npt.NDArray[np.float64],
+    two_way_ln: npt.NDArray[np.float64],
+    limit_power: float,
+    spread_ln: float,
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    """(N,) z = ln(P_eff / P_lim) / s in clear air and z - d in weather."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z = np.log(effective_power / limit_power) / spread_ln
+    return z, z + two_way_ln / spread_ln
+
+
+def _survival_ratio(
+    z: npt.NDArray[np.float64], z_weather: npt.NDArray[np.float64]
+) -> npt.NDArray[np.float64]:
+    """(M,) Phi(z_weather) / Phi(z), each element computed on its own (subsets agree)."""
+    # Phi(z) >= 1/2 for z >= 0 (every target under the sensor rule, P_eff >= P_lim): the
+    # plain ratio is exact there and cheaper; a z < 0 (another caller) takes the log form.
+    plain = z >= 0.0
+    ratio = np.empty(z.size)
+    # Phi(z) is exactly 1 beyond CERTAIN_Z: the ratio is then Phi(z - d) itself.
+    sure = z >= CERTAIN_Z
+    ratio[sure] = ndtr(z_weather[sure])
+    part = plain & ~sure
+    ratio[part] = ndtr(z_weather[part]) / ndtr(z[part])
+    ratio[~plain] = np.exp(log_ndtr(z_weather[~plain]) - log_ndtr(z[~plain]))
+    return ratio
+
+
+# Phi tabulated for the screen: rows PHI_STEPS_PER_UNIT per unit of z from PHI_TABLE_START.
+# Linear interpolation errs by at most phi(1) / (8 steps^2) = 4.6e-7 on Phi, so by at most
+# 1.9e-6 on q = Phi(z_w) / Phi(z) with Phi(z) >= 1/2; the tolerance keeps a 5x margin.
+PHI_TABLE_START = -9.0  # Phi(-9) = 1.1e-19: taken as 0 below
+PHI_STEPS_PER_UNIT = 256.0
+SCREEN_TOLERANCE = 1e-5
+
+
+@functools.lru_cache(maxsize=1)
+def _phi_table() -> npt.NDArray[np.float64]:
+    rows = math.ceil((CERTAIN_Z - PHI_TABLE_START) * PHI_STEPS_PER_UNIT) + 2
+    table = ndtr(PHI_TABLE_START + np.arange(rows) / PHI_STEPS_PER_UNIT)
+    table.flags.writeable = False
+    return table
+
+
+def _draw_survivals(
+    effective: npt.NDArray[np.float64],
+    two_way_ln: npt.NDArray[np.float64],
+    active: npt.NDArray[np.bool_],
+    rule: Detection,
+    rng: np.random.Generator,
+) -> npt.NDArray[np.bool_]:
+    """(N,) detected: u < q with one uniform per active beam whose q < 1, in beam order.
+
+    The decisions equal those of the exact q (`target_survival`): the tabulated q decides
+    wherever the draw lies beyond SCREEN_TOLERANCE of it, the exact q everywhere else.
+    """
+    z, z_weather = _z_scores(effective, two_way_ln, rule.threshold, rule.spread_ln)
+    q, state = survival_screen(
+        z, z_weather, active, _phi_table(), PHI_TABLE_START, PHI_STEPS_PER_UNIT, CERTAIN_Z,
+        SCREEN_TOLERANCE,
+    )  # fmt: skip
+    exact = np.flatnonzero(state == EXACT)
+    if exact.size:
+        q[exact] = _survival_ratio(z[exact], z_weather[exact])
+    uncertain = np.flatnonzero((state == APPROX) | ((state == EXACT) & (q < 1.0)))
+    detected = active.copy()
+    if not uncertain.size:
+        return detected
+    u = rng.random(uncertain.size)
+    q_u = q[uncertain]
+    slack = np.where(state[uncertain] == APPROX, SCREEN_TOLERANCE, 0.0)
+    hit = u < q_u - slack
+    close = np.flatnonzero(~hit & (u < q_u + slack))
+    if close.size:
+        rows = uncertain[close]
+        hit[close] = u[close] < _survival_ratio(z[rows], z_weather[rows])
+    detected[uncertain] = hit
+    return detected
 
 
 def resolve_detection(

@@ -68,7 +68,7 @@ import numpy.typing as npt
 from lads.errors import ConfigError
 from lads.physics.beams import Beams, assemble, assemble_dual, auto_threshold
 from lads.physics.detection import resolve_detection
-from lads.physics.fog_kernels import echo_ranges, target_returns
+from lads.physics.fog_kernels import MODE_CODES, echo_lookup, fog_choices, fog_returns
 from lads.physics.result import Outcome, WeatherResult
 from lads.sensors.profile import SensorProfile
 
@@ -390,13 +390,11 @@ def simulate_fog(
     )  # fmt: skip
     p_min = detection.threshold
     n = beams.range_m.size
-    outcome = np.full(n, Outcome.KEPT, dtype=np.uint8)
-    new_range = np.zeros(n)
-    new_rho = np.zeros(n)
     if alpha == 0.0 or n == 0:
         return assemble(
-            beams, sensor, outcome=outcome, range_m=new_range, reflectivity=new_rho,
-            extinction_per_m=alpha, detection_threshold=p_min,
+            beams, sensor, outcome=np.full(n, Outcome.KEPT, dtype=np.uint8),
+            range_m=np.zeros(n), reflectivity=np.zeros(n), extinction_per_m=alpha,
+            detection_threshold=p_min,
         )  # fmt: skip
     beta = backscatter_from_visibility(visibility_m, params)
     idx = np.flatnonzero(beams.active)
@@ -407,114 +405,28 @@ def simulate_fog(
         beams.clear_power[idx], two_way_ln, np.ones(idx.size, dtype=bool), rng, t2
     )
     table = soft_return_table(alpha, params)
-    p_fog = np.pi * beta * _lookup(table.peak_unit, r0, table)
-    p_fog[r0 < params.overlap_start_m] = 0.0
-    b = _FogBeams(
-        n=n, idx=idx, r0=r0, rho=rho, p_clear=detection.effective_power(rho / r0**2),
-        t2=t2, p_target=p_target, target_ok=target_ok, p_fog=p_fog,
-        fog_ok=detection.faint_detected(p_fog, rng), table=table, params=params,
-        p_min=p_min, range_accuracy_m=sensor.range_accuracy_m,
+    length = params.pulse_length_m
+    p_fog, reported, kappa = echo_lookup(
+        r0, table.target_range_m, table.peak_unit, table.peak_range_m,
+        table.relative_curvature_per_m2, np.pi * beta, params.overlap_start_m,
+        0.5 * length if params.report_pulse_centre else 0.0,
     )  # fmt: skip
-    target, fog = _choose(mode, b)
-    noise = rng.standard_normal(int(target.sum()) + int(fog.sum()))
-    k = int(target.sum())
-    target_range, target_rho = _target_returns(b, target, noise[:k])
-    # The first return: the target's, or the fog echo written over it on the echo beams.
-    first_range, first_rho = target_range.copy(), target_rho.copy()
-    # Dual mode needs every active beam's echo range (for second returns too): look up once.
-    peak = _reported_peak(b, np.ones(b.idx.size, dtype=bool)) if mode == "dual" else None
-    _echo_returns(b, fog, noise[k:], _reported_peak(b, fog) if peak is None else peak[fog],
-                  first_range, first_rho)  # fmt: skip
-    first = outcome.copy()
-    first[b.idx[target]] = Outcome.ATTENUATED
-    first[b.idx[fog]] = Outcome.PARTICLE
-    first[b.idx[~target & ~fog]] = Outcome.LOST
-    common = {"extinction_per_m": alpha, "detection_threshold": p_min}
-    first_returns = (first, first_range, first_rho)
-    if mode != "dual":
-        return assemble(beams, sensor, outcome=first, range_m=first_range,
-                        reflectivity=first_rho, **common)  # fmt: skip
-    # The second return: the target behind a first fog echo, or (Velodyne's second
-    # strongest) a detected fog echo in front of a target that is both strongest and last,
-    # where the two are a pulse length apart (closer, the receiver sees one return).
-    echo_second = target & ~fog & b.fog_ok & (peak <= r0 - params.pulse_length_m)
-    # The second return: the target's (behind a first echo), or the echo written over it.
-    if echo_second.any():
-        noise_e = rng.standard_normal(int(echo_second.sum()))
-        _echo_returns(b, echo_second, noise_e, peak[echo_second], target_range, target_rho)
-    second = np.full(n, Outcome.LOST, dtype=np.uint8)
-    second[b.idx[fog & target]] = Outcome.ATTENUATED
-    second[b.idx[echo_second]] = Outcome.PARTICLE
-    second_returns = (second, target_range, target_rho)
-    return assemble_dual(beams, sensor, first=first_returns, second=second_returns, **common)
-
-
-@dataclass(frozen=True, slots=True)
-class _FogBeams:
-    """The active beams of one foggy frame (arrays (A,), one per active beam, `idx` their
-    rows in the frame of n beams): target range r0 (m) and reflectivity rho, effective clear
-    power and two-way transmission, target and fog-echo peak powers and detections."""
-
-    n: int
-    idx: npt.NDArray[np.int64]
-    r0: npt.NDArray[np.float64]
-    rho: npt.NDArray[np.float64]
-    p_clear: npt.NDArray[np.float64]
-    t2: npt.NDArray[np.float64]
-    p_target: npt.NDArray[np.float64]
-    target_ok: npt.NDArray[np.bool_]
-    p_fog: npt.NDArray[np.float64]
-    fog_ok: npt.NDArray[np.bool_]
-    table: SoftReturnTable
-    params: FogParams
-    p_min: float
-    range_accuracy_m: float
-
-
-def _choose(mode: str, b: _FogBeams) -> tuple[npt.NDArray[np.bool_], npt.NDArray[np.bool_]]:
-    """(target returned, fog echo returned as the first return) per active beam."""
-    if mode == "strongest":
-        fog = b.fog_ok & (b.p_fog > b.p_target)
-        return b.target_ok & ~fog, fog
-    if mode == "last":
-        return b.target_ok, b.fog_ok & ~b.target_ok
-    # dual: the strongest return first (the echo where it beats or replaces the target)
-    return b.target_ok, b.fog_ok & ((b.p_fog > b.p_target) | ~b.target_ok)
-
-
-def _target_returns(
-    b: _FogBeams, target: npt.NDArray[np.bool_], noise: npt.NDArray[np.float64]
-) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
-    """(n,) range (m) and reflectivity of the returned targets: the SNR drop's extra range
-    noise (one standard normal per returned target) and intensity rho T^2."""
-    noise_scale = 0.5 * b.range_accuracy_m**2 * b.p_min
-    return target_returns(b.n, b.idx, target, b.r0, b.rho, b.t2, b.p_target, b.p_clear, noise,
-                          noise_scale, MIN_OUTPUT_RANGE_M)  # fmt: skip
-
-
-def _reported_peak(b: _FogBeams, mask: npt.NDArray[np.bool_]) -> npt.NDArray[np.float64]:
-    """Range at which the sensor reports the fog echo of the `mask` beams, m (pulse centre)."""
-    peak = _lookup(b.table.peak_range_m, b.r0[mask], b.table)
-    return peak - 0.5 * b.params.pulse_length_m if b.params.report_pulse_centre else peak
-
-
-def _echo_returns(
-    b: _FogBeams,
-    mask: npt.NDArray[np.bool_],
-    noise: npt.NDArray[np.float64],
-    reported: npt.NDArray[np.float64],
-    out_range: npt.NDArray[np.float64],
-    out_rho: npt.NDArray[np.float64],
-) -> None:
-    """Write the fog echoes of the `mask` beams into out_range (m) and out_rho (n,): the
-    reported peak plus timing noise (one standard normal per echo), intensity P_f r^2."""
-    if not mask.any():
-        return
-    kappa_pulse = 2.0 * np.pi**2 / b.params.pulse_length_m**2
-    out_r, rho = echo_ranges(
-        b.r0[mask], b.p_fog[mask], reported, noise, b.table.target_range_m,
-        b.table.relative_curvature_per_m2, b.p_min, kappa_pulse, b.range_accuracy_m,
-        0.5 * b.params.pulse_length_m, MIN_OUTPUT_RANGE_M,
+    fog_ok = detection.faint_detected(p_fog, rng)
+    choice, counts = fog_choices(
+        MODE_CODES[mode], target_ok, fog_ok, p_target, p_fog, r0, reported, length
+    )
+    noise = rng.standard_normal(int(counts[0]) + int(counts[1]))
+    # Second echoes draw after the first returns' normals (none drawn where there are none).
+    noise_second = rng.standard_normal(int(counts[2])) if counts[2] else np.zeros(0)
+    constants = np.array([
+        0.5 * sensor.range_accuracy_m**2 * p_min, p_min, 2.0 * np.pi**2 / length**2,
+        sensor.range_accuracy_m, 0.5 * length, MIN_OUTPUT_RANGE_M,
+    ])  # fmt: skip
+    codes1, range1, refl1, codes2, range2, refl2 = fog_returns(
+        n, idx, choice, r0, rho, t2, p_target, detection.effective_power(rho / r0**2), p_fog,
+        reported, kappa, noise, noise_second, constants,
     )  # fmt: skip
-    out_range[b.idx[mask]] = out_r
-    out_rho[b.idx[mask]] = rho
+    return assemble_dual(
+        beams, sensor, first=(codes1, range1, refl1), second=(codes2, range2, refl2),
+        extinction_per_m=alpha, detection_threshold=p_min,
+    )  # fmt: skip

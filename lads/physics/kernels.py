@@ -153,3 +153,79 @@ def poisson_counts_from_table(
             cdf += prob
         count[i] = c
     return mean, count
+
+
+# Survival states of `survival_screen`.
+SURE = np.uint8(0)  # q = 1 exactly: no draw
+APPROX = np.uint8(1)  # q < 1 for certain; q_approx is within the caller's tolerance of q
+EXACT = np.uint8(2)  # too close to 1 (or z < 0): the caller computes q exactly
+INV_SQRT_2PI = 1.0 / math.sqrt(2.0 * math.pi)
+# Phi values this far apart stay apart in float64 (its rounding near 1 is ~1e-16).
+DISTINCT_PHI_GAP = 1e-13
+
+
+@numba.njit(cache=True, nogil=True)
+def survival_screen(
+    z: npt.NDArray[np.float64],
+    z_weather: npt.NDArray[np.float64],
+    active: npt.NDArray[np.bool_],
+    phi_table: npt.NDArray[np.float64],
+    z_start: float,
+    steps_per_unit: float,
+    certain_z: float,
+    tolerance: float,
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.uint8]]:
+    """Survival q = Phi(z_w) / Phi(z) approximated from a table of Phi, and its state.
+
+    `lads.physics.detection.target_survival` is exact; this screen lets the caller skip its
+    two special-function calls wherever the table's answer is close enough to decide a draw.
+    Phi is linear between table rows (z_start + k / steps_per_unit); below z_start it is 0.
+
+    Args:
+        z, z_weather: (N,) float64 clear-air and weather z-scores of each beam.
+        active: (N,) bool beams the weather acts on.
+        phi_table: (K,) float64 Phi at the rows, reaching past certain_z.
+        tolerance: the bound the caller guarantees on |q_approx - q|.
+
+    Returns:
+        q_approx (N,) float64 (1.0 where SURE, unset where EXACT) and state (N,) uint8:
+        SURE (inactive, z not finite or z_weather >= certain_z, as the exact rule), APPROX
+        (z >= 0 and q < 1 for certain: q_approx + tolerance < 1, or the two Phi values too
+        far apart to round to the same float) or EXACT.
+    """
+    n = z.size
+    q = np.ones(n)
+    state = np.zeros(n, dtype=np.uint8)
+    for i in range(n):
+        zc, zw = z[i], z_weather[i]
+        if not active[i] or not math.isfinite(zc) or not zw < certain_z:
+            continue
+        if zc < 0.0:
+            state[i] = EXACT
+            continue
+        num = 0.0
+        if zw > z_start:
+            pos = (zw - z_start) * steps_per_unit
+            k = int(pos)
+            num = phi_table[k] + (pos - k) * (phi_table[k + 1] - phi_table[k])
+        den = 1.0
+        if zc < certain_z:
+            pos = (zc - z_start) * steps_per_unit
+            k = int(pos)
+            den = phi_table[k] + (pos - k) * (phi_table[k + 1] - phi_table[k])
+        q[i] = num / den
+        if q[i] + tolerance < 1.0:
+            state[i] = APPROX
+            continue
+        # Near 1, q < 1 holds exactly when Phi(z_w) < Phi(min(z, certain_z)) by more than the
+        # special function's rounding. Two lower bounds of that gap: phi's minimum times the
+        # interval, and (for z_w > 0) Mills' ratio bounds x phi(x) / (x^2 + 1) <= 1 - Phi(x)
+        # <= phi(x) / x.
+        top = min(zc, certain_z)
+        phi_top = math.exp(-0.5 * top * top) * INV_SQRT_2PI
+        phi_w = math.exp(-0.5 * zw * zw) * INV_SQRT_2PI
+        gap = (top - zw) * min(phi_top, phi_w)
+        if zw > 0.0:
+            gap = max(gap, phi_w * zw / (zw * zw + 1.0) - phi_top / top)
+        state[i] = APPROX if gap > DISTINCT_PHI_GAP else EXACT
+    return q, state

@@ -88,3 +88,66 @@ def test_the_limit_power_is_reflectivity_over_range_squared():
     limit = load_profile("hdl64e").detection
     assert limit.power == pytest.approx(limit.reflectivity / limit.range_m**2)
     assert dataclasses.is_dataclass(limit)
+
+
+def _exact_draws(clear, two_way_ln, active, rule, seed):
+    """The rule's definition: q exact for every beam, one uniform per active beam whose
+    q < 1 (in beam order), detected iff u < q."""
+    effective = rule.effective_power(clear)
+    survival = target_survival(effective, two_way_ln, rule.threshold, rule.spread_ln)
+    rng = np.random.default_rng(seed)
+    detected = active.copy()
+    uncertain = np.flatnonzero(active & (survival < 1.0))
+    detected[uncertain] = rng.random(uncertain.size) < survival[uncertain]
+    return detected, rng.bit_generator.state
+
+
+def _hard_cases(n, rng):
+    """Targets from just above the limit to far above it, weather from none to heavy; many
+    survivals within 1e-12 of 1 (clear or almost clear paths), some exactly 1."""
+    limit = 4e-5
+    clear = limit * np.exp(rng.uniform(0.0, 6.0, n))
+    two_way_ln = -np.concatenate([
+        rng.uniform(0.0, 3.0, n // 2),
+        10.0 ** rng.uniform(-14, -2, n - n // 2 - 20),
+        np.zeros(20),
+    ])  # fmt: skip
+    active = rng.random(n) < 0.95
+    return clear, two_way_ln, active
+
+
+@pytest.mark.parametrize("tolerance", [None, 0.05])
+def test_screened_draws_equal_the_exact_rule_draw_for_draw(monkeypatch, tolerance):
+    """The tabulated screen (`targets_detected`) must decide every beam as the exact q does
+    and draw the same uniforms; a wide tolerance sends many draws to the exact fallback."""
+    import lads.physics.detection as detection
+
+    if tolerance is not None:
+        monkeypatch.setattr(detection, "SCREEN_TOLERANCE", tolerance)
+    rule = resolve_detection("sensor", 4e-5, 0.39, 1e-7)
+    clear, two_way_ln, active = _hard_cases(200_000, np.random.default_rng(5))
+    rng = np.random.default_rng(8)
+    detected, _ = rule.targets_detected(clear, two_way_ln, active, rng)
+    want, state = _exact_draws(clear, two_way_ln, active, rule, 8)
+    np.testing.assert_array_equal(detected, want)
+    assert rng.bit_generator.state == state
+    assert 0 < (active & ~detected).sum() < active.sum()
+
+
+def test_the_phi_table_keeps_its_error_bound():
+    """|q_table - q| stays below a fifth of the screen's tolerance (its stated margin)."""
+    import lads.physics.detection as detection
+    from lads.physics.kernels import APPROX, survival_screen
+
+    rng = np.random.default_rng(2)
+    z = rng.uniform(0.0, 12.0, 400_000)
+    z_weather = z - rng.uniform(0.0, 20.0, z.size) ** 2 / 20
+    q, state = survival_screen(
+        z, z_weather, np.ones(z.size, dtype=bool), detection._phi_table(),
+        detection.PHI_TABLE_START, detection.PHI_STEPS_PER_UNIT, detection.CERTAIN_Z,
+        detection.SCREEN_TOLERANCE,
+    )  # fmt: skip
+    shown = state == APPROX
+    exact = detection._survival_ratio(z[shown], z_weather[shown])
+    assert np.abs(q[shown] - exact).max() < detection.SCREEN_TOLERANCE / 5
+    assert (exact < 1.0).all() and shown.sum() > 300_000
