@@ -18,7 +18,13 @@ from typing import Any  # noqa: E402
 import numpy as np  # noqa: E402
 from tqdm import tqdm  # noqa: E402
 
-from benchmarks.common import kitti_frames, kitti_labels, machine_info, write_result  # noqa: E402
+from benchmarks.common import (  # noqa: E402
+    kitti_frames,
+    kitti_labels,
+    machine_info,
+    reference_workload_ms,
+    write_result,
+)
 from lads.physics import weather  # noqa: E402
 from lads.physics.wet_ground import WetGroundParams, wet_ground  # noqa: E402
 from lads.sensors.profile import load_profile  # noqa: E402
@@ -118,6 +124,7 @@ def time_settings(
 def main(out_dir: Path | None = None) -> dict[str, Any]:
     frames = kitti_frames()
     labels = kitti_labels()
+    reference_workload = reference_workload_ms()
     rows = time_settings(frames, labels, SETTINGS + MODE_SETTINGS)
     payload = {
         "what": "wall time of lads.physics.weather.{rain,snow,fog} and "
@@ -127,6 +134,8 @@ def main(out_dir: Path | None = None) -> dict[str, Any]:
         "one thread, after one warm-up call per frame (table and numba caches built), "
         "settings timed round-robin (each round runs every setting on every frame)",
         "machine": machine_info(),
+        # The same fixed workloads before and after: how fast the machine was during the run.
+        "reference_workload_before_after": [reference_workload, reference_workload_ms()],
         "results": rows,
     }
     write_result("speed.json", payload, out_dir)

@@ -13,8 +13,7 @@ import numba
 import numpy as np
 import numpy.typing as npt
 
-_LOST = np.uint8(3)
-_KEPT = np.uint8(0)
+_KEPT, _ATTENUATED, _PARTICLE, _LOST = np.uint8(0), np.uint8(1), np.uint8(2), np.uint8(3)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -229,3 +228,60 @@ def survival_screen(
             gap = max(gap, phi_w * zw / (zw * zw + 1.0) - phi_top / top)
         state[i] = APPROX if gap > DISTINCT_PHI_GAP else EXACT
     return q, state
+
+
+@numba.njit(cache=True, nogil=True)
+def dual_particle_returns(
+    active: npt.NDArray[np.bool_],
+    detected: npt.NDArray[np.bool_],
+    target_power: npt.NDArray[np.float64],
+    target_range_m: npt.NDArray[np.float64],
+    target_refl: npt.NDArray[np.float64],
+    strongest_range_m: npt.NDArray[np.float64],
+    strongest_power: npt.NDArray[np.float64],
+    has_strongest: npt.NDArray[np.bool_],
+    last_range_m: npt.NDArray[np.float64],
+    last_power: npt.NDArray[np.float64],
+    has_last: npt.NDArray[np.bool_],
+) -> tuple[
+    npt.NDArray[np.uint8], npt.NDArray[np.float64], npt.NDArray[np.float64],
+    npt.NDArray[np.uint8], npt.NDArray[np.float64], npt.NDArray[np.float64],
+]:  # fmt: skip
+    """First and second returns (n,) of a dual-return rain or snow frame
+    (`lads.physics.particles._dual`: the rule is stated there).
+
+    Args:
+        active, detected: (n,) beams the weather acts on, targets still detected.
+        target_power, target_range_m, target_refl: (n,) each target's weather power, range
+            (m) and reflectivity.
+        strongest_*, last_*, has_*: (n,) range (m) and power of each beam's strongest and of
+            its farthest detectable particle, and whether it has one.
+
+    Returns:
+        codes, range (m) and reflectivity of the first return, then of the second.
+    """
+    n = active.size
+    codes1 = np.full(n, _KEPT, dtype=np.uint8)
+    range1 = np.empty(n)
+    refl1 = np.empty(n)
+    codes2 = np.full(n, _LOST, dtype=np.uint8)
+    range2 = np.empty(n)
+    refl2 = np.empty(n)
+    for i in range(n):
+        s_r, s_p, has_s = strongest_range_m[i], strongest_power[i], has_strongest[i]
+        l_r, l_p, has_l = last_range_m[i], last_power[i], has_last[i]
+        t_r, t_refl = target_range_m[i], target_refl[i]
+        first_particle = has_s and active[i] and (not detected[i] or s_p > target_power[i])
+        if first_particle:
+            codes1[i], range1[i], refl1[i] = _PARTICLE, s_r, s_p * (s_r * s_r)
+        else:
+            codes1[i] = _ATTENUATED if detected[i] else (_LOST if active[i] else _KEPT)
+            range1[i], refl1[i] = t_r, t_refl
+        range2[i], refl2[i] = t_r, t_refl
+        if first_particle and detected[i]:
+            codes2[i] = _ATTENUATED
+        elif first_particle and has_l and l_r != s_r:
+            codes2[i], range2[i], refl2[i] = _PARTICLE, l_r, l_p * (l_r * l_r)
+        elif not first_particle and detected[i] and has_s:
+            codes2[i], range2[i], refl2[i] = _PARTICLE, s_r, s_p * (s_r * s_r)
+    return codes1, range1, refl1, codes2, range2, refl2

@@ -39,6 +39,7 @@ import numpy.typing as npt
 from lads.errors import ConfigError
 from lads.physics.beams import Beams, assemble, assemble_dual, auto_threshold, unchanged
 from lads.physics.detection import Detection, resolve_detection
+from lads.physics.kernels import dual_particle_returns
 from lads.physics.mie import extinction_per_m
 from lads.physics.psd import SIZE_DISTRIBUTIONS, ExponentialPSD
 from lads.physics.result import Outcome, WeatherResult
@@ -287,30 +288,19 @@ def _dual(
     )
     s_r, s_p, has_s = _best_per_beam(n, owner, r_p, p_p, "strongest")
     l_r, l_p, has_l = _best_per_beam(n, owner, r_p, p_p, "last")
-    particle_first = has_s & beams.active & (~detected | (s_p > target_power))
     target_range, target_refl = _target_returns(
         beams, sensor, optics, target_power, transmission, detected, rng
     )
-    first = np.full(n, Outcome.KEPT, dtype=np.uint8)
-    first[beams.active] = Outcome.LOST
-    first[detected] = Outcome.ATTENUATED
-    first[particle_first] = Outcome.PARTICLE
-    range1 = np.where(particle_first, s_r, target_range)
-    refl1 = np.where(particle_first, s_p * s_r**2, target_refl)
-    second = np.full(n, Outcome.LOST, dtype=np.uint8)
-    last_particle = particle_first & ~detected & has_l & (l_r != s_r)
     # Target strongest and last: Velodyne's dual mode then reports the second strongest,
     # the strongest flake in front (the WADS recording shows them, lads.calibration.wads).
-    behind_target = ~particle_first & detected & has_s
-    second[particle_first & detected] = Outcome.ATTENUATED
-    second[last_particle | behind_target] = Outcome.PARTICLE
-    range2 = np.where(last_particle, l_r, np.where(behind_target, s_r, target_range))
-    refl2 = np.where(last_particle, l_p * l_r**2,
-                     np.where(behind_target, s_p * s_r**2, target_refl))  # fmt: skip
+    codes1, range1, refl1, codes2, range2, refl2 = dual_particle_returns(
+        beams.active, detected, target_power, target_range, target_refl, s_r, s_p, has_s, l_r,
+        l_p, has_l,
+    )  # fmt: skip
     common = {"extinction_per_m": optics.particles.alpha_per_m,
               "detection_threshold": optics.threshold}  # fmt: skip
-    return assemble_dual(beams, sensor, first=(first, range1, refl1),
-                         second=(second, range2, refl2), **common)  # fmt: skip
+    return assemble_dual(beams, sensor, first=(codes1, range1, refl1),
+                         second=(codes2, range2, refl2), **common)  # fmt: skip
 
 
 def _best_per_beam(
