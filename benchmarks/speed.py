@@ -11,6 +11,9 @@ import os
 for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
+import math  # noqa: E402
+import mmap  # noqa: E402
+import resource  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 from typing import Any  # noqa: E402
@@ -73,9 +76,11 @@ def _call(frames: list[np.ndarray], labels: list[np.ndarray], f_index: int,
     return lambda rng: simulate(points[:, :3], points[:, 3], sensor=profile, rng=rng, **kw)
 
 
-def _summary(setting: tuple[Any, ...], times_ms: list[float], counts: list[dict[str, int]],
-             n_points: int, n_frames: int) -> dict[str, Any]:  # fmt: skip
-    """Median / min / p90 wall time per frame of one setting, and what it did."""
+def _summary(setting: tuple[Any, ...], times_ms: list[float], faults: list[int],
+             counts: list[dict[str, int]], n_points: int,
+             n_frames: int) -> dict[str, Any]:  # fmt: skip
+    """Median / min / p90 wall time per frame of one setting, its page faults and what it
+    did."""
     name, key, value, *rest = setting
     arr = np.asarray(times_ms)
     summary: dict[str, Any] = {
@@ -86,6 +91,8 @@ def _summary(setting: tuple[Any, ...], times_ms: list[float], counts: list[dict[
         "min_ms": round(float(arr.min()), 2),
         "p90_ms": round(float(np.percentile(arr, 90)), 2),
         "runs": int(arr.size),
+        # Minor page faults do not drift with the machine's speed, unlike wall time.
+        "minor_page_faults_per_frame_median": int(np.median(faults)),
         "points_per_frame_mean": round(n_points / n_frames),
         "particle_fraction": round(sum(c["particle"] for c in counts) / n_points, 5),
         "lost_fraction": round(sum(c["lost"] for c in counts) / n_points, 5),
@@ -107,18 +114,36 @@ def time_settings(
         for call in per_setting:
             call(np.random.default_rng(0))
     times: list[list[float]] = [[] for _ in settings]
+    faults: list[list[int]] = [[] for _ in settings]
     counts: list[list[dict[str, int]]] = [[{}] * len(frames) for _ in settings]
     for rep in tqdm(range(REPEATS), desc="speed rounds", unit="round"):
         for k, per_setting in enumerate(calls):
             for f, call in enumerate(per_setting):
                 rng = np.random.default_rng([f, rep])
+                faults_before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
                 start = time.perf_counter()
                 result = call(rng)
                 times[k].append(1e3 * (time.perf_counter() - start))
+                faults[k].append(resource.getrusage(resource.RUSAGE_SELF).ru_minflt - faults_before)
                 counts[k][f] = result.counts()
     n_points = sum(p.shape[0] for p in frames)
-    return [_summary(s, times[k], counts[k], n_points, len(frames))
+    return [_summary(s, times[k], faults[k], counts[k], n_points, len(frames))
             for k, s in enumerate(settings)]  # fmt: skip
+
+
+def page_fault_us(size_mb: int = 64, repeats: int = 5) -> float:
+    """Microseconds per minor page fault on this machine: first touch of fresh anonymous
+    pages, min over repeats (what an array the allocator maps anew costs per 4 kB)."""
+    best = math.inf
+    for _ in range(repeats):
+        region = mmap.mmap(-1, size_mb << 20)
+        view = np.frombuffer(region, dtype=np.uint8)
+        start = time.perf_counter()
+        view[:: mmap.PAGESIZE] = 1
+        best = min(best, (time.perf_counter() - start) / ((size_mb << 20) // mmap.PAGESIZE))
+        del view
+        region.close()
+    return round(best * 1e6, 3)
 
 
 def main(out_dir: Path | None = None) -> dict[str, Any]:
@@ -136,6 +161,7 @@ def main(out_dir: Path | None = None) -> dict[str, Any]:
         "machine": machine_info(),
         # The same fixed workloads before and after: how fast the machine was during the run.
         "reference_workload_before_after": [reference_workload, reference_workload_ms()],
+        "page_fault_us": page_fault_us(),
         "results": rows,
     }
     write_result("speed.json", payload, out_dir)
