@@ -235,7 +235,7 @@ DAMAGE: dict[str, Callable[[Path], None]] = {
 
 def _stale_journal(out: Path) -> None:
     """A journal record claiming an item is done, over outputs that are not its own."""
-    from lads.worker import state_path
+    from lads.built_tree import state_path
 
     _flip(out / SCAN)
     rows = [json.loads(line) for line in (out / "manifest.jsonl").read_text().splitlines()]

@@ -16,30 +16,21 @@ import yaml
 
 import lads
 from lads import provenance
+from lads.built_tree import (
+    MANIFEST,
+    NOT_SUMMED,
+    PIPELINE_YAML,
+    PREVIEW,
+    RUN_JSON,
+    SHA256SUMS,
+    STATE_DIR,
+    BuildPlan,
+    identity,
+)
 from lads.files import atomic_write, sha256_file
 from lads.frame import Item
-from lads.lock import LOCK_NAME
 from lads.run_info import git_commit, library_versions
-from lads.worker import STATE_DIR, BuildPlan, reader_for
-
-MANIFEST = "manifest.jsonl"
-RUN_JSON = "run.json"
-PIPELINE_YAML = "pipeline.yaml"
-SHA256SUMS = "SHA256SUMS"
-RUN_REPORT = "run_report.json"
-NOT_SUMMED = {SHA256SUMS, RUN_REPORT, LOCK_NAME}
-PREVIEW = "figures/preview.png"
-
-
-def identity(plan: BuildPlan) -> dict[str, Any]:
-    return {
-        "source": plan.source,
-        "seed": plan.seed,
-        "reader_options": {
-            k: list(v) if isinstance(v, tuple) else v for k, v in plan.reader_options
-        },
-        "config_hash": plan.pipeline.config_hash(),
-    }
+from lads.worker import reader_for
 
 
 def finalise(

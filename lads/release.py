@@ -27,8 +27,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from lads.built_tree import MANIFEST, RUN_JSON, SHA256SUMS
 from lads.config import find_pipeline, load_pipeline
-from lads.runner import MANIFEST, RUN_JSON, SHA256SUMS, run_build
+from lads.runner import run_build
 from lads.verify import verify_tree
 
 RELEASE_VARIANTS = ("snow", "rain")

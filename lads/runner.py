@@ -16,31 +16,29 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 from lads import provenance
-from lads.config import PipelineConfig, parse_pipeline
-from lads.errors import BuildError, ManifestError, OutputWriteError
-from lads.files import atomic_copy, atomic_write, remove_stray_temps, sha256_file, write_error
-from lads.finalise import (
+from lads.built_tree import (
     MANIFEST,
-    NOT_SUMMED,
-    PIPELINE_YAML,
+    PLAN_JSON,
     RUN_JSON,
     RUN_REPORT,
     SHA256SUMS,
-    finalise,
+    STATE_DIR,
+    BuildPlan,
+    freeze_options,
     identity,
+    state_path,
 )
+from lads.config import PipelineConfig
+from lads.errors import BuildError, OutputWriteError
+from lads.files import atomic_copy, atomic_write, remove_stray_temps, sha256_file, write_error
+from lads.finalise import finalise
 from lads.frame import Item
 from lads.lock import LOCK_NAME, output_lock
 from lads.readers.base import unreadable_reason
-from lads.worker import STATE_DIR, BuildPlan, process_items, reader_for, stages_for, state_path
+from lads.worker import process_items, reader_for, stages_for
 
-__all__ = [
-    "MANIFEST", "NOT_SUMMED", "PIPELINE_YAML", "RUN_JSON", "RUN_REPORT", "SHA256SUMS",
-    "BuildReport", "plan_from_tree", "run_build",
-]  # fmt: skip
+__all__ = ["BuildReport", "run_build"]
 
 log = logging.getLogger(__name__)
 
@@ -97,13 +95,6 @@ class BuildReport:
         return "\n".join(lines)
 
 
-def freeze_options(options: dict[str, Any]) -> tuple[tuple[str, Any], ...]:
-    """Reader options as sorted (key, value) pairs, lists as tuples (hashable, picklable)."""
-    return tuple(
-        (k, tuple(v) if isinstance(v, list | tuple) else v) for k, v in sorted(options.items())
-    )
-
-
 def _check_paths(source_root: Path, out_root: Path) -> None:
     src, out = source_root.resolve(), out_root.resolve()
     if out == src or src in out.parents:
@@ -148,7 +139,7 @@ def _previous_identity(path: Path, ident: dict[str, Any]) -> dict[str, Any]:
 def _claim_output(out_root: Path, plan: BuildPlan) -> None:
     """Refuse to mix builds: OUT must be empty, or a (partial) build of the same plan."""
     ident = identity(plan)
-    marker = out_root / STATE_DIR / "plan.json"
+    marker = out_root / STATE_DIR / PLAN_JSON
     previous: dict[str, Any] | None = None
     if marker.is_file():
         previous = _previous_identity(marker, ident)
@@ -452,26 +443,3 @@ def _write_report(out_root: Path, report: BuildReport, seconds: list[float]) -> 
         "step_ms_per_item": report.step_ms_per_item(),
     }
     atomic_write(out_root / RUN_REPORT, (json.dumps(data, indent=1) + "\n").encode())
-
-
-def plan_from_tree(out_root: Path, source_root: Path) -> BuildPlan:
-    """The BuildPlan a finished tree was built with (from its run.json and pipeline.yaml)."""
-    out_root, source_root = Path(out_root).resolve(), Path(source_root).resolve()
-    try:
-        run = json.loads((out_root / RUN_JSON).read_text())
-        data = yaml.safe_load((out_root / PIPELINE_YAML).read_text())
-    except (OSError, json.JSONDecodeError, yaml.YAMLError) as exc:
-        raise ManifestError(
-            f"{out_root}: cannot read {RUN_JSON} / {PIPELINE_YAML} ({exc}); is this a finished "
-            "lads build?"
-        ) from exc
-    pipeline = parse_pipeline(data, str(out_root / PIPELINE_YAML))
-    if pipeline.config_hash() != run.get("config_hash"):
-        raise ManifestError(
-            f"{out_root / PIPELINE_YAML}: its hash does not match run.json config_hash; the tree "
-            "was edited after the build."
-        )
-    options = freeze_options(run.get("reader_options", {}))
-    return BuildPlan(
-        run["source"], str(source_root), str(out_root), options, pipeline, int(run["seed"])
-    )

@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from lads import correspondence, provenance
+from lads.built_tree import BuildPlan, plan_from_tree, state_path
 from lads.config import PipelineConfig
 from lads.errors import LadsError, OutputWriteError
 from lads.files import atomic_write, sha256_bytes, sha256_file, write_error
@@ -24,28 +25,6 @@ from lads.readers.base import EncodedFile, Reader
 from lads.seeding import rng_for, seed_entropy
 from lads.stages import build_stage
 from lads.stages.base import Stage
-
-STATE_DIR = ".lads-state"
-
-
-@dataclass(frozen=True, slots=True)
-class BuildPlan:
-    """Everything a worker needs to process items; picklable, no open handles.
-
-    Attributes:
-        source: reader name.
-        source_root, out_root: absolute paths as strings.
-        reader_options: (key, value) pairs passed to the reader constructor.
-        pipeline: the effective pipeline.
-        seed: root seed of the run.
-    """
-
-    source: str
-    source_root: str
-    out_root: str
-    reader_options: tuple[tuple[str, Any], ...]
-    pipeline: PipelineConfig
-    seed: int
 
 
 @functools.lru_cache(maxsize=4)
@@ -172,11 +151,6 @@ def _output_rows(files: list[EncodedFile]) -> list[dict[str, Any]]:
          "sha256": sha256_bytes(f.payload), "records": f.records, "record_bytes": f.record_bytes}
         for f in files
     ]  # fmt: skip
-
-
-def state_path(out_root: Path, item_id: str) -> Path:
-    """Where the finished-item record of one item is journaled during a build."""
-    return out_root / STATE_DIR / "items" / (sha256_bytes(item_id.encode())[:32] + ".json")
 
 
 # glibc's own ceiling for its adaptive mmap threshold on 64-bit Linux (4 MiB x sizeof(long)).
@@ -332,8 +306,6 @@ def regenerate_outputs(
     Uses the tree's own OUT/pipeline.yaml and run.json, so the bytes must match the
     manifest if the build was deterministic and neither tree changed.
     """
-    from lads.runner import plan_from_tree
-
     plan = plan_from_tree(out_root, source_root)
     wanted = set(item_ids)
     items = [i for i in reader_for(plan).items() if i.item_id in wanted]

@@ -11,13 +11,12 @@ from collections.abc import Iterable
 from concurrent.futures import ThreadPoolExecutor, as_completed
 from pathlib import Path
 
+from lads.built_tree import NOT_SUMMED, SHA256SUMS, STATE_DIR
 from lads.files import TMP_SUFFIX
-from lads.lock import LOCK_NAME
 from lads.verify.state import Verifier, entries
 
-SUMS = "SHA256SUMS"
-NOT_SUMMED = frozenset({SUMS, "run_report.json", LOCK_NAME})
-BUILD_STATE_DIR = ".lads-state"  # lads.worker.STATE_DIR, removed when a build finishes
+SUMS = SHA256SUMS  # the names verify has always exported
+BUILD_STATE_DIR = STATE_DIR
 _SUM_LINE = re.compile(r"^([0-9a-fA-F]{64}) ([ *])(.+)$")
 
 

@@ -28,7 +28,7 @@ ADVICE = {
     "source_unreadable": "pass the source tree the output was built from",
     "missing_source_item": "the build skipped it: re-run the build",
     "extra_output_item": "the tree was built from another source, or the source lost items",
-    "regenerate_failed": "pass --source and check that lads.runner is installed",
+    "regenerate_failed": "pass --source and check that lads.worker is installed",
     "regenerated_differs": "processing is not reproducible here (compare lads version, "
     "libraries and device with run.json) or the tree was altered",
     "incomplete_release": "",

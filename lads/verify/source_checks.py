@@ -2,10 +2,9 @@
 manifest names, the one-to-one correspondence of items, K regenerated items and the expected
 inventory of a release.
 
-`lads.readers`, `lads.runner` and `lads.inventory` are imported when a check runs, not at
+`lads.readers`, `lads.worker` and `lads.inventory` are imported when a check runs, not at
 import time: verify works without the first two (the check then notes or reports why), and
-tests replace `lads.readers` in sys.modules or patch `lads.runner.regenerate_outputs`, which
-is therefore looked up on every call.
+tests replace `lads.readers` in sys.modules or patch `lads.worker.regenerate_outputs`.
 """
 
 from __future__ import annotations
@@ -95,14 +94,6 @@ def _check_copied_list(v: Verifier, reader: Any) -> None:
         v.add(rel, "missing_output", "a file to copy from the source is not in the tree")
 
 
-def _regenerate_outputs() -> Any:
-    """lads.runner.regenerate_outputs (the contract), else the builder's lads.worker one."""
-    runner = importlib.import_module("lads.runner")
-    if hasattr(runner, "regenerate_outputs"):
-        return runner.regenerate_outputs
-    return importlib.import_module("lads.worker").regenerate_outputs
-
-
 def check_regenerated(v: Verifier, k: int, seed: int) -> None:
     rows = sorted(v.ok_rows(), key=lambda r: r["item_id"])
     if v.src is None or not rows:
@@ -112,7 +103,9 @@ def check_regenerated(v: Verifier, k: int, seed: int) -> None:
     chosen = [rows[i] for i in sorted(int(i) for i in picks)]
     ids = [r["item_id"] for r in chosen]
     try:
-        got = _regenerate_outputs()(v.out, v.src, ids)
+        from lads.worker import regenerate_outputs
+
+        got = regenerate_outputs(v.out, v.src, ids)
     except (ImportError, AttributeError, LadsError) as exc:
         v.add(".", "regenerate_failed", f"cannot regenerate {ids}: {exc}")
         return

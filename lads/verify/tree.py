@@ -30,7 +30,7 @@ def verify_tree(
         out_root: the output tree (docs/output_tree.md).
         source_root: the source tree it was built from, or None to check the tree alone.
         regenerate: re-process this many random ok items (needs source_root) with
-            `lads.runner.regenerate_outputs` and compare their hashes with the manifest.
+            `lads.worker.regenerate_outputs` and compare their hashes with the manifest.
         seed: seed of the random choice of regenerated items.
         inventory: expected release inventory, e.g. "semantickitti-00-10" (manifests/).
         progress: show a tqdm bar while hashing (None: only on a terminal).

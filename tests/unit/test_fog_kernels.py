@@ -39,8 +39,10 @@ def _numpy_rule(mode, n, idx, r0, rho, t2, p_target, p_clear, target_ok, fog_ok,
 
     def echo(mask, e):
         with np.errstate(divide="ignore"):  # P_f = 0 (no fog in front): timing is inf
-                timing = DR / np.sqrt(2.0 * (p_fog[mask] / P_MIN)) * np.minimum(
-                2 * np.pi**2 / LENGTH**2 / kappa[mask], KAPPA_RATIO_CAP
+            timing = (
+                DR
+                / np.sqrt(2.0 * (p_fog[mask] / P_MIN))
+                * np.minimum(2 * np.pi**2 / LENGTH**2 / kappa[mask], KAPPA_RATIO_CAP)
             )
         sigma = np.minimum(timing, 1.0 / np.sqrt(kappa[mask]))
         out = np.clip(reported[mask] + sigma * e, MIN_RANGE, r0[mask] + 0.5 * LENGTH)
@@ -108,7 +110,8 @@ def test_fog_loops_match_the_numpy_rule_bit_for_bit(mode):
         for g, w in zip(values, expected, strict=True):
             assert np.array_equal(g[shown].view(np.uint64), w[shown].view(np.uint64))
     if mode == "dual":
-        assert counts[2] > 0 and ((got[0] == Outcome.PARTICLE) & (got[3] == Outcome.ATTENUATED)).any()
+        both = (got[0] == Outcome.PARTICLE) & (got[3] == Outcome.ATTENUATED)
+        assert counts[2] > 0 and both.any()
     ranges = got[1][got[0] == Outcome.PARTICLE]
     assert (ranges == MIN_RANGE).any()
 

@@ -12,7 +12,6 @@ import json
 import shutil
 import subprocess
 import sys
-import types
 from pathlib import Path
 from urllib.parse import quote
 
@@ -131,7 +130,7 @@ def test_unfinished_build_journal_is_one_problem(tree):
     from lads.verify import BUILD_STATE_DIR
 
     try:
-        from lads.worker import STATE_DIR
+        from lads.built_tree import STATE_DIR
     except ImportError:
         STATE_DIR = BUILD_STATE_DIR
     assert STATE_DIR == BUILD_STATE_DIR
@@ -395,7 +394,7 @@ def test_every_problem_is_reported(tree):
 
 @pytest.fixture
 def fake_regenerate(monkeypatch, tree):
-    """Monkeypatched lads.runner.regenerate_outputs: the manifest's hashes, one of them wrong."""
+    """Monkeypatched lads.worker.regenerate_outputs: the manifest's hashes, one of them wrong."""
     calls = []
     _, out = tree
     wrong = "semantickitti:" + SCAN1
@@ -408,14 +407,7 @@ def fake_regenerate(monkeypatch, tree):
             got[wrong][SCAN1] = "0" * 64
         return got
 
-    try:
-        import lads.runner  # noqa: F401
-
-        monkeypatch.setattr("lads.runner.regenerate_outputs", regenerate_outputs, raising=False)
-    except ImportError:
-        fake = types.ModuleType("lads.runner")
-        fake.regenerate_outputs = regenerate_outputs  # type: ignore[attr-defined]
-        monkeypatch.setitem(sys.modules, "lads.runner", fake)
+    monkeypatch.setattr("lads.worker.regenerate_outputs", regenerate_outputs)
     return calls
 
 
