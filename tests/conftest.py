@@ -15,6 +15,7 @@ import pytest
 
 from benchmarks.common import SHARED_DATA
 from lads.sensors.profile import SensorProfile
+from lads.synth import synth_frame
 
 KITTI_VELODYNE = "semantickitti/sequences/00/velodyne"
 KITTI_FRAMES = (0, 1, 2)
@@ -90,35 +91,14 @@ def kitti_frame(shared_data):
 def street_frame(
     profile: SensorProfile, *, azimuths: int = 720, seed: int = 0
 ) -> tuple[np.ndarray, np.ndarray]:
-    """A ray-cast street for `profile`: road plane, two facades, two end walls, open sky.
-
-    The sensor sits 1.73 m above a flat road (z = -1.73 m); facades at y = +-9 m (up to
-    12 m high) run from x = -70 to 70 m, where end walls close the street; upward beams
-    that leave over the facades return nothing (open sky). Ranges span ~4-70 m. Intensities
-    are a per-point reflectivity (road 0.05-0.25, walls 0.05-0.6, a few stored zeros)
-    encoded in the profile's intensity encoding.
+    """One sweep of lads' synthetic street (`lads.synth`, the project's one ray caster) for
+    `profile`, with `azimuths` beams per channel.
 
     Returns:
-        xyz (N, 3) float32 and intensity (N,) float32, N ~ channels * azimuths * 0.8.
+        xyz (N, 3) float32 and intensity (N,) float32 in the profile's encoding.
     """
-    rng = np.random.default_rng(seed)
-    el = np.radians(np.asarray(profile.elevation_deg))[:, None]
-    az = np.linspace(-np.pi, np.pi, azimuths, endpoint=False)[None, :]
-    el, az = np.broadcast_arrays(el, az)
-    d = np.stack([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)], axis=-1)
-    d = d.reshape(-1, 3)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t_ground = np.where(d[:, 2] < 0, -1.73 / d[:, 2], np.inf)
-        t_facade = np.where(d[:, 1] != 0, 9.0 / np.abs(d[:, 1]), np.inf)
-        t_end = np.where(d[:, 0] != 0, 70.0 / np.abs(d[:, 0]), np.inf)
-    t = np.minimum(np.minimum(t_ground, t_facade), t_end)
-    hit = d * t[:, None]
-    on_wall = t < t_ground
-    valid = np.isfinite(t) & (hit[:, 2] < 12.0) & (t < 100.0)
-    rho = np.where(on_wall, rng.uniform(0.05, 0.6, t.size), rng.uniform(0.05, 0.25, t.size))
-    rho[rng.random(t.size) < 0.03] = 0.0
-    intensity = profile.intensity.from_reflectivity(rho)
-    return hit[valid].astype(np.float32), intensity[valid]
+    frame = synth_frame(profile, frames=1, seed=seed, index=0, azimuth_bins=azimuths)
+    return frame.xyz, frame.intensity
 
 
 # Dataset trees for reader and builder tests (tests/trees.py).

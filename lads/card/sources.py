@@ -115,7 +115,7 @@ SOURCES: dict[str, Source] = {
         "lads synthetic street scans", "", "apache-2.0", "apache-2.0",
         "https://www.apache.org/licenses/LICENSE-2.0",
         "Apache-2.0 (lads' own licence): the scans are ray-cast by lads, no external data",
-        "lads.synthetic (generated, no external data)", "",
+        "lads.synth (generated, no external data)", "",
     ),
 }  # fmt: skip
 UNKNOWN_SOURCE = Source(

@@ -10,7 +10,7 @@ from lads.cli import EXIT_LADS_ERROR, main
 from lads.demo import run_demo, summary_text
 from lads.errors import LadsError
 from lads.sensors.profile import load_profile
-from lads.synthetic import synthetic_scan
+from lads.synth import synth_frame
 
 
 def test_demo_synthesises_builds_verifies_and_draws(tmp_path):
@@ -38,7 +38,7 @@ def test_demo_refuses_to_wipe_a_folder_it_did_not_make(tmp_path):
 
 
 def _write_scan(tmp_path, sensor="hdl64e"):
-    scan = synthetic_scan(load_profile(sensor), seed=3)
+    scan = synth_frame(load_profile(sensor), frames=1, seed=3, index=0)
     points = np.column_stack([scan.xyz, scan.intensity]).astype(np.float32)
     path = tmp_path / "scan.bin"
     points.tofile(path)

@@ -18,7 +18,7 @@ from lads.physics.modalities import (
     range_m,
 )
 from lads.sensors.profile import load_profile
-from lads.synthetic import synthetic_scan
+from lads.synth import synth_frame
 
 HDL64 = load_profile("hdl64e")
 SENSOR_HEIGHT_M = 1.73
@@ -140,7 +140,7 @@ def test_incidence_on_ground_alone_uses_one_sided_differences_at_the_lowest_ring
 
 
 def test_every_point_gets_a_finite_cos_in_0_1():
-    scan = synthetic_scan(HDL64)
+    scan = synth_frame(HDL64, frames=1, seed=0, index=0)
     xyz = np.concatenate([scan.xyz, scan.xyz[:500], [[0.5, 0.0, 30.0]]])  # duplicates, a loner
     inc = incidence(xyz, HDL64)
     assert inc.cos.shape == (len(xyz),) and inc.cos.dtype == np.float32
@@ -227,7 +227,7 @@ def test_physics_intensity_rejects_bad_parameters(kwargs):
 
 
 def test_compute_modalities_combines_the_parts():
-    scan = synthetic_scan(HDL64)
+    scan = synth_frame(HDL64, frames=1, seed=0, index=0)
     mods = compute_modalities(scan.xyz, scan.labels, "semantickitti", HDL64, ring=scan.ring)
     np.testing.assert_array_equal(mods.channel, scan.ring)
     np.testing.assert_allclose(mods.range_m, range_m(scan.xyz))

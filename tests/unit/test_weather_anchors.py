@@ -111,7 +111,8 @@ def test_particle_returns_and_target_losses_rise_with_rate(street, weather):
 
 @pytest.mark.parametrize("weather", ["rain", "snow"])
 def test_with_the_sensor_limit_far_weak_targets_go_first_and_loss_rises_with_rate(street, weather):
-    """docs/physics.md §9.7: the default rule loses more with the rate, most beyond 40 m."""
+    """docs/physics.md §9.7: the default rule loses more with the rate, far targets first
+    (beyond 40 m they are a few % of the street's points and a large share of its losses)."""
     xyz, intensity = street
     simulate, _ = PRECIPITATION[weather]
     r = np.linalg.norm(xyz.astype(np.float64), axis=1)
@@ -124,7 +125,8 @@ def test_with_the_sensor_limit_far_weak_targets_go_first_and_loss_rises_with_rat
         far_share.append(float((r[result.lost_index] > 40.0).mean()) if lost[-1] else 1.0)
     assert np.all(np.diff(lost) > 0), lost
     assert lost[-1] > 0.001
-    assert far_share[0] > 0.5, far_share  # light weather takes the far weak targets first
+    far_in_frame = float((r > 40.0).mean())
+    assert far_share[0] > 5 * far_in_frame, (far_share, far_in_frame)
 
 
 @pytest.mark.parametrize("weather", ["rain", "snow"])
@@ -181,7 +183,9 @@ def test_dense_fog_loses_beams_whose_echo_the_sensor_misses(street):
     dense, thin = lost[20.0], lost[2000.0]
     assert dense.size > 0.005 * len(xyz)
     assert above_limit[dense].max() > 10 and np.median(range_m[dense]) < 30
-    assert thin.size and above_limit[thin].max() < 5 and np.median(range_m[thin]) > 40
+    # Thin fog: only targets within a few times the limit, far beyond the street's typical.
+    far = 3 * np.median(range_m)
+    assert thin.size and above_limit[thin].max() < 5 and np.median(range_m[thin]) > far
 
 
 # --- clear air and reproducibility ----------------------------------------------------------
