@@ -56,8 +56,7 @@ def write_corrected(
         if out_root.resolve() == Path(root).resolve():
             raise DiagnoseError(f"--write-corrected {out_root}: that is an input tree; "
                                 "pick a new folder.")  # fmt: skip
-    if out_root.exists():
-        shutil.rmtree(out_root)
+    _clear_previous(out_root, Path(pair.sim_root))
     shutil.copytree(pair.sim_root, out_root)
     if design.paired:
         parts = [design]
@@ -92,6 +91,30 @@ def write_corrected(
                  (p[sel] / base_rate) if has_dropout else None, seed, table.sensor)  # fmt: skip
         written += 1
     return written
+
+
+def _clear_previous(out_root: Path, sim_root: Path) -> None:
+    """Remove `out_root` only if it is empty or an earlier corrected tree of `sim_root` (the
+    same relative file paths: a corrected tree is a copy with scans rewritten in place).
+
+    Raises:
+        DiagnoseError: `out_root` holds anything else; nothing is removed then.
+    """
+    if not out_root.exists():
+        return
+    if not out_root.is_dir():
+        raise DiagnoseError(f"--write-corrected {out_root}: exists and is not a folder; pick a "
+                            "new folder.")  # fmt: skip
+    theirs = {p.relative_to(out_root).as_posix() for p in out_root.rglob("*")}
+    ours = {p.relative_to(sim_root).as_posix() for p in sim_root.rglob("*")}
+    if theirs and theirs != ours:
+        extra = sorted(theirs - ours)[:3] or sorted(ours - theirs)[:3]
+        raise DiagnoseError(
+            f"--write-corrected {out_root}: the folder exists and is not an earlier corrected "
+            f"tree of {sim_root} (e.g. {extra} differ); lads only replaces its own output. "
+            "Pick a new folder or remove this one yourself."
+        )
+    shutil.rmtree(out_root)
 
 
 def _rewrite(
