@@ -58,21 +58,16 @@ class Settings:
         resamples: group-bootstrap reruns of the selection (stability, §5.5 step 7).
         selection_rows: validation rows the main selection scores on (every k-th; all of
             them when fewer). Its SEs are cluster SEs: rows of one 10 m tile share their
-            surfaces, so the second 200k of ~400k held-out rows of a whole-scan case added
-            little but time. Scratch runs of the whole-scan CI subset, all rows vs 200k:
-            the same claims in all 23 runs, 319 s vs 293 s.
+            surfaces, so rows beyond a few hundred thousand add little but time.
         resample_rows: the same for the resamples, which ask only whether the main
-            selection's effects win again. 120k vs 60k (scratch, with 20k Tobit rows vs
-            50k): the same claims in all 23 runs, parameter errors equal to 3 digits, tool
-            time 595 s vs 564 s.
+            selection's effects win again (fewer rows suffice).
         bootstrap: group-bootstrap refits of the final model (95 % percentile CIs).
         k_max: most effects selected.
         jobs: processes for the resamples and bootstrap refits (results do not depend on it).
 
-    15000 rows: with 6000, 64 per-ring gains were fitted from a few surfaces per ring and the
-    selection flipped between resamples (K5 chosen in 6 of 10); with 20000, in 10 of 10.
-    15000 claimed the same effects as 20000 in all 23 runs of the whole-scan CI subset in
-    8 % less time (a scratch comparison of two `make bench-diagnose-ci` runs).
+    fit_rows must leave every one of 64 per-ring gains several surfaces, or the selection
+    flips between resamples. How these row counts were chosen, and on which cases:
+    benchmarks/results/diagnose_case_notes.md.
     """
 
     fit_rows: int = 15000
@@ -269,9 +264,8 @@ def claim_with_sets(
     returns the reasons to report.
 
     Members of an ambiguity set fit within 1 SE of each other (§5.5 step 8): when the set
-    is stable the mismatch is, and only its form is open, which the set says. Counted
-    apart, a range law that the resamples split 5 : 5 between an exponent and an
-    attenuation (K13) was reported as no range term at all."""
+    is stable the mismatch is, and only its form is open, which the set says; counted
+    apart, a range law the resamples split between two forms would read as no range term."""
     reasons = []
     n = max(len(chosen_ids), 1)
     for r in effects:
@@ -386,10 +380,9 @@ def _noise_model(
     "heteroscedastic" is a held-out verdict like any effect's: against the selected model
     refitted with constant sigma on the same training rows, the directional score toward the
     sloped sigma must exceed Z_ACCEPT cluster SEs on the held-out groups, and a slope must be
-    large enough to matter (NOISE_MIN_SLOPE). A
-    bootstrap z of the slope alone missed a sigma that doubles from 10 to 40 m (K19): the
-    object-level spread every surface shares dilutes the slope of ln sigma, not its
-    likelihood gain.
+    large enough to matter (NOISE_MIN_SLOPE). A bootstrap z of the slope alone would miss
+    real slopes: the object-level spread every surface shares dilutes the slope of ln
+    sigma, not its likelihood gain.
     """
     th = final.theta
     out: dict[str, Any] = {

@@ -410,10 +410,10 @@ def _blockage(d: Design, train_rows: npt.NDArray[np.int64] | None) -> Effect:
 def _few_ring_gains(d: Design, rings: list[int]) -> Effect | None:
     """C4 confined to `rings` (one gain each, the other rings at 0), or None without rings.
 
-    One weak laser among 64 (docs/diagnose.md K6) is 1.5 % of the rows: the full C4 pays for 63
-    gains fitted to noise, and its held-out gain came out negative on two such cases. The
-    rings are chosen on the training rows only (`odd_rings`), so the held-out test of this
-    candidate is as honest as any other's. Exported like C4 (every ring, sum 0)."""
+    One weak laser among 64 is 1.5 % of the rows: the full C4 pays for 63 gains fitted to
+    noise and can lose on held-out rows. The rings are chosen on the training rows only
+    (`odd_rings`), so the held-out test of this candidate is as honest as any other's.
+    Exported like C4 (every ring, sum 0)."""
     if not rings:
         return None
     n, k = d.n_rings, len(rings)

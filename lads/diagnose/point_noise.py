@@ -4,7 +4,7 @@ The likelihood's sigma is the spread of every residual about the fitted model: p
 (shot noise, speckle) plus the reflectance every surface has and the simulation does not
 know. The surface part is the larger (M2 draws sigma 0.2-0.4 per object against a point
 noise of 0.05-0.2), so a point noise that quadruples from 5 to 40 m moves the total sigma by
-a few per cent and its slope was never significant (K19). Two returns next to each other
+a few per cent and its slope is rarely significant in the likelihood. Two returns next to each other
 on one ring share the surface, its reflectance and every smooth term of the model; their
 difference holds the point noise of both (the von Neumann successive-difference estimate),
 plus both values' rounding.
