@@ -36,7 +36,12 @@ from lads.errors import ConfigError, InputDataError, InvalidPointsError
 from lads.intensity import targets
 from lads.intensity.features import FrameImage, frame_image
 from lads.jsontypes import json_types
-from lads.physics.materials import LABEL_SETS, class_materials
+from lads.physics.materials import (
+    LABEL_SETS,
+    MAX_CLASS_ID,
+    class_materials,
+    has_instance_bits,
+)
 from lads.sensors.profile import SensorProfile
 
 FloatArray = npt.NDArray[np.float32]
@@ -54,10 +59,6 @@ MIN_RATIO_POINTS = 50
 MIN_RETRO_POINTS = 10
 RETRO_MATERIAL = "retroreflective_sheeting"
 ALL_CLASS = "all"
-# Label sets whose stored labels carry an instance id in the upper 16 bits (materials.yaml
-# `instance_bits`); their class is label & 0xFFFF.
-INSTANCE_BIT_SETS = frozenset({"semantickitti", "voxelscape", "wads"})
-CLASS_MASK = 0xFFFF
 # The pooled metrics the subject is compared on in `summary["beats"]`.
 SUMMARY_METRICS: tuple[str, ...] = ("mae_reflectivity", "cell_w1_reflectivity")
 SIGNIFICANT_DIGITS = 6
@@ -151,9 +152,10 @@ class EvalFrame:
 
 
 def class_ids(labels: npt.ArrayLike, label_set: str) -> npt.NDArray[np.int64]:
-    """(N,) int64 semantic class of each label: label & 0xFFFF where instance bits exist."""
+    """(N,) int64 semantic class of each label: label & 0xFFFF where the label set stores
+    instance bits (materials.yaml, `has_instance_bits`), else the label itself."""
     arr = np.asarray(labels).astype(np.int64, copy=False)
-    return arr & CLASS_MASK if label_set in INSTANCE_BIT_SETS else arr
+    return arr & MAX_CLASS_ID if has_instance_bits(label_set) else arr
 
 
 def retro_classes(label_set: str) -> frozenset[int]:

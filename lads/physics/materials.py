@@ -165,6 +165,21 @@ def class_materials(label_set: str) -> dict[int, tuple[str, str]]:
     return dict(table.label_sets[label_set].classes)
 
 
+def has_instance_bits(label_set: str) -> bool:
+    """Whether `label_set`'s stored labels carry an instance id above their low 16 bits
+    (materials.yaml `instance_bits`; the class is then label & MAX_CLASS_ID).
+
+    Raises:
+        ConfigError: unknown label set.
+    """
+    table = _table()
+    if label_set not in table.label_sets:
+        raise ConfigError(
+            f"unknown label set '{label_set}'; known label sets: {', '.join(LABEL_SETS)}."
+        )
+    return table.label_sets[label_set].instance_bits
+
+
 def _class_ids(labels: npt.ArrayLike, instance_bits: bool) -> npt.NDArray[np.intp]:
     arr = np.asarray(labels)
     if arr.ndim != 1 or not (np.issubdtype(arr.dtype, np.integer) or arr.size == 0):

@@ -181,3 +181,15 @@ def test_invalid_tables_raise_config_error_naming_the_file(edit, message):
     with pytest.raises(ConfigError, match=message) as info:
         parse_table(raw, "materials.yaml")
     assert str(info.value).startswith("materials.yaml")
+
+
+def test_instance_bits_are_read_from_the_label_sets():
+    from lads.intensity.evaluate import class_ids
+    from lads.physics.materials import has_instance_bits
+
+    assert has_instance_bits("semantickitti") and not has_instance_bits("nuscenes")
+    labels = np.array([(7 << 16) | 10, 40], dtype=np.uint32)
+    np.testing.assert_array_equal(class_ids(labels, "semantickitti"), [10, 40])
+    np.testing.assert_array_equal(class_ids(np.array([17, 24]), "nuscenes"), [17, 24])
+    with pytest.raises(ConfigError, match="unknown label set"):
+        has_instance_bits("kitti360")
