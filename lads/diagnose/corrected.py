@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import hashlib
 import shutil
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -29,8 +30,6 @@ from lads.diagnose.table import BeamTable, SensorInfo
 from lads.diagnose.trees import TreePair
 from lads.errors import DiagnoseError
 from lads.files import atomic_write
-
-_COLUMNS = {"semantickitti": 4, "wads": 4, "nuscenes": 5}
 
 
 def write_corrected(
@@ -48,8 +47,9 @@ def write_corrected(
     tree's own table (required there).
 
     Raises:
-        DiagnoseError: `out_root` is the simulated or real tree itself, or a scan file does
-            not have the source's column count.
+        DiagnoseError: `out_root` is the simulated or real tree itself, or holds files
+            that are not an earlier corrected tree's.
+        ReaderError: a scan the source's reader refuses (the message names the file).
     """
     out_root = Path(out_root)
     for root in (pair.sim_root, pair.real_root):
@@ -127,29 +127,35 @@ def _rewrite(
     seed: int,
     sensor: SensorInfo,
 ) -> None:
-    path = out_root / relpath
-    cols = _COLUMNS[pair.source]
-    raw = np.fromfile(path, dtype="<f4")
-    if raw.size % cols:
-        raise DiagnoseError(f"{path}: {raw.size} float32 values, not a multiple of {cols}.")
-    points = raw.reshape(-1, cols).copy()
+    """Rewrite one scan of the corrected tree: the predicted intensities of `rows` and, with a
+    fitted dropout, only the beams that survive it (their label rows with them). Files go
+    through the source's reader (`encode`); a bare nuScenes folder has none and is written
+    as the reader would (float32 rows of its columns)."""
+    frame = pair.read_frame("sim", relpath)
+    if frame is None:
+        points, columns = pair.read_bare_points("sim", relpath)
+    else:
+        points, columns = frame.points.copy(), frame.columns
     step, top = sensor.step, sensor.max_value
-    points[rows, 3] = np.clip(np.round(intensity / step) * step, 0.0, top).astype(np.float32)
+    value = np.clip(np.round(intensity / step) * step, 0.0, top).astype(np.float32)
+    points[rows, columns.index("intensity")] = value
     keep = np.ones(len(points), dtype=bool)
-    label_path = _label_path(pair.source, path)
     devkit_tables = any(Path(pair.sim_root).glob("v1.0-*"))
     if p_keep is not None and not devkit_tables:
         digest = hashlib.sha256(f"{seed}/{relpath}/corrected".encode()).digest()
         rng = np.random.default_rng(int.from_bytes(digest[:8], "little"))
         keep[rows] = rng.random(len(rows)) < np.clip(p_keep, 0.0, 1.0)
-    atomic_write(path, points[keep].astype("<f4").tobytes())
-    if label_path is not None and label_path.exists() and not keep.all():
-        labels = np.fromfile(label_path, dtype="<u4")
-        if labels.size == len(points):
-            atomic_write(label_path, labels[keep].tobytes())
-
-
-def _label_path(source: str, scan_path: Path) -> Path | None:
-    if source in ("semantickitti", "wads"):
-        return scan_path.parent.parent / "labels" / (scan_path.stem + ".label")
-    return None
+    if frame is None:
+        atomic_write(out_root / relpath, points[keep].astype("<f4").tobytes())
+        return
+    kept = replace(
+        frame,
+        points=points[keep],
+        labels=None if frame.labels is None else frame.labels[keep],
+        extra_labels={role: values[keep] for role, values in frame.extra_labels.items()},
+    )
+    reader = pair.reader("sim")
+    # The scan always changes; label files only where beams were dropped (else the copy stands).
+    for encoded in reader.encode(kept):
+        if encoded.role == "scan" or not keep.all():
+            atomic_write(out_root / encoded.relpath, encoded.payload)

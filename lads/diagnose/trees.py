@@ -22,20 +22,14 @@ import numpy.typing as npt
 
 from lads.diagnose.table import SensorInfo
 from lads.errors import ConfigError, DatasetNotFoundError, DiagnoseError, IntensityEncodingError
-from lads.frame import Item
+from lads.frame import Frame, Item
+from lads.physics.materials import MAX_CLASS_ID, has_instance_bits
 from lads.physics.projection import MIN_RANGE_M
-from lads.readers import Reader, get_reader
+from lads.readers import READERS, Reader, get_reader
 from lads.sensors.profile import SensorProfile, load_profile
 
 SOURCES: tuple[str, ...] = ("semantickitti", "nuscenes", "wads")
 Tree = Literal["sim", "real"]
-_COLUMNS = {
-    "semantickitti": ("x", "y", "z", "intensity"),
-    "wads": ("x", "y", "z", "intensity"),
-    "nuscenes": ("x", "y", "z", "intensity", "ring"),
-}
-_INSTANCE_BITS = {"semantickitti": True, "wads": True, "nuscenes": False}
-_RAW_NUSCENES_PROFILE = "hdl32e"
 # Sensors that report range-compensated, calibrated reflectivity (HDL-32E v2 firmware in
 # nuScenes); HDL-64E remission (KITTI) and the WADS sensor report raw intensity.
 _CALIBRATED_PROFILES = frozenset({"hdl32e"})
@@ -136,6 +130,51 @@ class TreePair:
             )
         return _read(self.source, self.profile, tree, src, relpath)
 
+    def reader(self, tree: Tree) -> Reader:
+        """The project reader of the "sim" or "real" tree.
+
+        Raises:
+            DiagnoseError: the tree is a bare nuScenes folder (no devkit tables, no reader).
+        """
+        src = self._source(tree)
+        if src.reader is None:
+            raise DiagnoseError(f"{src.root}: a bare nuScenes folder has no reader.")
+        return src.reader
+
+    def read_frame(self, tree: Tree, relpath: str) -> Frame | None:
+        """Scan `relpath` as its reader reads it (every row, labels as stored), or None for a
+        bare nuScenes folder (`read_bare_points`)."""
+        src = self._source(tree)
+        return None if src.reader is None else src.reader.read(self._item(src, tree, relpath))
+
+    def read_bare_points(self, tree: Tree, relpath: str) -> tuple[npt.NDArray[np.float32],
+                                                                   tuple[str, ...]]:  # fmt: skip
+        """(N, C) float32 rows and column names of a bare nuScenes scan, C as the nuScenes
+        reader's columns.
+
+        Raises:
+            DiagnoseError: the size is not a whole number of rows.
+        """
+        src = self._source(tree)
+        path = src.root / self._item(src, tree, relpath).relpath
+        columns: tuple[str, ...] = READERS[self.source].columns
+        _check_size(path, columns, self.source, self.profile, tree)
+        return np.fromfile(path, dtype="<f4").reshape(-1, len(columns)), columns
+
+    def _source(self, tree: Tree) -> _TreeSource:
+        if tree not in self._trees:
+            raise DiagnoseError(f"tree {tree!r}: expected 'sim' or 'real'.")
+        return self._trees[tree]
+
+    def _item(self, src: _TreeSource, tree: Tree, relpath: str) -> Item:
+        if relpath not in src.items:
+            scans = self.sim_scans if tree == "sim" else self.real_scans
+            raise DiagnoseError(
+                f"{src.root}: no scan {relpath!r} in the {tree} tree; pass one of its "
+                f"{len(scans)} scans (e.g. {list(scans[:_EXAMPLES])})."
+            )
+        return src.items[relpath]
+
 
 def open_trees(
     sim_root: str | Path, real_root: str | Path, source: str, *, paired: bool
@@ -217,7 +256,8 @@ def _open_tree(root: Path, source: str, tree: str) -> _TreeSource:
 
 
 def _profile_name(tree: _TreeSource) -> str:
-    return tree.reader.sensor if tree.reader is not None else _RAW_NUSCENES_PROFILE
+    # A bare nuScenes folder is read as the nuScenes reader's sensor would have written it.
+    return tree.reader.sensor if tree.reader is not None else READERS["nuscenes"].sensor
 
 
 def _relpath_mismatch(
@@ -237,7 +277,7 @@ def _relpath_mismatch(
 
 def _read(source: str, profile: SensorProfile, tree: str, src: _TreeSource, relpath: str) -> Scan:
     path = src.root / relpath
-    columns = _COLUMNS[source]
+    columns: tuple[str, ...] = READERS[source].columns
     _check_size(path, columns, source, profile, tree)
     labels_raw: npt.NDArray[Any] | None = None
     if src.reader is None:
@@ -267,7 +307,8 @@ def _read(source: str, profile: SensorProfile, tree: str, src: _TreeSource, relp
     labels = None
     if labels_raw is not None:
         ids = labels_raw.astype(np.int64)
-        labels = (ids & 0xFFFF if _INSTANCE_BITS[source] else ids).astype(np.int32)[keep]
+        instance_bits = has_instance_bits(READERS[source].label_set)
+        labels = (ids & MAX_CLASS_ID if instance_bits else ids).astype(np.int32)[keep]
     return Scan(
         relpath=relpath,
         xyz=xyz[keep],

@@ -53,7 +53,10 @@ class Reader(Protocol):
         particle_label: default label of particle (rain/snow/fog) returns in this dataset's
             label space (SemanticKITTI 1 "outlier", nuScenes 0 "noise").
         label_set: the material label set of its labels
-            (`lads.physics.materials.LABEL_SETS`), None when the format has no labels.
+            (`lads.physics.materials.LABEL_SETS`), None when the format has no labels;
+            whether its labels carry instance bits is the label set's
+            (`lads.physics.materials.has_instance_bits`).
+        columns: names of the float32 columns of its scan files, in file order.
         root: the source root directory.
     """
 
@@ -61,6 +64,7 @@ class Reader(Protocol):
     sensor: str
     particle_label: int
     label_set: str | None
+    columns: tuple[str, ...]
     root: Path
 
     def items(self) -> list[Item]:
