@@ -40,6 +40,7 @@ bench-diagnose-ci: install
 lint: install
 	$(PY) -m ruff check lads tests benchmarks
 	$(PY) -m ruff format --check lads tests benchmarks
+	$(PY) -m mypy lads
 
 # The LADS table from the dataset roots in LADS_*_ROOT (see lads/release.py); without
 # them, a demo release from synthetic sources. Verified, with cards and manifests.

@@ -17,7 +17,7 @@ from typing import Any
 import click
 import numpy as np
 
-from lads.errors import InputDataError, LadsError
+from lads.errors import ConfigError, InputDataError, LadsError
 from lads.files import atomic_write
 from lads.physics.severity import SEVERITIES
 from lads.readers import READERS
@@ -181,6 +181,8 @@ def weather(
             points[:, :3], points[:, 3], rate_mm_h=snow_mm_h, sensor=profile, rng=rng, mode=mode
         )
     else:
+        if visibility_m is None:  # exactly one of the three is given (checked above)
+            raise ConfigError("give exactly one of --rain, --snow, --fog")
         result = wx.fog(
             points[:, :3],
             points[:, 3],
@@ -188,7 +190,7 @@ def weather(
             sensor=profile,
             rng=rng,
             mode=mode,
-        )  # type: ignore[arg-type]
+        )
     out = points[result.source_index].copy()
     out[:, :3] = result.xyz
     out[:, 3] = result.intensity

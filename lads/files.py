@@ -40,8 +40,9 @@ def write_error(path: Path, exc: OSError) -> OutputWriteError:
     return OutputWriteError(f"{path}: cannot write: {what}; {todo}.")
 
 
-def _atomically(path: Path, fill: Callable[[Path], None]) -> None:
-    """Make `path` by filling a temp file and renaming it; a failure leaves no temp file."""
+def _atomically(path: Path, fill: Callable[[Path], object]) -> None:
+    """Make `path` by filling a temp file and renaming it; a failure leaves no temp file.
+    Whatever `fill` returns is ignored."""
     tmp = tmp_name(path)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)

@@ -11,7 +11,7 @@ import json
 import shutil
 import urllib.parse
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import numpy.typing as npt
@@ -127,7 +127,10 @@ def read_item(
     path = out_root / STORE_NAME / node_name(relpath)
     try:
         group = zarr.open_group(path, mode="r", zarr_format=3)
-        return group["source_index"][:], group["outcome"][:], dict(group.attrs)
+        # Both are arrays written by `write_item`, never subgroups; zarr reads them as numpy.
+        source = cast(npt.NDArray[np.int64], cast(zarr.Array, group["source_index"])[:])
+        outcome = cast(npt.NDArray[np.uint8], cast(zarr.Array, group["outcome"])[:])
+        return source, outcome, dict(group.attrs)
     except (FileNotFoundError, KeyError, zarr.errors.NodeNotFoundError) as exc:  # type: ignore[attr-defined]
         raise ManifestError(
             f"{path}: no provenance for {relpath}; the build is incomplete. Run the same "

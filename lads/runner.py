@@ -162,7 +162,7 @@ def _claim_output(out_root: Path, plan: BuildPlan) -> None:
 def _json_lines(path: Path) -> list[dict[str, Any]]:
     """The JSON objects of a JSON-lines file; damaged lines (a torn or edited file) are
     skipped, so their items are rebuilt."""
-    out = []
+    out: list[dict[str, Any]] = []
     try:
         text = path.read_text()
     except (OSError, UnicodeDecodeError):

@@ -162,7 +162,7 @@ def visibility_bound(
     observed = frame_stats(frame)["near_share_of_beams_clean_half"]
     xyz, inten = clean_half_beams(frame)
     p_min = frame_threshold(frame)
-    curve = []
+    curve: list[dict[str, Any]] = []
     for v in visibilities_m:
         share, r = near_fog_share(xyz, inten, v, p_min, params=params)
         curve.append({

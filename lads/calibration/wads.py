@@ -54,7 +54,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import numpy.typing as npt
@@ -104,7 +104,8 @@ class WadsFrame:
 def load_frame(bin_path: str | Path, label_path: str | Path) -> WadsFrame:
     """Read one WADS scan and its labels (semantic id = label & 0xFFFF)."""
     points = np.fromfile(bin_path, dtype=np.float32).reshape(-1, 4)
-    labels = np.fromfile(label_path, dtype=np.uint32) & 0xFFFF
+    # uint32 & a Python int stays uint32 (the stub widens it to a signed integer).
+    labels = cast(npt.NDArray[np.uint32], np.fromfile(label_path, dtype=np.uint32) & 0xFFFF)
     if labels.size != len(points):
         raise InputDataError(
             f"{label_path}: {labels.size} labels for the {len(points)} points of {bin_path}; "

@@ -40,7 +40,8 @@ def swap_ambiguity(
     An alternative that fits *better* by more than 1 SE is not an ambiguity but a sign the
     greedy order went wrong; the backward pass and the stability resamples catch those.
     `delta_loss` is the alternative's held-out loss minus the chosen model's (nats/row)."""
-    alternatives, sets = [], []
+    alternatives: list[dict[str, Any]] = []
+    sets: list[dict[str, Any]] = []
     chosen = sel.fit
     if not chosen.model.effects:
         return alternatives, sets

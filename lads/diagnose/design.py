@@ -182,7 +182,7 @@ class Design:
     def subset(self, idx: npt.NDArray[np.int64]) -> Design:
         """The design restricted to rows `idx` (numpy indices)."""
         t = torch.as_tensor(idx, dtype=torch.long)
-        kwargs = {}
+        kwargs: dict[str, Any] = {}
         for name in self.__dataclass_fields__:
             value = getattr(self, name)
             if isinstance(value, torch.Tensor):

@@ -13,6 +13,7 @@ each point spans several rings and gives the normal to about a degree
 from __future__ import annotations
 
 import math
+from typing import cast
 
 import numpy as np
 import numpy.typing as npt
@@ -54,7 +55,9 @@ def local_ground_cos(
     # sums exact enough.
     x, y, z = p[:, 0], p[:, 1], p[:, 2]
     terms = (np.ones_like(x), x, y, z, x * x, x * y, y * y, x * z, y * z)
-    moments = np.stack([_box3(np.bincount(flat, weights=t, minlength=shape[0] * shape[1])
+    # np.bincount sums float64 weights in float64 (its stub says intp whatever the weights).
+    moments = np.stack([_box3(cast(npt.NDArray[np.float64],
+                                   np.bincount(flat, weights=t, minlength=shape[0] * shape[1]))
                               .reshape(shape)) for t in terms])  # fmt: skip
     m = moments[:, cell[:, 0], cell[:, 1]]  # (9, P) support moments of each point's tile
     count, sx, sy, sz, sxx, sxy, syy, sxz, syz = m

@@ -107,7 +107,9 @@ class Model:
         kept = [e for e in self.effects if e.label != label]
         return Model(kept, self.ln_range_ref, self.ln_sim_ref, self.heteroscedastic)
 
-    def predict(self, theta: torch.Tensor, d: Design) -> tuple[torch.Tensor, ...]:
+    def predict(
+        self, theta: torch.Tensor, d: Design
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor | None]:
         """(mu, sigma, log P(ret) without D1, D1 (ln_tau, s) or None) per row."""
         mu = d.ln_sim + theta[0]
         log_surv = torch.nn.functional.logsigmoid(theta[4]).expand_as(mu)

@@ -19,6 +19,7 @@ from lads.diagnose.design import Design, group_index
 from lads.diagnose.effects import Effect
 from lads.diagnose.model import Fit, Model, RowTerms, directional_gain, fit, initial_base
 from lads.diagnose.parallel import fit_models, fit_warm
+from lads.errors import DiagnoseError
 
 K_MAX = 4
 MIN_GAIN_NATS = 0.002  # per row: below this an effect is not worth naming
@@ -517,7 +518,10 @@ def forward_backward(
             crossfit = (not _passes(c, bound, z_accept, floor, support)
                         and _worth_crossfit(c, support, cand))  # fmt: skip
             if crossfit:
-                support = crossfit_support(f, current, d, weights, supports[cand.label],
+                class_sub = supports[cand.label]
+                if class_sub is None:  # a class-confined support is its class's held-out rows
+                    raise DiagnoseError(f"{cand.label}: cross-fit without held-out class rows.")
+                support = crossfit_support(f, current, d, weights, class_sub,
                                            cand.class_index, fold_refs)  # fmt: skip
             results.append((cand, f, c, bound, support))
             sel.trace.append(Step.of(step, cand.label, c, bound, support=support,

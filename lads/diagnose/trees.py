@@ -25,7 +25,7 @@ from lads.errors import ConfigError, DatasetNotFoundError, DiagnoseError, Intens
 from lads.frame import Frame, Item
 from lads.physics.materials import MAX_CLASS_ID, has_instance_bits
 from lads.physics.projection import MIN_RANGE_M
-from lads.readers import READERS, Reader, get_reader
+from lads.readers import Reader, get_reader, reader_class
 from lads.sensors.profile import SensorProfile, load_profile
 
 SOURCES: tuple[str, ...] = ("semantickitti", "nuscenes", "wads")
@@ -157,7 +157,7 @@ class TreePair:
         """
         src = self._source(tree)
         path = src.root / self._item(src, tree, relpath).relpath
-        columns: tuple[str, ...] = READERS[self.source].columns
+        columns: tuple[str, ...] = reader_class(self.source).columns
         _check_size(path, columns, self.source, self.profile, tree)
         return np.fromfile(path, dtype="<f4").reshape(-1, len(columns)), columns
 
@@ -257,7 +257,7 @@ def _open_tree(root: Path, source: str, tree: str) -> _TreeSource:
 
 def _profile_name(tree: _TreeSource) -> str:
     # A bare nuScenes folder is read as the nuScenes reader's sensor would have written it.
-    return tree.reader.sensor if tree.reader is not None else READERS["nuscenes"].sensor
+    return tree.reader.sensor if tree.reader is not None else reader_class("nuscenes").sensor
 
 
 def _relpath_mismatch(
@@ -277,7 +277,7 @@ def _relpath_mismatch(
 
 def _read(source: str, profile: SensorProfile, tree: str, src: _TreeSource, relpath: str) -> Scan:
     path = src.root / relpath
-    columns: tuple[str, ...] = READERS[source].columns
+    columns: tuple[str, ...] = reader_class(source).columns
     _check_size(path, columns, source, profile, tree)
     labels_raw: npt.NDArray[Any] | None = None
     if src.reader is None:
@@ -307,7 +307,8 @@ def _read(source: str, profile: SensorProfile, tree: str, src: _TreeSource, relp
     labels = None
     if labels_raw is not None:
         ids = labels_raw.astype(np.int64)
-        instance_bits = has_instance_bits(READERS[source].label_set)
+        label_set = reader_class(source).label_set
+        instance_bits = label_set is not None and has_instance_bits(label_set)
         labels = (ids & MAX_CLASS_ID if instance_bits else ids).astype(np.int32)[keep]
     return Scan(
         relpath=relpath,

@@ -165,7 +165,7 @@ class HistogramPerClass:
     """
 
     table: Quantiles = field(repr=False)
-    class_tables: dict[tuple[str, int], Quantiles] = field(repr=False)
+    class_tables: dict[tuple[str | None, int], Quantiles] = field(repr=False)
     images: _LastImage = field(repr=False)
 
     def __call__(self, frame: EvalFrame) -> FloatArray:

@@ -24,7 +24,7 @@ import urllib.parse
 from collections.abc import Iterable, Iterator
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import numpy.typing as npt
@@ -63,7 +63,7 @@ class CacheJob:
 
     @property
     def key(self) -> str:
-        payload = {"job": asdict(self), "features": FEATURE_VERSION}
+        payload: dict[str, Any] = {"job": asdict(self), "features": FEATURE_VERSION}
         if self.domain.weather:
             payload["weather_physics"] = weather_physics_version()
         payload["job"]["domain"] = _hashed_domain(self.domain)
@@ -332,11 +332,12 @@ def _complete(root: Path, job: CacheJob) -> bool:
 
 def read_frame(run_dir: Path, job: CacheJob) -> CachedFrame:
     group = zarr.open_group(run_dir / CACHE_NAME / job.node, mode="r", zarr_format=3)
-    attrs = dict(group.attrs)
-    target = np.asarray(group["target"][:]) if "target" in group else None
+    attrs: dict[str, Any] = dict(group.attrs)  # JSON values written by the caching worker
+    # "target" and "inputs" are arrays, never subgroups: the caching worker writes them so.
+    target = np.asarray(cast(zarr.Array, group["target"])[:]) if "target" in group else None
     return CachedFrame(
         pair=job.pair, role=job.role, frame=job.frame,
-        inputs=np.asarray(group["inputs"][:]), target=target,
+        inputs=np.asarray(cast(zarr.Array, group["inputs"])[:]), target=target,
         labelled=bool(attrs["labelled"]), extinction_per_m=float(attrs["extinction_per_m"]),
         sensor=str(attrs["sensor"]),
     )  # fmt: skip

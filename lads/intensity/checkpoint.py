@@ -284,7 +284,8 @@ def load_model(path: str | Path, *, device: str = "cpu") -> IntensityModel:
     # activation map: the forward pass of a 64 x 2048 frame takes less than half the time
     # (benchmarks/intensity_speed.py). The values are the same convolutions, in another
     # summation order (differences ~1e-6 in z).
-    generator.to(device=device, memory_format=torch.channels_last)
+    # Module.to takes memory_format (torch._C._nn._parse_to) but its stub overloads omit it.
+    generator.to(device=device, memory_format=torch.channels_last)  # type: ignore[call-overload]
     return IntensityModel(meta=meta, generator=generator, path=where)
 
 

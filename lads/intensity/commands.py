@@ -4,10 +4,11 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import click
 import numpy as np
+import numpy.typing as npt
 
 from lads.errors import TrainingError
 from lads.files import atomic_write
@@ -35,7 +36,8 @@ def frames_of(frames: list[tuple[str, DomainSpec, str]], kind: str) -> list[Any]
                 xyz=d.frame.xyz,
                 intensity=d.frame.intensity,
                 profile=d.profile,
-                labels=d.frame.labels,
+                # Every reader's labels are integer class ids (Frame types them generically).
+                labels=cast("npt.NDArray[np.integer[Any]] | None", d.frame.labels),
                 label_set=d.label_set,
                 ring=d.ring,
                 particle=d.particle,

@@ -19,7 +19,8 @@ per 64 x 2048 frame on one core by benchmarks/intensity_speed.py.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
+from typing import cast
 
 import torch
 import torch.nn.functional as F
@@ -82,6 +83,11 @@ class _Residual(nn.Module):
 class Normaliser(nn.Module):
     """z-scores selected raw channels with stored statistics (buffers, saved with weights)."""
 
+    # Buffers (register_buffer), declared so their type is Tensor rather than Tensor | Module.
+    mean: torch.Tensor
+    std: torch.Tensor
+    active: torch.Tensor
+
     def __init__(self, channels: Sequence[str], normalised: Sequence[str]) -> None:
         super().__init__()
         self.channels = tuple(channels)
@@ -122,6 +128,8 @@ class Generator(nn.Module):
     answers from its physics channels alone.
     """
 
+    kept: torch.Tensor  # buffer, registered when the generator has materials
+
     def __init__(
         self,
         channels: Sequence[str],
@@ -156,7 +164,7 @@ class Generator(nn.Module):
         # model then starts as its fitted law, and that start is a candidate on validation.
         for layer in (self.head, self.linear):
             nn.init.zeros_(layer.weight)
-            nn.init.zeros_(layer.bias)
+            nn.init.zeros_(cast(torch.Tensor, layer.bias))  # Conv2d has a bias by default
 
     def forward(
         self, raw: torch.Tensor, mask: torch.Tensor, law: torch.Tensor | None = None
@@ -211,7 +219,7 @@ class Generator(nn.Module):
         a0 = F.leaky_relu(conv(self.e0, x), LEAK)
         a1 = F.leaky_relu(conv(self.e1, a0), LEAK)
         a2 = F.leaky_relu(conv(self.e2, a1), LEAK)
-        for block in self.mid:
+        for block in cast("Iterable[_Residual]", self.mid):  # mid holds _Residual blocks only
             a2 = a2 + conv(block.b, F.leaky_relu(conv(block.a, a2), LEAK))
         b1 = F.interpolate(a2, scale_factor=2.0, mode="nearest")
         b1 = F.leaky_relu(conv(self.u1, torch.cat([b1, a1], 1)), LEAK)
@@ -274,6 +282,8 @@ class PointGenerator(nn.Module):
     `Generator` (a learned vector per material, zero at the start).
     """
 
+    picked: torch.Tensor  # buffer: indices of the channels the MLP reads
+
     def __init__(
         self,
         channels: Sequence[str],
@@ -301,7 +311,7 @@ class PointGenerator(nn.Module):
         )
         self.out = nn.Conv2d(sizes[-1], 1, 1)
         nn.init.zeros_(self.out.weight)
-        nn.init.zeros_(self.out.bias)
+        nn.init.zeros_(cast(torch.Tensor, self.out.bias))  # Conv2d has a bias by default
 
     def forward(
         self, raw: torch.Tensor, mask: torch.Tensor, law: torch.Tensor | None = None
@@ -343,7 +353,7 @@ class PointGenerator(nn.Module):
 
     def _mlp(self, x: torch.Tensor) -> torch.Tensor:
         """(..., C_in) -> (..., 1)."""
-        for layer in self.hidden:
+        for layer in cast("Iterable[nn.Conv2d]", self.hidden):  # hidden holds Conv2d only
             x = F.leaky_relu_(F.linear(x, layer.weight[:, :, 0, 0], layer.bias), LEAK)
         return F.linear(x, self.out.weight[:, :, 0, 0], self.out.bias)
 

@@ -97,8 +97,8 @@ def _forward(
     raw = raw.to(device=device, memory_format=torch.channels_last)
     k = model.meta.channels.index("mask")
     z = _single_threaded(lambda: model.generator.infer(raw, raw[:, k : k + 1]))
-    z = z[:, 0].float().cpu().numpy()
-    return [z[i] for i in range(len(inputs))]
+    values = z[:, 0].float().cpu().numpy()
+    return [values[i] for i in range(len(inputs))]
 
 
 def _single_threaded(run: Callable[[], torch.Tensor]) -> torch.Tensor:

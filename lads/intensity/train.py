@@ -28,8 +28,9 @@ from __future__ import annotations
 import io
 import json
 import math
+from collections.abc import Iterable
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import torch
@@ -127,7 +128,7 @@ def set_statistics(nets: Nets, stats: Any) -> None:
     nets.g.norm.set_stats(stats.mean, stats.std)
     nets.inv.norm.set_stats(stats.mean, stats.std)
     nets.d_s.norm.set_stats(stats.mean, stats.std)
-    for d in nets.d_t.values():
+    for d in cast("Iterable[Discriminator]", nets.d_t.values()):  # d_t holds critics only
         d.norm.set_stats(stats.mean, stats.std)
 
 
@@ -366,6 +367,8 @@ def _step(
 
     d_total = torch.zeros((), device=device)
     for key, s, t, fake, rho_t in d_terms:
+        if t.z is None:  # refused in the generator pass above
+            raise TrainingError(f"pair {key}: target frames carry no intensity.")
         d_t, names = nets.d_t[key], nets.dt_channels[key]
         pm_s, pm_t = Discriminator.patch_mask(s.mask), Discriminator.patch_mask(t.mask)
         real_in = nets.pick(t.raw, names, z_intensity=t.z)

@@ -278,8 +278,10 @@ def resolve_roots(cfg: TrainConfig, data_root: Path | None, where: str) -> Train
         if domain.also:
             also = tuple(fix(d, f"{ctx}.also[{i}]") for i, d in enumerate(domain.also))
             domain = replace(domain, also=also)
+        if domain.root is None:
+            return domain
         roots = domain.root if isinstance(domain.root, tuple) else (domain.root,)
-        if domain.root is None or all(Path(r).expanduser().is_absolute() for r in roots):
+        if all(Path(r).expanduser().is_absolute() for r in roots):
             return domain
         if data_root is None:
             raise ConfigError(

@@ -169,9 +169,12 @@ def assemble_dual(
             them; a beam whose second outcome is LOST gives one output point (or none if
             its first is LOST too). Lost beams are those whose first return is LOST.
     """
+    codes1, range1_m, refl1 = first
+    codes2, range2_m, refl2 = second
     source, outcome, xyz, intensity = survivors(
-        beams.xyz, beams.range_m, beams.intensity, *sensor.intensity.compiled, *first, *second
-    )
+        beams.xyz, beams.range_m, beams.intensity, *sensor.intensity.compiled, codes1, range1_m,
+        refl1, codes2, range2_m, refl2,
+    )  # fmt: skip
     return WeatherResult(
         xyz=xyz,
         intensity=intensity,

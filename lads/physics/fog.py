@@ -272,11 +272,11 @@ def soft_return_table(extinction_per_m: float, params: FogParams) -> SoftReturnT
     """
     h, length = params.table_step_m, params.pulse_length_m
     r1, r2 = params.overlap_start_m, params.overlap_full_m
+    if r1 is None or r2 is None:
+        raise ConfigError("soft_return_table needs FogParams.resolved_for(sensor) first.")
     n_cells = math.ceil((r2 + length - r1) / h)
     edges = r1 + h * np.arange(n_cells + 1)
     centre = edges[:-1] + 0.5 * h
-    if r1 is None or r2 is None:
-        raise ConfigError("soft_return_table needs FogParams.resolved_for(sensor) first.")
     if r2 > r1:
         overlap = np.clip((centre - r1) / (r2 - r1), 0.0, 1.0)
     else:
@@ -336,9 +336,12 @@ def soft_return_peak(
     """
     r0 = np.asarray(target_range_m, dtype=np.float64)
     table = soft_return_table(float(extinction_per_m), params)
+    r1 = params.overlap_start_m
+    if r1 is None:  # soft_return_table has refused unresolved params already
+        raise ConfigError("soft_return_peak needs FogParams.resolved_for(sensor) first.")
     power = np.pi * backscatter_per_m_sr * _lookup(table.peak_unit, r0, table)
-    peak_range = np.where(r0 < params.overlap_start_m, r0, _lookup(table.peak_range_m, r0, table))
-    power[r0 < params.overlap_start_m] = 0.0
+    peak_range = np.where(r0 < r1, r0, _lookup(table.peak_range_m, r0, table))
+    power[r0 < r1] = 0.0
     return peak_range, power, _lookup(table.relative_curvature_per_m2, r0, table)
 
 
@@ -405,10 +408,13 @@ def simulate_fog(
         beams.clear_power[idx], two_way_ln, np.ones(idx.size, dtype=bool), rng, t2
     )
     table = soft_return_table(alpha, params)
+    r1 = params.overlap_start_m
+    if r1 is None:  # resolved_for(sensor) above set it
+        raise ConfigError("simulate_fog: FogParams.overlap_start_m unresolved.")
     length = params.pulse_length_m
     p_fog, reported, kappa = echo_lookup(
         r0, table.target_range_m, table.peak_unit, table.peak_range_m,
-        table.relative_curvature_per_m2, np.pi * beta, params.overlap_start_m,
+        table.relative_curvature_per_m2, np.pi * beta, r1,
         0.5 * length if params.report_pulse_centre else 0.0,
     )  # fmt: skip
     fog_ok = detection.faint_detected(p_fog, rng)

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import inspect
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 from lads.errors import ConfigError
 from lads.physics.materials import LABEL_SETS
@@ -35,8 +35,21 @@ def label_set_for(dataset: str) -> str | None:
     such as "synth", when they are label sets themselves), None for unlabelled datasets."""
     reader = READERS.get(dataset)
     if reader is not None:
-        return reader.label_set  # type: ignore[no-any-return]
+        return cast("type[Reader]", reader).label_set
     return dataset if dataset in LABEL_SETS else None
+
+
+def reader_class(name: str) -> type[Reader]:
+    """The reader class `name`, for its class-level facts (sensor, label_set, columns).
+
+    Raises:
+        ConfigError: unknown reader name (the message lists the valid ones).
+    """
+    if name not in READERS:
+        raise ConfigError(
+            f"unknown dataset reader {name!r}; valid names: {', '.join(sorted(READERS))}."
+        )
+    return cast("type[Reader]", READERS[name])
 
 
 def get_reader(name: str, root: str | Path, **options: Any) -> Reader:

@@ -63,8 +63,9 @@ def check_scan_of(
     # An even stride over at most MAX_SAMPLED_POINTS returns: the shares and per-ring
     # medians judged here are as clear on a sample as on the whole frame, at a quarter of
     # the cost of a 64-beam scan.
-    step = max(1, -(-len(xyz) // MAX_SAMPLED_POINTS))
-    p = np.asarray(xyz)[::step].astype(np.float64)
+    points = np.asarray(xyz)
+    step = max(1, -(-len(points) // MAX_SAMPLED_POINTS))
+    p = points[::step].astype(np.float64)
     far = np.linalg.norm(p, axis=1) > NEAR_FIELD_M
     if int(far.sum()) < MIN_JUDGED_POINTS:
         return

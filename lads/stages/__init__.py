@@ -6,6 +6,8 @@ callable stage object.
 
 from __future__ import annotations
 
+from typing import Protocol, cast
+
 from lads.config import StageConfig
 from lads.errors import ConfigError
 from lads.stages.base import Stage
@@ -13,7 +15,14 @@ from lads.stages.intensity import IntensityStage
 from lads.stages.weather import WeatherStage
 from lads.stages.wet_ground import WetGroundStage
 
-STAGES: dict[str, type] = {
+
+class StageClass(Protocol):
+    """A stage class as `build_stage` uses it: its `from_config` classmethod."""
+
+    def from_config(self, config: StageConfig) -> object: ...
+
+
+STAGES: dict[str, StageClass] = {
     "rain": WeatherStage,
     "snow": WeatherStage,
     "fog": WeatherStage,
@@ -27,5 +36,6 @@ def build_stage(config: StageConfig) -> Stage:
     cls = STAGES.get(config.stage)
     if cls is None:
         raise ConfigError(f"unknown stage {config.stage!r}; expected one of {sorted(STAGES)}.")
-    stage: Stage = cls.from_config(config)
-    return stage
+    # Every stage class is a frozen dataclass: its name and version are read-only, which
+    # mypy's reading of the Stage protocol (plain, settable attributes) does not accept.
+    return cast(Stage, cls.from_config(config))
