@@ -99,9 +99,9 @@ def resample_swaps(
     resample chose; `known`: sets already listed (not repeated).
 
     The held-out swap test (`_ambiguity`) compares the two fits on one split; the resamples
-    redraw the training tiles. On a K13 case the main selection took the range exponent
-    1.2 SE ahead of the attenuation (no set), and the resamples chose each in 5 of 10: the
-    data cannot tell them apart, and without the set the exponent was only "possible"."""
+    redraw the training tiles: two forms the main split ranks a little apart, each chosen
+    in about half the resamples, are one mismatch the data cannot tell apart, not two
+    "possible" ones."""
     n = len(chosen_sets)
     if n == 0:
         return []

@@ -244,9 +244,8 @@ def prediction_design(table: BeamTable, rows: npt.NDArray[np.int64], like: Desig
     Its real columns are empty (no row is returned). The simulated value is taken as
     stored: one at the encoding's maximum is a lower bound of what the simulation meant, so
     for the catalogue's laws (monotone in ln I_sim) the prediction is a lower bound too,
-    which the writer clips at the maximum again. Left at the maximum instead, those beams
-    kept none of the fitted effects: on a nuScenes near-range case (K3) the simulation had
-    saturated the beams nearer than 3 m, whose real values lay 2.8 lower in ln I.
+    which the writer clips at the maximum again. Left at the maximum instead, saturated
+    beams would keep none of the fitted effects.
     Classes, per-scan levels (C10) and the real clip are `like`'s when both designs hold
     the same scans (paired), so a fitted per-class or per-scan term means the same rows;
     unpaired, the simulated scans are other scans and get their own levels."""
@@ -292,8 +291,8 @@ def _low_power(
     (ln I on ln R, ln cos, class) is fitted by censored (Tobit) regression: the low rows
     enter as "below ZERO_FIT_STEPS + 1/2 steps". Least squares on the rows above alone
     selects, far out, only the beams that came out bright, flattens the range slope and
-    imputed the stored 0s too bright on average (tests/unit/test_diagnose_dropout.py); the
-    benchmark's K10 thresholds (ln tau) came out too high with them.
+    imputed the stored 0s too bright on average (tests/unit/test_diagnose_dropout.py), which
+    biases fitted detection thresholds (ln tau) high.
     With too few rows above, the interval's uniform mean is kept."""
     uniform = _sim_log_moments(i_sim[low], step, h)[0]
     x = _geometry_columns(t)

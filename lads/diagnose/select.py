@@ -355,8 +355,8 @@ def gain_floor(baseline_half_deviance: float) -> float:
     the ones too small to matter out, such as a class whose few objects happen to be
     brighter than its mean in this sample. A share of the NLL itself made the floor depend
     on the noise level through the Gaussian normaliser, and counted each quantisation
-    interval's probability as misfit: on KITTI cases it was about twice the deviance's
-    share and kept out a weak ring (K6) that the score had found."""
+    interval's probability as misfit, which is larger on coarse encodings and kept real,
+    small effects out."""
     return max(MIN_GAIN_NATS, BASELINE_SHARE * baseline_half_deviance)
 
 
@@ -408,9 +408,9 @@ def domain_rows(held_out: Design, effect: Effect, f: Fit) -> Design | None:
     """The held-out rows an effect confined by its own fit acts on (`Effect.domain`: the
     sector, the rings its training fit chose), if enough groups hold them.
 
-    Like a class, such a domain is a few of the held-out tiles: a blocked 20 degree sector
-    lay in 21 of 262 validation tiles of a K15 case, all of the gain (0.6 nats per beam)
-    was there, and over all tiles the cluster z was 2.6; tile by tile it was consistent."""
+    Like a class, such a domain is a few of the held-out tiles: all of its gain lies
+    there, and scored over every tile its cluster z is diluted by the tiles it never
+    touches."""
     if effect.domain is None or effect.label not in [e.label for e in f.model.effects]:
         return None
     k = [e.label for e in f.model.effects].index(effect.label)
