@@ -10,6 +10,7 @@ import numpy as np
 import numpy.typing as npt
 
 from lads.diagnose.catalogue import CATALOGUE
+from lads.diagnose.config import CONFIG
 from lads.diagnose.design import Design
 from lads.diagnose.effects import Effect
 from lads.diagnose.grouping import Split
@@ -17,14 +18,14 @@ from lads.diagnose.model import initial_base
 from lads.diagnose.parallel import fit_models
 from lads.diagnose.select import CLAIM_FREQUENCY, POSSIBLE_FREQUENCY, Selection, gain_on
 
-LONG_RANGE_BAND_M = (30.0, 120.0)
-LONG_RANGE_MIN_SHARE = 0.05  # C5 is named over C1 only with >= 5 % of rows at 30-120 m
+LONG_RANGE_BAND_M = CONFIG.verdict.long_range_band_m
+LONG_RANGE_MIN_SHARE = CONFIG.verdict.long_range_min_share
 # On flat ground cos theta = h / R, so ln I_sim = ln(c rho h) - 3 ln R: a range exponent, an
 # incidence law, per-ring gains (each ring meets the ground at one range) and the encoding's
 # gamma (a multiple of ln I_sim) are all functions of range there, apart from the few
 # ground classes' reflectances, so on ground-only data any one of them can absorb the others.
 GROUND_IDENTITIES = ("C1", "C3", "C4", "C9")
-GROUND_ONLY_SHARE = 0.05  # off-ground share of intensity rows below which they are one term
+GROUND_ONLY_SHARE = CONFIG.verdict.ground_only_share
 
 
 def swap_ambiguity(

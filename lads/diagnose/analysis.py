@@ -21,6 +21,7 @@ from lads.diagnose.ambiguity import (
     swap_ambiguity,
 )
 from lads.diagnose.bootstrap import bootstrap_params, bootstrap_weights
+from lads.diagnose.config import CONFIG
 from lads.diagnose.design import Design, evenly_spaced
 from lads.diagnose.effects import Effect, candidates
 from lads.diagnose.grouping import Split, fit_weights, split_groups
@@ -40,13 +41,13 @@ from lads.diagnose.select import (
     reference_levels,
 )
 
-NOISE_MIN_SLOPE = 0.1  # ln sigma per ln R (or ln I): sigma changes by < 7 % per doubling
+NOISE_MIN_SLOPE = CONFIG.verdict.noise_min_slope
 # The neighbour-difference slopes (point_noise.py) that matter: shot noise has 1 per ln R
 # (-0.5 per ln I); with homoscedastic noise the estimator still reads a small slope (pairs
 # that straddle two surfaces, the rounding model), up to about a third on piecewise-planar
 # ground, so the bar sits between that and shot noise.
-POINT_NOISE_MIN_SLOPE = 0.25
-Z_TEST = 3.0  # test-group gain (cluster SEs) that makes unstable effects "ambiguous", not null
+POINT_NOISE_MIN_SLOPE = CONFIG.verdict.point_noise_min_slope
+Z_TEST = CONFIG.verdict.z_test
 
 
 @dataclass(frozen=True)

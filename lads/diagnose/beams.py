@@ -25,6 +25,7 @@ import numpy as np
 import numpy.typing as npt
 from tqdm.auto import tqdm
 
+from lads.diagnose.config import CONFIG
 from lads.diagnose.edges import edge_distance
 from lads.diagnose.ground_normals import local_ground_cos
 from lads.diagnose.minrange import beyond_min_range, pairs_beyond_min_range
@@ -45,14 +46,14 @@ GROUND_CLASSES: dict[str, tuple[int, ...]] = {
     "wads": (40, 44, 48, 49, 60, 72),
     "nuscenes": (24, 25, 26, 27),
 }
-GROUND_RADIUS_M = 30.0  # beyond this the road curves and the ground is sparsely sampled
-GROUND_SEED_PERCENTILE = 20.0
+GROUND_RADIUS_M = CONFIG.table.ground_radius_m
+GROUND_SEED_PERCENTILE = CONFIG.table.ground_seed_percentile
 # Refits keep points ever closer to the plane: the first band lets a tilted seed find the
 # ground, the narrower ones stop wall bases and kerbs from tilting the plane.
-GROUND_INLIER_M = (0.3, 0.3, 0.2, 0.15, 0.1)
-GROUND_BAND_M = 0.25
-GROUND_MAX_TILT_DEG = 15.0  # steeper "ground" fits are walls or slopes: use a level plane
-GROUND_MIN_POINTS = 10
+GROUND_INLIER_M = CONFIG.table.ground_inlier_m
+GROUND_BAND_M = CONFIG.table.ground_band_m
+GROUND_MAX_TILT_DEG = CONFIG.table.ground_max_tilt_deg
+GROUND_MIN_POINTS = CONFIG.table.ground_min_points
 SCAN_GROUP_STRIDE = 1_000_000
 _TILE_OFFSET = 500  # tiles -500..499 (+-5 km at 10 m tiles) map to 0..999 per axis
 _TILE_BASE = 1000

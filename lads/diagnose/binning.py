@@ -7,7 +7,6 @@ trend test regresses on (`lads.diagnose.binstats`). `FEATURES` lists them in rep
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -15,6 +14,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from lads.diagnose.config import CONFIG
 from lads.diagnose.table import EDGE_CAP_BEAMS, BeamTable
 
 F64 = npt.NDArray[np.float64]
@@ -49,10 +49,10 @@ class Feature:
     bin: Callable[[BeamTable], Binning | None]
 
 
-RANGE_EDGES_M = (0.9, 2.0, 5.0, 10.0, 20.0, 40.0, 80.0, 120.0)
-COS_BINS = 10
-AZIMUTH_SECTOR_DEG = 10.0
-EDGE_EDGES_BEAMS = (0.0, 1.0, 2.0, 3.0, 5.0, 10.0, math.inf)
+RANGE_EDGES_M = CONFIG.localize.range_edges_m
+COS_BINS = CONFIG.localize.cos_bins
+AZIMUTH_SECTOR_DEG = CONFIG.localize.azimuth_sector_deg
+EDGE_EDGES_BEAMS = CONFIG.localize.edge_edges_beams
 EDGE_LABELS = ("0 beams", "1 beam", "2 beams", "3-4 beams", "5-9 beams", "10+ beams")
 
 

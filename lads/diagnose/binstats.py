@@ -38,14 +38,15 @@ from scipy import sparse, stats
 from statsmodels.stats.multitest import multipletests
 
 from lads.diagnose.binning import F64, I64, Binning, Feature
+from lads.diagnose.config import CONFIG
 
-MIN_BIN_SHARE = 0.01  # a bin enters tests and effect sizes with >= 1% of the rows
-MIN_EFFECT_GROUPS = 3  # ... and >= 3 groups for the effect size
-MIN_TEST_GROUPS = 10  # ... and >= 10 groups for the omnibus test (its variance estimate)
-MIN_TEST_EVENTS = 20  # ... and, for 0/1 outcomes, >= 20 expected events (drops, or returns)
-MIN_COMPARE_ROWS = 20  # ground vs non-ground: both sides of a bin need this many rows
-AGREE_SHARE = 2.0 / 3.0
-Q_THRESHOLD = 0.05
+MIN_BIN_SHARE = CONFIG.localize.min_bin_share
+MIN_EFFECT_GROUPS = CONFIG.localize.min_effect_groups
+MIN_TEST_GROUPS = CONFIG.localize.min_test_groups
+MIN_TEST_EVENTS = CONFIG.localize.min_test_events
+MIN_COMPARE_ROWS = CONFIG.localize.min_compare_rows
+AGREE_SHARE = CONFIG.localize.agree_share
+Q_THRESHOLD = CONFIG.localize.q_threshold
 Z95 = 1.959963984540054
 DENSE_CELLS = 1 << 22
 AGREEMENT_FEATURES = ("range", "cos_incidence")

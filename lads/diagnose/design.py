@@ -22,22 +22,23 @@ import scipy.optimize
 import torch
 from scipy.special import ndtr, ndtri
 
+from lads.diagnose.config import CONFIG
 from lads.diagnose.table import BeamTable
 
-COS_FLOOR = 0.05  # ln cos(theta) of grazing returns is capped, their normals are unreliable
-EDGE_NEAR_BEAMS = 2.0
-LOW_STEPS = 10  # below this many quantisation steps a stored value is treated as an interval
-ZERO_FIT_STEPS = 2  # values stored at most this many steps above 0 get their power imputed
-ZERO_FIT_MIN_ROWS = 200
-ZERO_QUANTILES = 16
-TOBIT_MAX_ROWS = 20_000  # the law has ~25 coefficients: 800 rows each; more only cost time
+COS_FLOOR = CONFIG.design.cos_floor
+EDGE_NEAR_BEAMS = CONFIG.design.edge_near_beams
+LOW_STEPS = CONFIG.design.low_steps
+ZERO_FIT_STEPS = CONFIG.design.zero_fit_steps
+ZERO_FIT_MIN_ROWS = CONFIG.design.zero_fit_min_rows
+ZERO_QUANTILES = CONFIG.design.zero_quantiles
+TOBIT_MAX_ROWS = CONFIG.design.tobit_max_rows
 # A clip below the encoding's maximum (C9's i_max: firmware saturation, a gain stage) shows
 # as an atom at the top of the real values: the largest stored value holding CLIP_RATIO
 # times the rows of the step below it and CLIP_MIN_SHARE of all returns. Noise spreads a
 # smooth tail, whose top values hold fewer rows than the ones below them.
-CLIP_RATIO = 5.0
-CLIP_MIN_SHARE = 0.002
-CLIP_MIN_ROWS = 20
+CLIP_RATIO = CONFIG.design.clip_ratio
+CLIP_MIN_SHARE = CONFIG.design.clip_min_share
+CLIP_MIN_ROWS = CONFIG.design.clip_min_rows
 SUBSET_CACHE = 4
 
 

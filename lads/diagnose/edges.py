@@ -19,18 +19,20 @@ import math
 import numpy as np
 import numpy.typing as npt
 
-EDGE_JUMP_M = 1.0
+from lads.diagnose.config import CONFIG
+
+EDGE_JUMP_M = CONFIG.table.edge_jump_m
 # More missing returns than this many median spacings between two returns of a ring is a
 # depth edge (no return: sky, beyond range, a black or mirror-like surface). On a scan
 # thinned at random to a third, 4 spacings is exceeded between ~4 % of neighbours.
-EDGE_GAP_SPACINGS = 4.0
+EDGE_GAP_SPACINGS = CONFIG.table.edge_gap_spacings
 # The azimuth step is the commonest gap between neighbouring returns: on a scan thinned at
 # random the gaps are whole numbers of steps and one step is still the commonest (the
 # lowest quantiles are no guide: many gaps of a KITTI ring are half a step). Mode
 # on log-spaced bins of STEP_BIN_LN wide, then the median of the gaps within STEP_BAND_LN.
-STEP_BIN_LN = 0.02
-STEP_BAND_LN = 0.15
-MIN_STEP_GAPS = 20
+STEP_BIN_LN = CONFIG.table.step_bin_ln
+STEP_BAND_LN = CONFIG.table.step_band_ln
+MIN_STEP_GAPS = CONFIG.table.min_step_gaps
 
 
 def azimuth_step_rad(azimuth_rad: npt.ArrayLike, ring: npt.ArrayLike) -> float:

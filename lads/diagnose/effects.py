@@ -22,6 +22,7 @@ import torch
 from scipy import stats
 
 from lads.diagnose.catalogue import CATALOGUE, EffectInfo
+from lads.diagnose.config import CONFIG
 from lads.diagnose.design import Design
 
 Tensor = torch.Tensor
@@ -29,21 +30,21 @@ GLOSSY_CLASS_WORDS = ("car", "truck", "bus", "vehicle", "trailer", "motorcycle")
 RETRO_CLASS_WORDS = ("traffic-sign", "traffic_sign", "sign", "pole-sign", "traffic_cone")
 WET_CLASS_WORDS = ("road", "sidewalk", "parking", "lane-marking", "driveable_surface",
                    "other-ground", "other_flat")  # fmt: skip
-MIN_CLASS_ROWS = 200
+MIN_CLASS_ROWS = CONFIG.effects.min_class_rows
 # Glossy and retro-reflective effects are tied to named classes (no search over classes, so
 # no extra multiple testing) and act on few points: a sign is ~0.1 % of a scan, ~190 rows in
 # six 40k-point scans, and its x5-x50 gain is plain in 50 rows.
-MIN_CONFINED_ROWS = 50
-RIDGE = 1e-3
-SECTOR_SOFTNESS_DEG = 0.5
+MIN_CONFINED_ROWS = CONFIG.effects.min_confined_rows
+RIDGE = CONFIG.effects.ridge
+SECTOR_SOFTNESS_DEG = CONFIG.effects.sector_softness_deg
 # C4 on a few rings (`_few_ring_gains`): rings whose training residual stands out at this
 # family-wise level over all rings, at most MAX_FEW_RINGS of them (more is the full C4's job).
-FEW_RINGS_LEVEL = 0.05
-MAX_FEW_RINGS = 8
-ODD_RING_ROUNDS = 4
+FEW_RINGS_LEVEL = CONFIG.effects.few_rings_level
+MAX_FEW_RINGS = CONFIG.effects.max_few_rings
+ODD_RING_ROUNDS = CONFIG.effects.odd_ring_rounds
 # Log-spaced range bins (to RANGE_BIN_TOP_M) within which a ring is compared with the others.
-RANGE_BINS = 24
-RANGE_BIN_TOP_M = 120.0
+RANGE_BINS = CONFIG.effects.range_bins
+RANGE_BIN_TOP_M = CONFIG.effects.range_bin_top_m
 
 
 @dataclass

@@ -18,10 +18,12 @@ from typing import cast
 import numpy as np
 import numpy.typing as npt
 
-TILE_M = 5.0  # planes are fitted per tile on the ground points of the 3 x 3 tiles around it
-MIN_POINTS = 15
-MIN_SPREAD_M = 0.5  # the support must extend this far (s.d.) in its thinner direction
-MAX_TILT_DEG = 15.0  # a steeper local "ground" is a curb or a ramp edge: keep the image normal
+from lads.diagnose.config import CONFIG
+
+TILE_M = CONFIG.table.local_ground_tile_m
+MIN_POINTS = CONFIG.table.local_ground_min_points
+MIN_SPREAD_M = CONFIG.table.local_ground_min_spread_m
+MAX_TILT_DEG = CONFIG.table.local_ground_max_tilt_deg
 
 
 def local_ground_cos(

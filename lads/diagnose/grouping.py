@@ -8,10 +8,11 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from lads.diagnose.config import CONFIG
 from lads.diagnose.design import Design
 
-TEST_SHARE = 0.2
-VALIDATION_SHARE = 0.5
+TEST_SHARE = CONFIG.select.test_share
+VALIDATION_SHARE = CONFIG.select.validation_share
 
 
 @dataclass(frozen=True)

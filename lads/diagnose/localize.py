@@ -28,11 +28,12 @@ from lads.diagnose.binstats import (
     bh_q_values,
     target_stats,
 )
+from lads.diagnose.config import CONFIG
 from lads.diagnose.table import BeamTable
 from lads.errors import InputDataError
 from lads.jsontypes import json_types
 
-MIN_HEATMAP_ROWS = 20
+MIN_HEATMAP_ROWS = CONFIG.localize.min_heatmap_rows
 TARGETS = ("intensity", "dropout")
 HEATMAPS = (("range_x_cos", "range", "cos_incidence"), ("ring_x_range", "ring", "range"),
             ("class_x_range", "class", "range"))  # fmt: skip

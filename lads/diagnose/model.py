@@ -28,6 +28,7 @@ import numpy.typing as npt
 import scipy.optimize
 import torch
 
+from lads.diagnose.config import CONFIG
 from lads.diagnose.design import CensoredRows, Design
 from lads.diagnose.effects import Effect
 
@@ -39,8 +40,8 @@ BASE_NAMES: tuple[str, ...] = (
 _BASE_LOWER = np.array([-12.0, -6.0, -3.0, -3.0, -12.0])
 _BASE_UPPER = np.array([12.0, 3.0, 3.0, 3.0, 12.0])
 _HALF_LN_2PI = 0.5 * math.log(2.0 * math.pi)
-MAX_ITER = 150
-FTOL = 1e-7  # relative loss change to stop at (scipy default 2.2e-9): 1e-7 of ~1 nat per row
+MAX_ITER = CONFIG.fit.max_iter
+FTOL = CONFIG.fit.ftol
 # is 1e-7 nats, four orders below the smallest gain an effect is accepted for (select.py
 # MIN_GAIN_NATS), and it halves the iterations of the slow per-ring fits
 # L-BFGS memory (scipy default 10). 64 ring gains or 20 class scales each touch a few % of
@@ -48,12 +49,12 @@ FTOL = 1e-7  # relative loss change to stop at (scipy default 2.2e-9): 1e-7 of ~
 # ran into MAX_ITER. A longer memory reaches the same optimum in fewer iterations where the
 # likelihood is well curved; where it is flat (e.g. an encoding fitted on one frame) the
 # optimum reached can differ.
-MAXCOR = 30
-BOUND_TOLERANCE = 0.01  # a parameter within 1 % of its range from a bound is "at the bound"
+MAXCOR = CONFIG.fit.maxcor
+BOUND_TOLERANCE = CONFIG.fit.bound_tolerance
 # A bound binds when moving 5 % of the range inward costs more than 1e-6 nats per row (the
 # fits converge to ~1e-7; the smallest gain an effect is accepted for is 2e-3).
-BOUND_NUDGE = 0.05
-FLAT_LOSS = 1e-6
+BOUND_NUDGE = CONFIG.fit.bound_nudge
+FLAT_LOSS = CONFIG.fit.flat_loss
 
 
 @dataclass

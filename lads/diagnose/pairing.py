@@ -12,7 +12,9 @@ import numpy as np
 import numpy.typing as npt
 from scipy.spatial import cKDTree
 
-PAIR_CANDIDATES = 4
+from lads.diagnose.config import CONFIG
+
+PAIR_CANDIDATES = CONFIG.table.pair_candidates
 _MAX_PAIR_PASSES = 64
 
 

@@ -32,19 +32,20 @@ import scipy.optimize
 from scipy.special import gammaln
 
 from lads.diagnose.binning import RANGE_EDGES_M
+from lads.diagnose.config import CONFIG
 from lads.diagnose.design import Design, evenly_spaced, sim_log_variance
 from lads.diagnose.select import by_rows
 
-NU = 4.0
+NU = CONFIG.point_noise.nu
 # The t(NU) scale that maximises the likelihood of N(0, 1) data (solves E[(NU + 1) x^2 /
 # (NU s^2 + x^2)] = 1): a Gaussian point noise of sigma is read as a scale of 0.831 sigma.
 GAUSS_SCALE = 0.8310
-MAX_GAP_SPACINGS = 2.5  # neighbours at most this many azimuth spacings apart (one lost return)
-MAX_DR_SHARE = 0.02  # |R_i - R_j| <= 2 % of R + MAX_DR_M: one surface seen almost face-on
-MAX_DR_M = 0.05
-MIN_PAIRS = 500
-MIN_BIN_PAIRS = 50  # a range bin of the figure's robust scale needs this many pairs
-FIT_PAIRS = 200_000  # three parameters: more pairs only cost time
+MAX_GAP_SPACINGS = CONFIG.point_noise.max_gap_spacings
+MAX_DR_SHARE = CONFIG.point_noise.max_dr_share
+MAX_DR_M = CONFIG.point_noise.max_dr_m
+MIN_PAIRS = CONFIG.point_noise.min_pairs
+MIN_BIN_PAIRS = CONFIG.point_noise.min_bin_pairs
+FIT_PAIRS = CONFIG.point_noise.fit_pairs
 Z95 = 1.959963984540054
 
 

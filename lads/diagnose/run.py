@@ -19,6 +19,7 @@ from tqdm import tqdm
 from lads.diagnose import figures
 from lads.diagnose.analysis import PHASES, Diagnosis, Settings, diagnose_design
 from lads.diagnose.beams import paired_table, unpaired_tables
+from lads.diagnose.config import CONFIG
 from lads.diagnose.corrected import write_corrected
 from lads.diagnose.design import Design, paired_design, unpaired_design
 from lads.diagnose.localize import localize, to_json
@@ -27,9 +28,9 @@ from lads.diagnose.table import BeamTable
 from lads.diagnose.trees import open_trees
 from lads.errors import DiagnoseError
 
-MIN_ROWS = 2000
-MIN_GROUPS = 10
-LOCALIZE_BOOT = 100
+MIN_ROWS = CONFIG.verdict.min_rows
+MIN_GROUPS = CONFIG.verdict.min_groups
+LOCALIZE_BOOT = CONFIG.localize.bootstrap
 
 
 def _rng(seed: int, what: str) -> np.random.Generator:
@@ -131,6 +132,8 @@ def _write(
         "mode": "paired" if paired else "unpaired", "seed": seed, "rows": int(len(design)),
         "scans": len(table.scans), "sensor": dataclasses.asdict(table.sensor),
         "settings": dataclasses.asdict(settings),
+        # Every threshold the run used, and a hash to compare reports by (config.py).
+        "config": CONFIG.to_dict(), "config_sha256": CONFIG.sha256(),
         "localization_after": to_json(loc_after).get("statements", []),
     }  # fmt: skip
     doc = build_report(dg, context, to_json(loc_before), figs)

@@ -15,15 +15,16 @@ import numpy as np
 import numpy.typing as npt
 from scipy import stats
 
+from lads.diagnose.config import CONFIG
 from lads.diagnose.design import Design, group_index
 from lads.diagnose.effects import Effect
 from lads.diagnose.model import Fit, Model, RowTerms, directional_gain, fit, initial_base
 from lads.diagnose.parallel import fit_models, fit_warm
 from lads.errors import DiagnoseError
 
-K_MAX = 4
-MIN_GAIN_NATS = 0.002  # per row: below this an effect is not worth naming
-BASELINE_SHARE = 0.005  # ... nor below 0.5 % of the baseline's held-out deviance (§5.5 step 4)
+K_MAX = CONFIG.select.k_max
+MIN_GAIN_NATS = CONFIG.select.min_gain_nats
+BASELINE_SHARE = CONFIG.select.baseline_share
 # Held-out directional score (model.directional_gain) needed to accept, in cluster standard
 # errors: two-sided 5 % with a Bonferroni correction over the ~20 candidates of a forward
 # step, so data without an effect rarely admit a chance winner. The score, not the held-out
@@ -31,12 +32,12 @@ BASELINE_SHARE = 0.005  # ... nor below 0.5 % of the baseline's held-out devianc
 # pays for the new fit's own noise), so a bar of 3 on the gain would be a bar of ~6 on the
 # evidence and miss real effects. The gain still decides among passing candidates and must
 # beat `gain_floor`.
-Z_ACCEPT = 3.0
+Z_ACCEPT = CONFIG.select.z_accept
 # The stability resamples re-run the choice at a lower bar: the main selection has already
 # tested significance; a resample asks whether the *same* effect wins when the training
 # groups change, and the 70 % frequency rule is the error control there (stability
 # selection). Re-testing at z >= 3 would drop a real effect near the bar from most resamples.
-Z_RESAMPLE = 2.0
+Z_RESAMPLE = CONFIG.select.z_resample
 # dBIC is reported in the trace, not used to accept. docs/diagnose.md §5.5 asks for dBIC < -10
 # with n_eff from the Kish design effect; but the design effect measures correlation
 # *between* groups (object reflectance), while per-ring and per-class terms vary *within* a
@@ -50,12 +51,12 @@ Z_RESAMPLE = 2.0
 # with Student's t at the same one-sided tail as the z bar (df = groups - 1: few groups need
 # a much larger ratio), provided its gain over all held-out rows is positive. At least
 # MIN_SUPPORT_GROUPS groups must hold the class.
-MIN_SUPPORT_GROUPS = 4
+MIN_SUPPORT_GROUPS = CONFIG.select.min_support_groups
 # Screening: a forward step fits every candidate on SCREEN_ROWS training rows (a quarter of
 # Settings.fit_rows), then refits the SHORTLIST best (and the SHORTLIST_CONFINED best
 # class-confined ones) on all of them. Fit time is linear in rows, so a step over ~25
 # candidates costs ~1/3 of full fits, and the decision still rests on full fits.
-SCREEN_ROWS = 5000
+SCREEN_ROWS = CONFIG.select.screen_rows
 # A class whose held-out support has fewer than CROSSFIT_BELOW_GROUPS groups is also scored
 # on the training groups that hold it, each out of sample: the training groups are split in
 # CROSSFIT_FOLDS folds and both the incumbent and the candidate are refitted without each
@@ -64,12 +65,12 @@ SCREEN_ROWS = 5000
 # training tiles hold more of it that no test reads. Only candidates that already pass the
 # resamples' bar on their held-out groups are cross-fitted (the refits cost 2 x
 # CROSSFIT_FOLDS fits each).
-CROSSFIT_BELOW_GROUPS = 20
-CROSSFIT_FOLDS = 4
-SHORTLIST = 4
-SHORTLIST_CONFINED = 2
-CLAIM_FREQUENCY = 0.7
-POSSIBLE_FREQUENCY = 0.3
+CROSSFIT_BELOW_GROUPS = CONFIG.select.crossfit_below_groups
+CROSSFIT_FOLDS = CONFIG.select.crossfit_folds
+SHORTLIST = CONFIG.select.shortlist
+SHORTLIST_CONFINED = CONFIG.select.shortlist_confined
+CLAIM_FREQUENCY = CONFIG.select.claim_frequency
+POSSIBLE_FREQUENCY = CONFIG.select.possible_frequency
 
 
 @dataclass(frozen=True)

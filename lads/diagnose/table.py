@@ -20,6 +20,8 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from lads.diagnose.config import CONFIG
+
 
 @dataclass(frozen=True, slots=True)
 class SensorInfo:
@@ -128,5 +130,5 @@ ROW_FIELDS: tuple[str, ...] = (
     "normal_ok", "class_id", "is_ground", "height_m", "edge_beams", "edge_span_beams", "i_sim",
     "i_real", "ret_sim", "ret_real", "sim_index", "real_index",
 )  # fmt: skip
-EDGE_CAP_BEAMS = 10.0
-GROUP_TILE_M = 10.0
+EDGE_CAP_BEAMS = CONFIG.table.edge_cap_beams
+GROUP_TILE_M = CONFIG.table.group_tile_m
