@@ -16,6 +16,9 @@ pool the scores. The tool only ever sees the two tree folders.
                  seed. Writes results/diagnose_ci.{json,md}.
     --full       all cases x 20 seeds x both bases (M2; --mode both adds M1), full scans.
                  Writes results/diagnose.{json,md}.
+    --untouched  the CI cases on seeds 20-24 (`UNTOUCHED_SEEDS`: no threshold of
+                 lads/diagnose/config.py was chosen on them; --seeds N takes the first N).
+                 Writes results/diagnose_untouched.{json,md}, reported apart.
 
 --cases/--seeds/--first-seed/--bases/--mode/--max-points/--copies narrow or widen either plan
 (--max-points N thins every scan to N random points); --keep DIR keeps the generated trees and
@@ -56,6 +59,10 @@ from benchmarks.diagnose_cases.score import (
 
 CI_NUSCENES = ("K2", "K5", "K18")
 FULL_SEEDS = 20
+# Seeds no threshold of lads/diagnose/config.py was ever looked at on: every result file
+# before them used seeds 0-12, and the full plan stops at 19. `--untouched` runs the CI
+# cases on them and writes diagnose_untouched.{json,md}, reported apart from the rest.
+UNTOUCHED_SEEDS = range(20, 25)
 TOOL_TIMEOUT_S = 900
 STDERR_TAIL = 2000
 
@@ -74,6 +81,8 @@ def plan(args: argparse.Namespace) -> list[tuple[str, str, int, str]]:
                     runs += [(case, base, s, m) for m in modes for s in seeds]
     else:
         seeds = range(args.first_seed, args.first_seed + (args.seeds or 1))
+        if args.untouched:
+            seeds = UNTOUCHED_SEEDS[: args.seeds or len(UNTOUCHED_SEEDS)]
         plan_ci = [(c, "semantickitti") for c in CASES] + [(c, "nuscenes") for c in CI_NUSCENES]
         if args.bases:
             plan_ci = [(c, b) for c, b in plan_ci if b in args.bases.split(",")]
@@ -255,6 +264,8 @@ def parse(argv: list[str] | None) -> argparse.Namespace:
     which = p.add_mutually_exclusive_group()
     which.add_argument("--subset", choices=["ci"], help="the CI-sized subset (default)")
     which.add_argument("--full", action="store_true", help="all cases x 20 seeds x both bases")
+    untouched = "the CI cases on UNTOUCHED_SEEDS (nothing was tuned on them)"
+    which.add_argument("--untouched", action="store_true", help=untouched)
     p.add_argument("--cases", help="comma-separated case ids to keep, e.g. K1,K2")
     p.add_argument("--seeds", type=int, help="seeds per case (ci: 1, full: 20)")
     p.add_argument("--first-seed", type=int, default=0,
@@ -283,9 +294,11 @@ def parse(argv: list[str] | None) -> argparse.Namespace:
 
 def main(argv: list[str] | None = None) -> int:
     args = parse(argv)
-    subset = "full" if args.full else "ci"
+    subset = "full" if args.full else "untouched" if args.untouched else "ci"
     max_points = args.max_points or None
-    name = args.name or ("diagnose" if args.full else "diagnose_ci")
+    name = args.name or {"full": "diagnose", "untouched": "diagnose_untouched"}.get(
+        subset, "diagnose_ci"
+    )
     runs = plan(args)
     scores = []
     started = time.perf_counter()
