@@ -4,47 +4,20 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Any, cast
+from typing import Any
 
 import click
 import numpy as np
-import numpy.typing as npt
 
 from lads.errors import TrainingError
 from lads.files import atomic_write
+from lads.intensity.eval_frames import frames_of
 from lads.intensity.train_config import (
     DATA_ROOT_ENV,
-    DomainSpec,
     PairSpec,
     TrainConfig,
     load_train_config,
 )
-
-
-def frames_of(frames: list[tuple[str, DomainSpec, str]], kind: str) -> list[Any]:
-    """EvalFrames of (tag, dataset, frame) triples of a real role (`cache.role_split`);
-    frames of an `also` dataset are named "<tag>:<frame>"."""
-    from lads.intensity.cache import read_domain_frame
-    from lads.intensity.evaluate import EvalFrame
-
-    out = []
-    for tag, domain, rel in frames:
-        d = read_domain_frame(domain, rel, weather_model=kind == "weather")
-        out.append(
-            EvalFrame(
-                name=f"{tag}:{rel}" if tag else rel,
-                xyz=d.frame.xyz,
-                intensity=d.frame.intensity,
-                profile=d.profile,
-                # Every reader's labels are integer class ids (Frame types them generically).
-                labels=cast("npt.NDArray[np.integer[Any]] | None", d.frame.labels),
-                label_set=d.label_set,
-                ring=d.ring,
-                particle=d.particle,
-                extinction_per_m=d.extinction_per_m,
-            )  # fmt: skip
-        )
-    return out
 
 
 def evaluate_pair(

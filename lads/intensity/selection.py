@@ -28,7 +28,7 @@ CRITERION = ("mae_reflectivity", "cell_w1_reflectivity")
 def validation_frames(cfg: TrainConfig) -> dict[str, list[Any]]:
     """{pair key: EvalFrames of its target's validation split} (empty lists allowed)."""
     from lads.intensity.cache import role_split
-    from lads.intensity.commands import frames_of
+    from lads.intensity.eval_frames import frames_of
 
     return {
         p.key: frames_of(role_split(p.target, "validation", f"pairs.{p.key}.target"), cfg.kind)
