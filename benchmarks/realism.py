@@ -261,7 +261,7 @@ def _wads_reference() -> dict[str, Any]:
     for root in WADS_ROOTS:
         folder = SHARED_DATA / root / "sequences" / "36"
         for path in sorted((folder / "velodyne").glob("*.bin")):
-            frame = wads.load_frame(path, folder / "labels" / f"{path.stem}.label")
+            frame = wads.load_frame(path)
             _, first = np.unique(frame.points, axis=0, return_index=True)
             pts, lab = frame.points[first], frame.labels[first]
             r_all.append(np.linalg.norm(pts[:, :3].astype(np.float64), axis=1))

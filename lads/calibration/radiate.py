@@ -33,6 +33,7 @@ from lads.physics.beams import auto_threshold, prepare_beams
 from lads.physics.fog import FogParams, simulate_fog
 from lads.physics.result import Outcome
 from lads.physics.weather import FOG_DEFAULTS
+from lads.readers import read_scan
 from lads.sensors.profile import SensorProfile, load_profile
 
 SENSOR = "hdl32e"
@@ -54,11 +55,18 @@ class RadiateFrame:
 
 
 def load_frame(csv_path: str | Path) -> RadiateFrame:
-    """Read `x,y,z,intensity,ring` text lines."""
-    a = np.loadtxt(csv_path, delimiter=",", dtype=np.float64, ndmin=2)
+    """One RADIATE scan `<sequence>/velo_lidar/NNNNNN.csv`, read by the RADIATE reader.
+
+    Raises:
+        InputDataError: the file is not a scan of a RADIATE sequence folder.
+        CorruptItemError: the reader refuses the file (the message names it).
+    """
+    path = Path(csv_path)
+    frame = read_scan("radiate", path.parent.parent, path)
+    points = frame.points
     return RadiateFrame(
-        Path(csv_path).stem, a[:, :3].astype(np.float32), a[:, 3].astype(np.float32),
-        a[:, 4].astype(np.int64),
+        path.stem, np.ascontiguousarray(points[:, :3]), points[:, 3].copy(),
+        points[:, 4].astype(np.int64),
     )  # fmt: skip
 
 

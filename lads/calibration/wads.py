@@ -54,16 +54,18 @@ import math
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import Any, cast
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 from scipy import optimize, stats
 
 from lads.errors import ConfigError, InputDataError
+from lads.physics.materials import MAX_CLASS_ID, has_instance_bits
 from lads.physics.particles import ParticleParams
 from lads.physics.result import Outcome
 from lads.physics.weather import LISA_SNOW, SNOW_DEFAULTS, snow, with_overrides
+from lads.readers import read_scan
 from lads.sensors.profile import DetectionLimit, SensorProfile, load_profile
 
 FALLING_SNOW = 110
@@ -101,25 +103,30 @@ class WadsFrame:
     labels: npt.NDArray[np.uint32]
 
 
-def load_frame(bin_path: str | Path, label_path: str | Path) -> WadsFrame:
-    """Read one WADS scan and its labels (semantic id = label & 0xFFFF)."""
-    points = np.fromfile(bin_path, dtype=np.float32).reshape(-1, 4)
-    # uint32 & a Python int stays uint32 (the stub widens it to a signed integer).
-    labels = cast(npt.NDArray[np.uint32], np.fromfile(label_path, dtype=np.uint32) & 0xFFFF)
-    if labels.size != len(points):
+def load_frame(bin_path: str | Path) -> WadsFrame:
+    """One WADS scan `sequences/NN/velodyne/X.bin` and its labels, read by the WADS reader;
+    labels reduced to the semantic class (instance bits removed, materials.yaml).
+
+    Raises:
+        InputDataError: the file is not a scan of a WADS tree, or has no label file.
+        CorruptItemError: the reader refuses the scan or its labels (the message names them).
+    """
+    path = Path(bin_path)
+    frame = read_scan("wads", path.parents[3], path)
+    if frame.labels is None:
         raise InputDataError(
-            f"{label_path}: {labels.size} labels for the {len(points)} points of {bin_path}; "
-            "expected one uint32 label per point: check that the two files belong together."
+            f"{path}: no label file beside it (labels/{path.stem}.label); the snow fit needs "
+            "the falling-snow labels."
         )
-    return WadsFrame(Path(bin_path).stem, points, labels)
+    raw = frame.labels.astype(np.uint32, copy=False)
+    labels = raw & np.uint32(MAX_CLASS_ID) if has_instance_bits("wads") else raw
+    return WadsFrame(path.stem, frame.points, labels)
 
 
 def load_sequence(sequence_dir: str | Path, names: Sequence[str]) -> list[WadsFrame]:
     """Frames `names` (e.g. "042223") of a WADS sequence folder (velodyne/, labels/)."""
     root = Path(sequence_dir)
-    return [
-        load_frame(root / "velodyne" / f"{n}.bin", root / "labels" / f"{n}.label") for n in names
-    ]
+    return [load_frame(root / "velodyne" / f"{n}.bin") for n in names]
 
 
 def duplicate_mask(points: npt.NDArray[np.float32]) -> npt.NDArray[np.bool_]:

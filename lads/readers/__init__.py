@@ -10,7 +10,8 @@ import inspect
 from pathlib import Path
 from typing import Any, cast
 
-from lads.errors import ConfigError
+from lads.errors import ConfigError, InputDataError
+from lads.frame import Frame
 from lads.physics.materials import LABEL_SETS
 from lads.readers.base import EncodedFile, Reader
 from lads.readers.nuscenes import NuScenesReader
@@ -77,3 +78,24 @@ def get_reader(name: str, root: str | Path, **options: Any) -> Reader:
 
 
 __all__ = ["READERS", "EncodedFile", "Reader", "get_reader", "label_set_for"]
+
+
+def read_scan(name: str, root: str | Path, path: str | Path) -> Frame:
+    """The item of reader `name` (rooted at `root`) whose scan file is `path`, read.
+
+    For tools that take a scan file rather than a tree (calibration, figures): the reader
+    decides the layout, the label file and the parsing.
+
+    Raises:
+        InputDataError: `path` is not a scan of that tree.
+        ConfigError: unknown reader name.
+    """
+    reader = get_reader(name, root)
+    want = Path(path).resolve()
+    for item in reader.items():
+        if (reader.root / item.relpath).resolve() == want:
+            return reader.read(item)
+    raise InputDataError(
+        f"{path}: not a scan of the {name} tree at {root}; pass a scan file inside a "
+        f"{name} tree laid out as the reader expects."
+    )

@@ -760,3 +760,21 @@ def test_voxelscape_devkit_loader_labels_are_carried_not_dropped(tree):
         encoded["devkit_labels"].payload
         == (root / dict(item.extra_relpaths)["devkit_labels"]).read_bytes()
     )
+
+
+def test_read_scan_reads_a_scan_file_through_its_reader_and_refuses_a_stranger(
+    synthetic_tree, tmp_path
+):
+    from lads.errors import InputDataError
+    from lads.readers import get_reader, read_scan
+
+    root = synthetic_tree("semantickitti")
+    reader = get_reader("semantickitti", root)
+    item = reader.items()[0]
+    frame = read_scan("semantickitti", root, root / item.relpath)
+    np.testing.assert_array_equal(frame.points, reader.read(item).points)
+    assert frame.labels is not None
+    stranger = tmp_path / "000000.bin"
+    stranger.write_bytes((root / item.relpath).read_bytes())
+    with pytest.raises(InputDataError, match="not a scan of the semantickitti tree"):
+        read_scan("semantickitti", root, stranger)
