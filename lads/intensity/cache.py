@@ -37,6 +37,7 @@ from lads.frame import Frame, Item
 from lads.intensity.features import FEATURE_VERSION, FrameImage, frame_image
 from lads.intensity.splits import split_frames
 from lads.intensity.train_config import DomainSpec, TrainConfig, weather_physics_version
+from lads.physics.materials import MAX_CLASS_ID, has_instance_bits
 from lads.physics.projection import MIN_RANGE_M
 from lads.readers import label_set_for
 from lads.sensors.profile import SensorProfile, load_profile
@@ -236,7 +237,10 @@ def read_domain_frame(domain: DomainSpec, relpath: str, *, weather_model: bool) 
     particle = None
     if weather_model and reader is not None and frame.labels is not None and not domain.weather:
         # Real weather recordings label their particles (WADS 110 = falling snow).
-        particle = (frame.labels.astype(np.int64) & 0xFFFF) == reader.particle_label
+        ids = frame.labels.astype(np.int64)
+        if reader.label_set is not None and has_instance_bits(reader.label_set):
+            ids = ids & MAX_CLASS_ID
+        particle = ids == reader.particle_label
     ring = frame.points[:, frame.columns.index("ring")] if "ring" in frame.columns else None
     raw_set = "nuscenes" if domain.dataset == RAW_NUSCENES else label_set_for(domain.dataset)
     label_set = raw_set if frame.labels is not None else None
