@@ -304,7 +304,7 @@ def main(argv: list[str] | None = None) -> int:
     started = time.perf_counter()
     # Several runs at a time: a tool run keeps both cores busy only in its fits, not while
     # it imports, reads trees, localises or draws figures; two runs side by side fill those
-    # gaps. Reports are identical for any --jobs (lads/diagnose/parallel.py), so only the
+    # gaps. Reports are identical for any --jobs (lads/diagnose/fit/parallel.py), so only the
     # wall time changes.
     workers = max(1, args.workers)
     jobs = max(1, (os.cpu_count() or 1) // workers)

@@ -48,7 +48,7 @@ PROFILES = {"semantickitti": "hdl64e", "nuscenes": "hdl32e"}
 KITTI_SCANS = ("000000", "000001", "000002")
 UNLABELLED_RHO = 0.2
 SEED = 0
-# Effort of the diagnosis: the tool's own defaults (lads.diagnose.analysis.Settings), so the
+# Effort of the diagnosis: the tool's own defaults (lads.diagnose.verdict.analysis.Settings), so the
 # time recorded here is the time a user waits for `lads diagnose` on these frames.
 RESAMPLES = 10
 BOOTSTRAP = 40

@@ -7,7 +7,7 @@ cloud's range-image normals is the reference. The frame is thinned to 40,000 ran
 as the concealed-effect benchmark's CI subset thins it, and two estimates are compared with
 the reference on the ground-class points, per range band: the image normals of the thinned
 cloud (`lads.physics.modalities.incidence`) and the local ground planes of
-`lads.diagnose.ground_normals`. The numbers are the median |angle error| in degrees and the
+`lads.diagnose.data.ground_normals`. The numbers are the median |angle error| in degrees and the
 median |ln cos error| (cos floored at 0.05, as the diagnosis' design floors it).
 """
 
@@ -16,8 +16,8 @@ from __future__ import annotations
 import numpy as np
 
 from benchmarks.common import SHARED_DATA, machine_info, write_result
-from lads.diagnose.beams import GROUND_CLASSES
-from lads.diagnose.ground_normals import local_ground_cos
+from lads.diagnose.data.beams import GROUND_CLASSES
+from lads.diagnose.data.ground_normals import local_ground_cos
 from lads.physics.modalities import incidence
 from lads.sensors.profile import load_profile
 

@@ -480,8 +480,8 @@ def diagnose(
     jobs: int | None,
 ) -> None:
     """Locate where simulation and reality differ, name and fit the missing physics."""
-    from lads.diagnose.analysis import Settings
     from lads.diagnose.run import diagnose as run_diagnose
+    from lads.diagnose.verdict.analysis import Settings
 
     settings = Settings()
     if resamples is not None:

@@ -8,7 +8,7 @@
     truth.json  the hidden effects in the tool's parametrisation (catalogue.py), never in a tree
 
 The trees hold scans and labels only (no calib/times/json/yaml): the tool sees nothing else.
-Only `lads.diagnose.catalogue` (metadata) is imported from `lads.diagnose`; every hidden
+Only `lads.diagnose.effects.catalogue` (metadata) is imported from `lads.diagnose`; every hidden
 effect is implemented here, independently of the tool.
 
 Bases and scans
@@ -128,7 +128,7 @@ import numpy.typing as npt
 from scipy.special import ndtr
 
 from benchmarks.common import SHARED_DATA
-from lads.diagnose.catalogue import CATALOGUE
+from lads.diagnose.effects.catalogue import CATALOGUE
 from lads.physics.materials import class_materials, reflectance_for_labels
 from lads.physics.modalities import incidence_cos
 from lads.readers import get_reader

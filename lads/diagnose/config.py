@@ -9,7 +9,7 @@ reasoning their module gives; none was fitted on the untouched benchmark seeds
 (`benchmarks.diagnose_bench.UNTOUCHED_SEEDS`).
 
 Sizes of the fits themselves (rows per fit, resamples, bootstrap) are run settings, not
-thresholds: `lads.diagnose.analysis.Settings`, also saved in report.json.
+thresholds: `lads.diagnose.verdict.analysis.Settings`, also saved in report.json.
 """
 
 from __future__ import annotations

@@ -16,16 +16,16 @@ import torch
 from threadpoolctl import threadpool_limits
 from tqdm import tqdm
 
-from lads.diagnose import figures
-from lads.diagnose.analysis import PHASES, Diagnosis, Settings, diagnose_design
-from lads.diagnose.beams import paired_table, unpaired_tables
 from lads.diagnose.config import CONFIG
-from lads.diagnose.corrected import write_corrected
-from lads.diagnose.design import Design, paired_design, unpaired_design
-from lads.diagnose.localize import localize, to_json
-from lads.diagnose.report import build_report, write_report
-from lads.diagnose.table import BeamTable
-from lads.diagnose.trees import open_trees
+from lads.diagnose.data.beams import paired_table, unpaired_tables
+from lads.diagnose.data.table import BeamTable
+from lads.diagnose.data.trees import open_trees
+from lads.diagnose.fit.design import Design, paired_design, unpaired_design
+from lads.diagnose.output import figures
+from lads.diagnose.output.corrected import write_corrected
+from lads.diagnose.output.report import build_report, write_report
+from lads.diagnose.verdict.analysis import PHASES, Diagnosis, Settings, diagnose_design
+from lads.diagnose.where.localize import localize, to_json
 from lads.errors import DiagnoseError
 
 MIN_ROWS = CONFIG.verdict.min_rows

@@ -6,8 +6,8 @@ import time
 
 import numpy as np
 
-from lads.diagnose.beams import paired_table
-from lads.diagnose.trees import open_trees
+from lads.diagnose.data.beams import paired_table
+from lads.diagnose.data.trees import open_trees
 from tests.unit.test_diagnose_beams import check_contract
 
 

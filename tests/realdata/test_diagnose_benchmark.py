@@ -221,7 +221,7 @@ def test_effect_size_redraw_keeps_the_hidden_rms_in_band(tmp_path):
 
 
 def test_truth_uses_the_catalogue_parametrisation(tmp_path):
-    from lads.diagnose.catalogue import CATALOGUE
+    from lads.diagnose.effects.catalogue import CATALOGUE
 
     expected = {
         "K1": {"C1"},

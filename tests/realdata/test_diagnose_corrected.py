@@ -14,12 +14,12 @@ import numpy as np
 import pytest
 
 from benchmarks.diagnose_cases.generate import generate_case
-from lads.diagnose.beams import paired_table, unpaired_tables
-from lads.diagnose.corrected import write_corrected
-from lads.diagnose.design import paired_design, unpaired_design
-from lads.diagnose.model import Fit, Model
-from lads.diagnose.select import reference_levels
-from lads.diagnose.trees import open_trees
+from lads.diagnose.data.beams import paired_table, unpaired_tables
+from lads.diagnose.data.trees import open_trees
+from lads.diagnose.fit.design import paired_design, unpaired_design
+from lads.diagnose.fit.model import Fit, Model
+from lads.diagnose.output.corrected import write_corrected
+from lads.diagnose.selection.select import reference_levels
 from lads.errors import DiagnoseError
 
 pytestmark = pytest.mark.realdata

@@ -13,9 +13,9 @@ from click.testing import CliRunner
 
 from benchmarks.diagnose_cases.generate import generate_case
 from lads.cli import main
-from lads.diagnose.analysis import Settings
-from lads.diagnose.catalogue import CATALOGUE
+from lads.diagnose.effects.catalogue import CATALOGUE
 from lads.diagnose.run import diagnose
+from lads.diagnose.verdict.analysis import Settings
 from lads.errors import DiagnoseError
 
 pytestmark = pytest.mark.realdata

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from lads.diagnose.corrected import _clear_previous
+from lads.diagnose.output.corrected import _clear_previous
 from lads.errors import DiagnoseError
 
 

@@ -1,4 +1,4 @@
-"""Beam tables from two dataset trees (`lads.diagnose.trees`, `.beams`, `.pairing`).
+"""Beam tables from two dataset trees (`lads.diagnose.data.trees`, `.beams`, `.pairing`).
 
 The synthetic scene is ray-cast on the HDL-64E channel elevations, one ray per range-image
 column over a +-16 deg sector: a flat road 1.73 m below the sensor (class 40), a 4 m wide
@@ -13,16 +13,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lads.diagnose.beams import (
+from lads.diagnose.data.beams import (
     SCAN_GROUP_STRIDE,
     cloud_features,
     paired_table,
     unpaired_tables,
 )
-from lads.diagnose.minrange import pairs_beyond_min_range
-from lads.diagnose.pairing import pair_points
-from lads.diagnose.table import EDGE_CAP_BEAMS, GROUP_TILE_M, ROW_FIELDS, BeamTable
-from lads.diagnose.trees import Scan, open_trees
+from lads.diagnose.data.minrange import pairs_beyond_min_range
+from lads.diagnose.data.pairing import pair_points
+from lads.diagnose.data.table import EDGE_CAP_BEAMS, GROUP_TILE_M, ROW_FIELDS, BeamTable
+from lads.diagnose.data.trees import Scan, open_trees
 from lads.errors import ConfigError, DiagnoseError
 from lads.sensors.profile import load_profile
 

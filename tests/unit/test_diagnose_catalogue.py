@@ -6,9 +6,9 @@ import re
 
 import numpy as np
 
-from lads.diagnose.catalogue import CATALOGUE
-from lads.diagnose.design import paired_design
-from lads.diagnose.effects import candidates
+from lads.diagnose.effects.catalogue import CATALOGUE
+from lads.diagnose.effects.terms import candidates
+from lads.diagnose.fit.design import paired_design
 from tests.unit.test_diagnose_localize import make_table
 
 # Bounds set from the data, not the catalogue: offsets in the frame's encoding units.

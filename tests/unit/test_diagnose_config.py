@@ -7,8 +7,11 @@ import json
 
 import pytest
 
-from lads.diagnose import ambiguity, beams, design, model, select
 from lads.diagnose.config import CONFIG, TUNED_ON, DiagnoseConfig
+from lads.diagnose.data import beams
+from lads.diagnose.fit import design, model
+from lads.diagnose.selection import select
+from lads.diagnose.verdict import ambiguity
 
 
 def test_the_modules_read_their_thresholds_from_the_config():

@@ -13,10 +13,10 @@ import numpy as np
 import pytest
 from scipy.special import ndtr
 
-from lads.diagnose.design import paired_design
-from lads.diagnose.effects import candidates
-from lads.diagnose.model import Model, fit_best, initial_base
-from lads.diagnose.table import BeamTable
+from lads.diagnose.data.table import BeamTable
+from lads.diagnose.effects.terms import candidates
+from lads.diagnose.fit.design import paired_design
+from lads.diagnose.fit.model import Model, fit_best, initial_base
 from tests.unit.test_diagnose_localize import make_table
 
 LN_TAU, S = -2.5, 0.2

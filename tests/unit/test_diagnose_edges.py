@@ -1,4 +1,4 @@
-"""Edge distances along the rings (`lads.diagnose.edges`), the feature C8 is fitted on."""
+"""Edge distances along the rings (`lads.diagnose.data.edges`), the feature C8 is fitted on."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 
-from lads.diagnose.edges import azimuth_step_rad, edge_distance
+from lads.diagnose.data.edges import azimuth_step_rad, edge_distance
 
 CAP = 10.0
 
@@ -111,7 +111,7 @@ def test_the_mixed_pixel_term_averages_over_the_span_the_edge_may_lie_in():
 
     import torch
 
-    from lads.diagnose.effects import _edge_cover
+    from lads.diagnose.effects.terms import _edge_cover
 
     e0 = torch.tensor(1.2, dtype=torch.float64)
     dist = torch.tensor([0.0, 1.0, 1.0, 4.0], dtype=torch.float64)

@@ -8,10 +8,10 @@ import dataclasses
 import numpy as np
 import pytest
 
-from lads.diagnose.design import clip_level, paired_design
-from lads.diagnose.effects import candidates
-from lads.diagnose.model import Model, fit_best, initial_base
-from lads.diagnose.table import BeamTable
+from lads.diagnose.data.table import BeamTable
+from lads.diagnose.effects.terms import candidates
+from lads.diagnose.fit.design import clip_level, paired_design
+from lads.diagnose.fit.model import Model, fit_best, initial_base
 from tests.unit.test_diagnose_localize import make_table
 
 GAMMA, OFFSET, I_MAX, NOISE = 0.7, 0.02, 0.6, 0.35

@@ -1,10 +1,10 @@
-"""Ground incidence from local planes (lads/diagnose/ground_normals.py)."""
+"""Ground incidence from local planes (lads/diagnose/data/ground_normals.py)."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from lads.diagnose.ground_normals import MIN_POINTS, local_ground_cos
+from lads.diagnose.data.ground_normals import MIN_POINTS, local_ground_cos
 
 SENSOR_HEIGHT_M = 1.73
 

@@ -14,10 +14,10 @@ import math
 import numpy as np
 import pytest
 
-from lads.diagnose import figures
-from lads.diagnose.binning import FEATURES
-from lads.diagnose.localize import Residuals, localize, residuals, to_json
-from lads.diagnose.table import BeamTable, SensorInfo
+from lads.diagnose.data.table import BeamTable, SensorInfo
+from lads.diagnose.output import figures
+from lads.diagnose.where.binning import FEATURES
+from lads.diagnose.where.localize import Residuals, localize, residuals, to_json
 from lads.errors import InputDataError
 
 HDL64E_UNIT = SensorInfo(

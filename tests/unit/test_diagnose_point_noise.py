@@ -7,10 +7,10 @@ import dataclasses
 import numpy as np
 import pytest
 
-from lads.diagnose.analysis import POINT_NOISE_MIN_SLOPE
-from lads.diagnose.design import Design, paired_design
-from lads.diagnose.point_noise import neighbour_pairs, point_noise
-from lads.diagnose.table import BeamTable
+from lads.diagnose.data.table import BeamTable
+from lads.diagnose.fit.design import Design, paired_design
+from lads.diagnose.verdict.analysis import POINT_NOISE_MIN_SLOPE
+from lads.diagnose.verdict.point_noise import neighbour_pairs, point_noise
 from tests.unit.test_diagnose_localize import make_table
 
 ROWS = 100  # returns per surface

@@ -13,20 +13,11 @@ import numpy as np
 import pytest
 import torch
 
-from lads.diagnose.ambiguity import ground_only_rule, resample_swaps
-from lads.diagnose.analysis import (
-    EffectReport,
-    Settings,
-    _ci,
-    claim_with_sets,
-    diagnose_design,
-    effect_family,
-    interval95,
-)
-from lads.diagnose.bootstrap import group_multiplicity
-from lads.diagnose.design import group_index, paired_design, sim_log_variance
-from lads.diagnose.effects import _one_class_scale, azimuth_spacing_deg, candidates, odd_rings
-from lads.diagnose.model import (
+from lads.diagnose.data.table import BeamTable
+from lads.diagnose.effects.terms import _one_class_scale, azimuth_spacing_deg, candidates, odd_rings
+from lads.diagnose.fit.bootstrap import group_multiplicity
+from lads.diagnose.fit.design import group_index, paired_design, sim_log_variance
+from lads.diagnose.fit.model import (
     BASE_NAMES,
     Fit,
     Model,
@@ -36,8 +27,8 @@ from lads.diagnose.model import (
     initial_base,
     nll_from_terms,
 )
-from lads.diagnose.parallel import fit_models, fit_warm, map_fits, restrict
-from lads.diagnose.select import (
+from lads.diagnose.fit.parallel import fit_models, fit_warm, map_fits, restrict
+from lads.diagnose.selection.select import (
     MIN_GAIN_NATS,
     MIN_SUPPORT_GROUPS,
     SHORTLIST,
@@ -55,7 +46,16 @@ from lads.diagnose.select import (
     reference_levels,
     row_gains,
 )
-from lads.diagnose.table import BeamTable
+from lads.diagnose.verdict.ambiguity import ground_only_rule, resample_swaps
+from lads.diagnose.verdict.analysis import (
+    EffectReport,
+    Settings,
+    _ci,
+    claim_with_sets,
+    diagnose_design,
+    effect_family,
+    interval95,
+)
 from tests.unit.test_diagnose_localize import make_table
 
 QUICK = Settings(fit_rows=12000, resamples=4, bootstrap=4, jobs=1)
@@ -307,8 +307,8 @@ def test_rounding_variance_of_the_simulated_value_falls_with_its_level():
 def test_an_effect_rejected_only_for_its_bound_is_reported_as_beyond_the_catalogue():
     from types import SimpleNamespace
 
-    from lads.diagnose.analysis import _beyond_bounds
-    from lads.diagnose.select import Selection, Step
+    from lads.diagnose.selection.select import Selection, Step
+    from lads.diagnose.verdict.analysis import _beyond_bounds
 
     empty = SimpleNamespace(model=SimpleNamespace(effects=[]))
     sel = Selection(fit=empty, baseline=empty)  # type: ignore[arg-type]
@@ -497,7 +497,7 @@ def test_of_candidates_within_one_paired_se_the_one_with_fewest_parameters_is_ac
     difference: the simpler one is taken. A clear winner keeps its place however large."""
     from types import SimpleNamespace
 
-    from lads.diagnose.select import _simplest_within_one_se
+    from lads.diagnose.selection.select import _simplest_within_one_se
 
     rng = np.random.default_rng(3)
     group = np.repeat(np.arange(100), 20)

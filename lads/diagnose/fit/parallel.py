@@ -19,8 +19,8 @@ import numpy.typing as npt
 import torch
 from threadpoolctl import threadpool_limits
 
-from lads.diagnose.design import Design
-from lads.diagnose.model import BASE_NAMES, Fit, Model, fit, fit_best
+from lads.diagnose.fit.design import Design
+from lads.diagnose.fit.model import BASE_NAMES, Fit, Model, fit, fit_best
 
 T = TypeVar("T")
 

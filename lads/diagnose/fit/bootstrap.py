@@ -1,6 +1,6 @@
 """Group-bootstrap resamples of a diagnosis: fit weights over resampled groups (scans first,
 then the groups within them) and the parameters refitted on each, for the intervals and the
-stability resamples of `lads.diagnose.analysis`."""
+stability resamples of `lads.diagnose.verdict.analysis`."""
 
 from __future__ import annotations
 
@@ -9,10 +9,10 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from lads.diagnose.design import Design
-from lads.diagnose.grouping import fit_weights
-from lads.diagnose.model import Fit, fit
-from lads.diagnose.parallel import map_fits, one_thread
+from lads.diagnose.fit.design import Design
+from lads.diagnose.fit.model import Fit, fit
+from lads.diagnose.fit.parallel import map_fits, one_thread
+from lads.diagnose.selection.grouping import fit_weights
 
 
 def group_multiplicity(

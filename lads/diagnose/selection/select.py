@@ -16,10 +16,10 @@ import numpy.typing as npt
 from scipy import stats
 
 from lads.diagnose.config import CONFIG
-from lads.diagnose.design import Design, group_index
-from lads.diagnose.effects import Effect
-from lads.diagnose.model import Fit, Model, RowTerms, directional_gain, fit, initial_base
-from lads.diagnose.parallel import fit_models, fit_warm
+from lads.diagnose.effects.terms import Effect
+from lads.diagnose.fit.design import Design, group_index
+from lads.diagnose.fit.model import Fit, Model, RowTerms, directional_gain, fit, initial_base
+from lads.diagnose.fit.parallel import fit_models, fit_warm
 from lads.errors import DiagnoseError
 
 K_MAX = CONFIG.select.k_max

@@ -13,22 +13,14 @@ import numpy as np
 import numpy.typing as npt
 from scipy.stats import wasserstein_distance
 
-from lads.diagnose.ambiguity import (
-    ground_only_rule,
-    range_band_rule,
-    resample_swaps,
-    separating_data,
-    swap_ambiguity,
-)
-from lads.diagnose.bootstrap import bootstrap_params, bootstrap_weights
 from lads.diagnose.config import CONFIG
-from lads.diagnose.design import Design, evenly_spaced
-from lads.diagnose.effects import Effect, candidates
-from lads.diagnose.grouping import Split, fit_weights, split_groups
-from lads.diagnose.model import BASE_NAMES, Fit, Model, fit, fit_best, initial_base
-from lads.diagnose.parallel import map_fits, one_thread
-from lads.diagnose.point_noise import point_noise
-from lads.diagnose.select import (
+from lads.diagnose.effects.terms import Effect, candidates
+from lads.diagnose.fit.bootstrap import bootstrap_params, bootstrap_weights
+from lads.diagnose.fit.design import Design, evenly_spaced
+from lads.diagnose.fit.model import BASE_NAMES, Fit, Model, fit, fit_best, initial_base
+from lads.diagnose.fit.parallel import map_fits, one_thread
+from lads.diagnose.selection.grouping import Split, fit_weights, split_groups
+from lads.diagnose.selection.select import (
     CLAIM_FREQUENCY,
     MIN_GAIN_NATS,
     POSSIBLE_FREQUENCY,
@@ -40,6 +32,14 @@ from lads.diagnose.select import (
     forward_backward,
     reference_levels,
 )
+from lads.diagnose.verdict.ambiguity import (
+    ground_only_rule,
+    range_band_rule,
+    resample_swaps,
+    separating_data,
+    swap_ambiguity,
+)
+from lads.diagnose.verdict.point_noise import point_noise
 
 NOISE_MIN_SLOPE = CONFIG.verdict.noise_min_slope
 # The neighbour-difference slopes (point_noise.py) that matter: shot noise has 1 per ln R

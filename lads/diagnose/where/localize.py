@@ -2,10 +2,10 @@
 
 Residuals r = ln(I_real + h) - ln(I_sim + h) (h = half a quantisation step) on beams both
 recordings returned, and the dropout indicator d_drop on beams the simulation returned, are
-binned by nine features (`lads.diagnose.binning`). Per bin: count, mean and median with 95%
+binned by nine features (`lads.diagnose.where.binning`). Per bin: count, mean and median with 95%
 CIs, and the drop rate with its CI, all from one cluster bootstrap over `table.group`
 (groups, never points, are the independent units: docs/diagnose.md §2 item 4). Every feature and
-target is tested (trend and omnibus, cluster-robust; `lads.diagnose.binstats` describes the
+target is tested (trend and omnibus, cluster-robust; `lads.diagnose.where.binstats` describes the
 tests), Benjamini-Hochberg runs over all of them, and the significant ones become ranked
 "where" statements.
 """
@@ -19,8 +19,10 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from lads.diagnose.binning import F64, FEATURES, I64, Binning, Feature
-from lads.diagnose.binstats import (
+from lads.diagnose.config import CONFIG
+from lads.diagnose.data.table import BeamTable
+from lads.diagnose.where.binning import F64, FEATURES, I64, Binning, Feature
+from lads.diagnose.where.binstats import (
     MIN_BIN_SHARE,
     MIN_EFFECT_GROUPS,
     Q_THRESHOLD,
@@ -28,8 +30,6 @@ from lads.diagnose.binstats import (
     bh_q_values,
     target_stats,
 )
-from lads.diagnose.config import CONFIG
-from lads.diagnose.table import BeamTable
 from lads.errors import InputDataError
 from lads.jsontypes import json_types
 

@@ -29,8 +29,8 @@ import scipy.optimize
 import torch
 
 from lads.diagnose.config import CONFIG
-from lads.diagnose.design import CensoredRows, Design
-from lads.diagnose.effects import Effect
+from lads.diagnose.effects.terms import Effect
+from lads.diagnose.fit.design import CensoredRows, Design
 
 BASE_NAMES: tuple[str, ...] = (
     "ln_gain", "ln_sigma", "sigma_range_slope", "sigma_level_slope", "return_logit",

@@ -9,7 +9,7 @@ import numpy as np
 import numpy.typing as npt
 
 from lads.diagnose.config import CONFIG
-from lads.diagnose.design import Design
+from lads.diagnose.fit.design import Design
 
 TEST_SHARE = CONFIG.select.test_share
 VALIDATION_SHARE = CONFIG.select.validation_share

@@ -24,10 +24,10 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
-from lads.diagnose.design import Design, prediction_design, saturated_rows
-from lads.diagnose.model import Fit
-from lads.diagnose.table import BeamTable, SensorInfo
-from lads.diagnose.trees import TreePair
+from lads.diagnose.data.table import BeamTable, SensorInfo
+from lads.diagnose.data.trees import TreePair
+from lads.diagnose.fit.design import Design, prediction_design, saturated_rows
+from lads.diagnose.fit.model import Fit
 from lads.errors import DiagnoseError
 from lads.files import atomic_write
 

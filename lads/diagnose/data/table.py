@@ -1,7 +1,7 @@
 """The beam table: one row per beam of a simulated and a real recording (docs/diagnose.md §5.1).
 
 Everything `lads diagnose` fits or plots reads this table and nothing else, so trees of any
-supported dataset are reduced to it once (`lads.diagnose.beams`).
+supported dataset are reduced to it once (`lads.diagnose.data.beams`).
 
 Paired mode: one row per simulated beam (returned in the simulation) plus one row per real
 return that no simulated beam claims (`ret_sim` False). A simulated beam whose real partner

@@ -21,9 +21,9 @@ import numpy.typing as npt
 import torch
 from scipy import stats
 
-from lads.diagnose.catalogue import CATALOGUE, EffectInfo
 from lads.diagnose.config import CONFIG
-from lads.diagnose.design import Design
+from lads.diagnose.effects.catalogue import CATALOGUE, EffectInfo
+from lads.diagnose.fit.design import Design
 
 Tensor = torch.Tensor
 GLOSSY_CLASS_WORDS = ("car", "truck", "bus", "vehicle", "trailer", "motorcycle")

@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 
-from lads.diagnose.trees import Scan
+from lads.diagnose.data.trees import Scan
 
 
 def beyond_min_range(scan: Scan, min_range_m: float) -> Scan:
@@ -33,7 +33,7 @@ def pairs_beyond_min_range(
     Args:
         sim, real: one scan of each tree, N and M points.
         partner: (N,) int64 index into `real` of each simulated point's partner, -1 if none
-            (`lads.diagnose.pairing.pair_points`).
+            (`lads.diagnose.data.pairing.pair_points`).
         min_range_m: minimum range, m.
 
     Returns:

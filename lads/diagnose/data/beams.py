@@ -6,7 +6,7 @@ mode associates each simulated return with the nearest unclaimed real return wit
 `max_pair_distance_m`: a simulated beam without a partner was dropped in reality, a real
 return without one is extra. Unpaired mode keeps one table per tree. Returns nearer than
 the sensor profile's `min_range_m` are dropped in both modes, in paired mode together with
-their partners (`lads.diagnose.minrange`).
+their partners (`lads.diagnose.data.minrange`).
 
 Geometry features of a row come from its simulated point, or from its real point for
 real-only rows. When only the real scan is labelled, paired rows take their class (and
@@ -26,12 +26,12 @@ import numpy.typing as npt
 from tqdm.auto import tqdm
 
 from lads.diagnose.config import CONFIG
-from lads.diagnose.edges import edge_distance
-from lads.diagnose.ground_normals import local_ground_cos
-from lads.diagnose.minrange import beyond_min_range, pairs_beyond_min_range
-from lads.diagnose.pairing import pair_points
-from lads.diagnose.table import EDGE_CAP_BEAMS, GROUP_TILE_M, ROW_FIELDS, BeamTable
-from lads.diagnose.trees import Scan, Tree, TreePair
+from lads.diagnose.data.edges import edge_distance
+from lads.diagnose.data.ground_normals import local_ground_cos
+from lads.diagnose.data.minrange import beyond_min_range, pairs_beyond_min_range
+from lads.diagnose.data.pairing import pair_points
+from lads.diagnose.data.table import EDGE_CAP_BEAMS, GROUP_TILE_M, ROW_FIELDS, BeamTable
+from lads.diagnose.data.trees import Scan, Tree, TreePair
 from lads.errors import DiagnoseError, InputDataError
 from lads.physics.materials import class_materials
 from lads.physics.modalities import IncidenceSource, incidence

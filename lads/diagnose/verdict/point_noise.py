@@ -31,10 +31,10 @@ import numpy.typing as npt
 import scipy.optimize
 from scipy.special import gammaln
 
-from lads.diagnose.binning import RANGE_EDGES_M
 from lads.diagnose.config import CONFIG
-from lads.diagnose.design import Design, evenly_spaced, sim_log_variance
-from lads.diagnose.select import by_rows
+from lads.diagnose.fit.design import Design, evenly_spaced, sim_log_variance
+from lads.diagnose.selection.select import by_rows
+from lads.diagnose.where.binning import RANGE_EDGES_M
 
 NU = CONFIG.point_noise.nu
 # The t(NU) scale that maximises the likelihood of N(0, 1) data (solves E[(NU + 1) x^2 /

@@ -6,8 +6,8 @@ import json
 from pathlib import Path
 from typing import Any
 
-from lads.diagnose.analysis import Diagnosis, EffectReport
-from lads.diagnose.catalogue import CATALOGUE
+from lads.diagnose.effects.catalogue import CATALOGUE
+from lads.diagnose.verdict.analysis import Diagnosis, EffectReport
 from lads.files import atomic_write
 from lads.jsontypes import json_types
 

@@ -15,10 +15,10 @@ from typing import Any, Literal
 import numpy as np
 import numpy.typing as npt
 
-from lads.diagnose.binning import RANGE_EDGES_M
-from lads.diagnose.localize import FeatureProfile, Localization
-from lads.diagnose.select import Z_ACCEPT
-from lads.diagnose.table import BeamTable
+from lads.diagnose.data.table import BeamTable
+from lads.diagnose.selection.select import Z_ACCEPT
+from lads.diagnose.where.binning import RANGE_EDGES_M
+from lads.diagnose.where.localize import FeatureProfile, Localization
 from lads.files import atomic_write_figure
 
 DPI = 100

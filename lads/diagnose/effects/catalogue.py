@@ -3,7 +3,7 @@
 IDs and keys are stable names: they are never renamed or reused, and a new effect gets a new
 ID. Parameter names carry their units; a parameter's value in report.json is a number, or a
 list of numbers (one per ring) for the per-ring effects. This module is metadata only; the
-terms live in `lads.diagnose.effects`.
+terms live in `lads.diagnose.effects.terms`.
 
 Parametrisation (what report.json's `params` mean): ID key: parameters -> term of
 ln I_real - ln I_sim, or of the return probability.

@@ -3,8 +3,8 @@
 `open_trees` checks that the two roots hold scans of the same source and sensor (and, when
 paired, the same relative paths); `TreePair.read_scan` gives one scan as a `Scan`: points at
 zero range removed, every remaining point keeping its row number in the file, labels reduced
-to class ids. The beam table is built from these (`lads.diagnose.beams`), which also drops
-the points nearer than the sensor's minimum range (`lads.diagnose.minrange`).
+to class ids. The beam table is built from these (`lads.diagnose.data.beams`), which also drops
+the points nearer than the sensor's minimum range (`lads.diagnose.data.minrange`).
 
 nuScenes roots are read with the devkit tables when they hold a `v1.0-*` folder; otherwise
 every `*.pcd.bin` under the root is a bare, unlabelled LIDAR_TOP scan (x, y, z, intensity,
@@ -20,7 +20,7 @@ from typing import Any, Literal
 import numpy as np
 import numpy.typing as npt
 
-from lads.diagnose.table import SensorInfo
+from lads.diagnose.data.table import SensorInfo
 from lads.errors import ConfigError, DatasetNotFoundError, DiagnoseError, IntensityEncodingError
 from lads.frame import Frame, Item
 from lads.physics.materials import MAX_CLASS_ID, has_instance_bits
@@ -46,7 +46,7 @@ class Scan:
         intensity: (N,) float32 intensity in the stored units of the sensor's encoding.
         labels: (N,) int32 class ids (instance bits removed), or None when unlabelled.
         ring: (N,) int16 laser channel (0 = lowest) from the file's ring column, or as
-            recovered from the whole file by the beam table (`lads.diagnose.beams`); None
+            recovered from the whole file by the beam table (`lads.diagnose.data.beams`); None
             when neither has been done.
         index: (N,) int64 row of each point in the scan file.
     """

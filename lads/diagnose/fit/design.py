@@ -23,7 +23,7 @@ import torch
 from scipy.special import ndtr, ndtri
 
 from lads.diagnose.config import CONFIG
-from lads.diagnose.table import BeamTable
+from lads.diagnose.data.table import BeamTable
 
 COS_FLOOR = CONFIG.design.cos_floor
 EDGE_NEAR_BEAMS = CONFIG.design.edge_near_beams

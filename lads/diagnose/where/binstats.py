@@ -1,7 +1,7 @@
 """Cluster-bootstrap statistics and tests of one target binned by one feature.
 
-The building blocks of `lads.diagnose.localize` (docs/diagnose.md §5.2). Groups (`table.group`),
-never points, are the independent units (docs/diagnose.md §2 item 4).
+The building blocks of `lads.diagnose.where.localize` (docs/diagnose.md §5.2). Groups
+(`table.group`), never points, are the independent units (docs/diagnose.md §2 item 4).
 
 Tests, per feature and target (intensity, dropout), all cluster-robust over groups:
     omnibus  Wald test that all bin means are equal, over bins with >= 1% of the rows,
@@ -37,8 +37,8 @@ import numpy.typing as npt
 from scipy import sparse, stats
 from statsmodels.stats.multitest import multipletests
 
-from lads.diagnose.binning import F64, I64, Binning, Feature
 from lads.diagnose.config import CONFIG
+from lads.diagnose.where.binning import F64, I64, Binning, Feature
 
 MIN_BIN_SHARE = CONFIG.localize.min_bin_share
 MIN_EFFECT_GROUPS = CONFIG.localize.min_effect_groups

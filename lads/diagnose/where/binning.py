@@ -2,7 +2,7 @@
 
 Each `Feature` turns a beam table into a `Binning`: a bin per row (-1 where the feature does
 not apply), labels with units, bin centres, and for ordered features the per-row value the
-trend test regresses on (`lads.diagnose.binstats`). `FEATURES` lists them in report order.
+trend test regresses on (`lads.diagnose.where.binstats`). `FEATURES` lists them in report order.
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ import numpy as np
 import numpy.typing as npt
 
 from lads.diagnose.config import CONFIG
-from lads.diagnose.table import EDGE_CAP_BEAMS, BeamTable
+from lads.diagnose.data.table import EDGE_CAP_BEAMS, BeamTable
 
 F64 = npt.NDArray[np.float64]
 I64 = npt.NDArray[np.int64]

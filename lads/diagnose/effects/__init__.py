@@ -1,0 +1,1 @@
+"""What: the named effect catalogue and each effect's term."""

@@ -1,0 +1,1 @@
+"""Fit: the design, the likelihood and its optimiser, fits in parallel, bootstrap weights."""

@@ -1,0 +1,1 @@
+"""Output: report.json / report.md, figures, the corrected tree."""

@@ -1,0 +1,1 @@
+"""Verdict: stability, ambiguity sets, the final fit and its intervals, the noise model."""
