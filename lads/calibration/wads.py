@@ -61,11 +61,12 @@ import numpy.typing as npt
 from scipy import optimize, stats
 
 from lads.errors import ConfigError, InputDataError
+from lads.frame import Frame
 from lads.physics.materials import MAX_CLASS_ID, has_instance_bits
 from lads.physics.particles import ParticleParams
 from lads.physics.result import Outcome
 from lads.physics.weather import LISA_SNOW, SNOW_DEFAULTS, snow, with_overrides
-from lads.readers import read_scan
+from lads.readers import read_scan, read_scans
 from lads.sensors.profile import DetectionLimit, SensorProfile, load_profile
 
 FALLING_SNOW = 110
@@ -112,7 +113,19 @@ def load_frame(bin_path: str | Path) -> WadsFrame:
         CorruptItemError: the reader refuses the scan or its labels (the message names them).
     """
     path = Path(bin_path)
-    frame = read_scan("wads", path.parents[3], path)
+    return _wads_frame(path, read_scan("wads", path.parents[3], path))
+
+
+def load_sequence(sequence_dir: str | Path, names: Sequence[str]) -> list[WadsFrame]:
+    """Frames `names` (e.g. "042223") of a WADS sequence folder (velodyne/, labels/)."""
+    paths = [Path(sequence_dir) / "velodyne" / f"{n}.bin" for n in names]
+    if not paths:
+        return []
+    frames = read_scans("wads", paths[0].parents[3], paths)
+    return [_wads_frame(p, f) for p, f in zip(paths, frames, strict=True)]
+
+
+def _wads_frame(path: Path, frame: Frame) -> WadsFrame:
     if frame.labels is None:
         raise InputDataError(
             f"{path}: no label file beside it (labels/{path.stem}.label); the snow fit needs "
@@ -121,12 +134,6 @@ def load_frame(bin_path: str | Path) -> WadsFrame:
     raw = frame.labels.astype(np.uint32, copy=False)
     labels = raw & np.uint32(MAX_CLASS_ID) if has_instance_bits("wads") else raw
     return WadsFrame(path.stem, frame.points, labels)
-
-
-def load_sequence(sequence_dir: str | Path, names: Sequence[str]) -> list[WadsFrame]:
-    """Frames `names` (e.g. "042223") of a WADS sequence folder (velodyne/, labels/)."""
-    root = Path(sequence_dir)
-    return [load_frame(root / "velodyne" / f"{n}.bin") for n in names]
 
 
 def duplicate_mask(points: npt.NDArray[np.float32]) -> npt.NDArray[np.bool_]:

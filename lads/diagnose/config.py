@@ -282,13 +282,20 @@ class DiagnoseConfig:
     point_noise: PointNoiseConfig = field(default_factory=PointNoiseConfig)
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready values (an infinite bin edge as the string "inf")."""
-        return json.loads(json.dumps(asdict(self), default=str).replace("Infinity", '"inf"'))
+        """JSON-ready values (tuples as lists, an infinite bin edge as the string "inf")."""
+        return {group: {k: _jsonable(v) for k, v in values.items()}
+                for group, values in asdict(self).items()}  # fmt: skip
 
     def sha256(self) -> str:
         """Hash of `to_dict()` (sorted keys): equal hashes, equal rules."""
         text = json.dumps(self.to_dict(), sort_keys=True)
         return hashlib.sha256(text.encode()).hexdigest()
+
+
+def _jsonable(value: Any) -> Any:
+    if isinstance(value, tuple):
+        return [_jsonable(v) for v in value]
+    return "inf" if isinstance(value, float) and math.isinf(value) else value
 
 
 CONFIG = DiagnoseConfig()

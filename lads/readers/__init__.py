@@ -7,6 +7,8 @@
 from __future__ import annotations
 
 import inspect
+import os
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any, cast
 
@@ -90,12 +92,21 @@ def read_scan(name: str, root: str | Path, path: str | Path) -> Frame:
         InputDataError: `path` is not a scan of that tree.
         ConfigError: unknown reader name.
     """
+    return read_scans(name, root, [path])[0]
+
+
+def read_scans(name: str, root: str | Path, paths: Iterable[str | Path]) -> list[Frame]:
+    """`read_scan` for several scan files of one tree, listing its items once."""
     reader = get_reader(name, root)
-    want = Path(path).resolve()
-    for item in reader.items():
-        if (reader.root / item.relpath).resolve() == want:
-            return reader.read(item)
-    raise InputDataError(
-        f"{path}: not a scan of the {name} tree at {root}; pass a scan file inside a "
-        f"{name} tree laid out as the reader expects."
-    )
+    base = os.path.abspath(reader.root)
+    items = {item.relpath: item for item in reader.items()}
+    frames = []
+    for path in paths:
+        rel = Path(os.path.relpath(os.path.abspath(path), base)).as_posix()
+        if rel not in items:
+            raise InputDataError(
+                f"{path}: not a scan of the {name} tree at {root}; pass a scan file inside a "
+                f"{name} tree laid out as the reader expects."
+            )
+        frames.append(reader.read(items[rel]))
+    return frames

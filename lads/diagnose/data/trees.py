@@ -119,15 +119,8 @@ class TreePair:
                 fit the source's format and sensor, or an invalid ring column.
             ReaderError: the reader cannot read the item (message names the file).
         """
-        if tree not in self._trees:
-            raise DiagnoseError(f"tree {tree!r}: expected 'sim' or 'real'.")
-        src = self._trees[tree]
-        if relpath not in src.items:
-            scans = self.sim_scans if tree == "sim" else self.real_scans
-            raise DiagnoseError(
-                f"{src.root}: no scan {relpath!r} in the {tree} tree; pass one of its "
-                f"{len(scans)} scans (e.g. {list(scans[:_EXAMPLES])})."
-            )
+        src = self._source(tree)
+        self._item(src, tree, relpath)  # refuses an unknown relpath, naming the tree's scans
         return _read(self.source, self.profile, tree, src, relpath)
 
     def reader(self, tree: Tree) -> Reader:
