@@ -105,6 +105,27 @@ def real_nuscenes_kitti(root: Path) -> Path:
     return root
 
 
+NUSC_LONE_SWEEP = (
+    "nuscenes-tiny/sweeps/LIDAR_TOP/n008-2018-09-18-12-07-26-0400__LIDAR_TOP__1537287083900561"
+    ".pcd.bin"
+)
+NUSC_SCANS_SCENE0001 = ("data0", "data39")  # two labelled keyframes, the scene's ends
+
+
+def real_nuscenes_scans(root: Path) -> Path:
+    """Loose nuScenes scans as users hold them without the tables: the full keyframe and the
+    lone sweep (no table could hold it: its log has no keyframe here) as `.pcd.bin` files, and
+    two labelled scene-0001 keyframes as `points.bin` + `ground.bin`."""
+    full = SHARED_DATA / "nuscenes" / NUSC_FULL_SAMPLE
+    _link(full, root / "samples" / "LIDAR_TOP" / full.name)
+    sweep = SHARED_DATA / NUSC_LONE_SWEEP
+    _link(sweep, root / "sweeps" / "LIDAR_TOP" / sweep.name)
+    for folder in NUSC_SCANS_SCENE0001:
+        for name in ("points.bin", "ground.bin"):
+            _link(SHARED_DATA / "nuscenes-scene0001" / folder / name, root / folder / name)
+    return root
+
+
 @dataclass(frozen=True)
 class RealSource:
     """One tree of real frames: reader name, builder, reader options, and the scan files of
@@ -148,15 +169,16 @@ REAL_SOURCES: dict[str, RealSource] = {
     "nuscenes-kitti": RealSource(
         "nuscenes-kitti", real_nuscenes_kitti, _under("nuscenes-kittifmt", suffix=".bin")
     ),
+    "nuscenes-scans": RealSource(
+        "nuscenes-scans", real_nuscenes_scans,
+        lambda: [f"nuscenes/{NUSC_FULL_SAMPLE}", NUSC_LONE_SWEEP,
+                 *(f"nuscenes-scene0001/{d}/points.bin" for d in NUSC_SCANS_SCENE0001)],
+    ),
 }  # fmt: skip
 
 
-# Real files no tree can hold, with the reason.
-NOT_BUILDABLE = {
-    "nuscenes-tiny/sweeps/LIDAR_TOP/n008-2018-09-18-12-07-26-0400__LIDAR_TOP__1537287083900561"
-    ".pcd.bin": "a lone sweep of a log with no keyframe here: nuScenes tables need a sample "
-    "for every sweep, so no valid dataroot can hold it",
-}
+# Real files no tree can hold, with the reason (none since loose scans have a reader).
+NOT_BUILDABLE: dict[str, str] = {}
 
 
 def real_scan_files() -> list[str]:

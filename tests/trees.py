@@ -354,6 +354,26 @@ def synthetic_nuscenes_kitti(
     return root
 
 
+def synthetic_nuscenes_scans(
+    root: Path, *, labelled: int = 2, loose: int = 2, seed: int = 6
+) -> Path:
+    """Loose nuScenes LIDAR_TOP scans: `data<i>/points.bin` + `ground.bin` (uint8 0-31) for
+    `labelled` keyframes, and `loose` unlabelled `samples/LIDAR_TOP/<name>.pcd.bin` files,
+    all N x 5 float32 with intensity integers 0-255 and ring 0-31."""
+    rng = np.random.default_rng(seed)
+    for i in range(labelled):
+        n = int(rng.integers(40, 160))
+        pts = synthetic_points(rng, n, intensity="byte", ring=True)
+        _write(root / f"data{i}" / "points.bin", pts.astype("<f4").tobytes())
+        _write(root / f"data{i}" / "ground.bin", rng.integers(0, 32, n).astype(np.uint8).tobytes())
+    for i in range(loose):
+        n = int(rng.integers(40, 160))
+        pts = synthetic_points(rng, n, intensity="byte", ring=True)
+        name = f"n015-2018-07-24-11-22-45+0800__LIDAR_TOP__15324029276{i:05d}.pcd.bin"
+        _write(root / "samples" / "LIDAR_TOP" / name, pts.astype("<f4").tobytes())
+    return root
+
+
 def write_like_the_runner(reader, out: Path) -> None:
     """What the runner writes for a reader, without stages: copied files and encode(read())."""
     import shutil

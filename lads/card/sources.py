@@ -94,6 +94,13 @@ SOURCES: dict[str, Source] = {
         f"inherited from the source; {CONFIRM}",
         "https://www.nuscenes.org/", _NUSCENES,
     ),
+    "nuscenes-scans": Source(
+        "nuScenes LIDAR_TOP scans (loose, without tables)", "nuscenes", "cc-by-nc-sa-4.0",
+        "cc-by-nc-sa-4.0-and-nuscenes-terms", "https://www.nuscenes.org/terms-of-use",
+        "CC BY-NC-SA 4.0 plus the nuScenes Terms of Use, non-commercial share-alike, "
+        f"inherited from the source; {CONFIRM}",
+        "https://www.nuscenes.org/", _NUSCENES,
+    ),
     "radiate": Source(
         "RADIATE", "radiate", "cc-by-nc-sa-4.0", "cc-by-nc-sa-4.0", NC_SA,
         f"CC BY-NC-SA 4.0, non-commercial share-alike, inherited from the source; {CONFIRM}",

@@ -43,10 +43,6 @@ from lads.readers import label_set_for
 from lads.sensors.profile import SensorProfile, load_profile
 
 CACHE_NAME = "cache.zarr"
-# Bare nuScenes LIDAR_TOP scans under a root (no devkit tables): `*.pcd.bin`, or
-# `points.bin` with `ground.bin` lidarseg labels beside it.
-RAW_NUSCENES = "nuscenes-scans"
-RAW_POINTS, RAW_LABELS = "points.bin", "ground.bin"
 ROLES = ("source", "target")
 
 
@@ -146,36 +142,7 @@ def _frame_names(domain: DomainSpec, where: str) -> list[str]:
 
 
 def _all_frames(domain: DomainSpec) -> list[str]:
-    if domain.dataset == RAW_NUSCENES:
-        return _raw_scan_names(domain)
     return [item.relpath for item in _reader(domain).items()]
-
-
-def _raw_scan_names(domain: DomainSpec) -> list[str]:
-    root = domain.root_path()
-    if root is None or not root.is_dir():
-        raise TrainingError(f"{root}: folder of nuScenes .pcd.bin scans not found.")
-    found = [*root.rglob("*.pcd.bin"), *root.rglob(RAW_POINTS)]
-    return sorted(p.relative_to(root).as_posix() for p in found)
-
-
-def _raw_nuscenes_frame(domain: DomainSpec, relpath: str) -> Frame:
-    """A bare nuScenes LIDAR_TOP scan (x, y, z, intensity 0-255, ring): a `.pcd.bin`, or a
-    `points.bin` with its lidarseg labels beside it in `ground.bin` (the layout of the
-    scene-0001 sample); the nuScenes reader needs the devkit tables, which lone scans lack."""
-    path = domain.root_path() / relpath  # type: ignore[operator]
-    raw = np.fromfile(path, dtype="<f4")
-    if raw.size % 5:
-        raise TrainingError(f"{path}: {raw.size} floats, not a multiple of 5 (x,y,z,i,ring).")
-    points = raw.reshape(-1, 5).astype(np.float32)
-    labels = None
-    label_path = path.with_name(RAW_LABELS)
-    if path.name == RAW_POINTS and label_path.is_file():
-        labels = np.fromfile(label_path, dtype=np.uint8)
-        if labels.size != len(points):
-            raise TrainingError(f"{label_path}: {labels.size} labels for {len(points)} points.")
-    item = Item(RAW_NUSCENES, relpath, None if labels is None else RAW_LABELS)
-    return Frame.from_source(item, "hdl32e", ("x", "y", "z", "intensity", "ring"), points, labels)
 
 
 @functools.lru_cache(maxsize=4)
@@ -215,16 +182,12 @@ class DomainFrame:
 
 
 def read_domain_frame(domain: DomainSpec, relpath: str, *, weather_model: bool) -> DomainFrame:
-    """Read one frame of a real domain (reader or bare nuScenes scans) and prepare it."""
+    """Read one frame of a real domain through its reader and prepare it."""
     from lads.seeding import rng_for
     from lads.stages.weather import WeatherStage
 
-    if domain.dataset == RAW_NUSCENES:
-        reader = None
-        frame = _raw_nuscenes_frame(domain, relpath)
-    else:
-        reader, items = _reader_items(domain.dataset, str(domain.root_path()))
-        frame = reader.read(items[relpath])
+    reader, items = _reader_items(domain.dataset, str(domain.root_path()))
+    frame = reader.read(items[relpath])
     extinction = domain.extinction_per_m
     if domain.weather:
         params = {k: v for k, v in domain.weather.items() if k != "stage"}
@@ -235,15 +198,14 @@ def read_domain_frame(domain: DomainSpec, relpath: str, *, weather_model: bool) 
     frame = frame.select(keep, outcome=frame.outcome[keep], lost_rows=np.zeros(0, np.int64),
                          points=frame.points[keep])  # fmt: skip
     particle = None
-    if weather_model and reader is not None and frame.labels is not None and not domain.weather:
+    if weather_model and frame.labels is not None and not domain.weather:
         # Real weather recordings label their particles (WADS 110 = falling snow).
         ids = frame.labels.astype(np.int64)
         if reader.label_set is not None and has_instance_bits(reader.label_set):
             ids = ids & MAX_CLASS_ID
         particle = ids == reader.particle_label
     ring = frame.points[:, frame.columns.index("ring")] if "ring" in frame.columns else None
-    raw_set = "nuscenes" if domain.dataset == RAW_NUSCENES else label_set_for(domain.dataset)
-    label_set = raw_set if frame.labels is not None else None
+    label_set = label_set_for(domain.dataset) if frame.labels is not None else None
     profile = load_profile(domain.sensor or frame.sensor)
     return DomainFrame(frame, profile, label_set, ring, particle, extinction)
 

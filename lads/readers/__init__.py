@@ -18,6 +18,7 @@ from lads.physics.materials import LABEL_SETS
 from lads.readers.base import EncodedFile, Reader
 from lads.readers.nuscenes import NuScenesReader
 from lads.readers.nuscenes_kitti import NuScenesKittiReader
+from lads.readers.nuscenes_scans import NuScenesScansReader
 from lads.readers.radiate import RadiateReader
 from lads.readers.semantickitti import SemanticKittiReader
 from lads.readers.voxelscape import VoxelscapeReader
@@ -27,6 +28,7 @@ READERS: dict[str, type] = {
     "semantickitti": SemanticKittiReader,
     "nuscenes": NuScenesReader,
     "nuscenes-kitti": NuScenesKittiReader,
+    "nuscenes-scans": NuScenesScansReader,
     "voxelscape": VoxelscapeReader,
     "wads": WadsReader,
     "radiate": RadiateReader,

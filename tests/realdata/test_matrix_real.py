@@ -36,7 +36,7 @@ def test_the_real_trees_hold_every_real_frame(shared_data):
     covered = {rel for rs in REAL_SOURCES.values() for rel in rs.covers()}
     missing = sorted(set(real_scan_files()) - covered - set(NOT_BUILDABLE))
     assert not missing, f"real frames no test tree holds: {missing}"
-    assert len(covered) == 110
+    assert len(covered) == 111
 
 
 @pytest.fixture(scope="module")
@@ -130,10 +130,24 @@ def _radiate(out: Path, src: Path, options: dict, reader) -> None:
         assert np.isin(rows[:, 4], np.arange(32)).all()
 
 
+def _nuscenes_scans(out: Path, src: Path, options: dict, reader) -> None:
+    """The devkit's own parser reads every loose scan; labels keep one index per point."""
+    from nuscenes.utils.data_classes import LidarPointCloud
+
+    for item in reader.items():
+        raw = np.fromfile(out / item.relpath, dtype="<f4").reshape(-1, 5)
+        cloud = LidarPointCloud.from_file(str(out / item.relpath))
+        assert cloud.points.shape[1] == raw.shape[0] and np.isin(raw[:, 4], np.arange(32)).all()
+        if item.label_relpath is not None:
+            labels = np.fromfile(out / item.label_relpath, dtype=np.uint8)
+            assert labels.size == raw.shape[0] and labels.max(initial=0) < 32
+
+
 READ_BACK = {
     "semantickitti": _kitti_layout,
     "wads": _kitti_layout,
     "nuscenes": _nuscenes,
     "nuscenes-kitti": _nuscenes_kitti,
+    "nuscenes-scans": _nuscenes_scans,
     "radiate": _radiate,
 }

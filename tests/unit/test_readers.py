@@ -37,6 +37,7 @@ BUILDERS = {
     "radiate": trees.synthetic_radiate,
     "nuscenes": trees.synthetic_nuscenes,
     "nuscenes-kitti": trees.synthetic_nuscenes_kitti,
+    "nuscenes-scans": trees.synthetic_nuscenes_scans,
 }
 SCAN_GLOB = {
     "semantickitti": "sequences/*/velodyne/*.bin",
@@ -45,6 +46,7 @@ SCAN_GLOB = {
     "radiate": "*/velo_lidar/*.csv",
     "nuscenes": "samples/LIDAR_TOP/*.pcd.bin",
     "nuscenes-kitti": "*/*/velodyne/*.bin",
+    "nuscenes-scans": ("**/points.bin", "**/*.pcd.bin"),
 }
 BYTE_EXACT_ROLES = {"scan", "label", "orig_labels", "orig_sublabels"}
 
@@ -68,9 +70,10 @@ def _first(reader, predicate=lambda it: True) -> Item:
 # registry
 
 
-def test_readers_dict_has_exactly_the_six_formats():
+def test_readers_dict_has_exactly_the_seven_formats():
     assert set(READERS) == {
-        "semantickitti", "nuscenes", "nuscenes-kitti", "voxelscape", "wads", "radiate"
+        "semantickitti", "nuscenes", "nuscenes-kitti", "nuscenes-scans", "voxelscape", "wads",
+        "radiate",
     }  # fmt: skip
     for name, cls in READERS.items():
         assert cls.name == name
@@ -132,7 +135,8 @@ def test_items_are_sorted_complete_and_carry_the_dataset_name(tree, name):
     items = reader.items()
     relpaths = [it.relpath for it in items]
     assert relpaths == sorted(relpaths)
-    on_disk = sorted(p.relative_to(root).as_posix() for p in root.glob(SCAN_GLOB[name]))
+    globs = SCAN_GLOB[name] if isinstance(SCAN_GLOB[name], tuple) else (SCAN_GLOB[name],)
+    on_disk = sorted(p.relative_to(root).as_posix() for g in globs for p in root.glob(g))
     assert relpaths == on_disk
     assert {it.dataset for it in items} == {name}
     assert len({it.item_id for it in items}) == len(items)

@@ -7,15 +7,16 @@ to class ids. The beam table is built from these (`lads.diagnose.data.beams`), w
 the points nearer than the sensor's minimum range (`lads.diagnose.data.minrange`).
 
 nuScenes roots are read with the devkit tables when they hold a `v1.0-*` folder; otherwise
-every `*.pcd.bin` under the root is a bare, unlabelled LIDAR_TOP scan (x, y, z, intensity,
-ring as float32), which is what a lone keyframe or a simulator's output usually looks like.
+with the `nuscenes-scans` reader: every `*.pcd.bin` (or `points.bin`, labelled by a
+`ground.bin` beside it) under the root is a loose LIDAR_TOP scan, which is what a lone
+keyframe or a simulator's output usually looks like.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import Literal
 
 import numpy as np
 import numpy.typing as npt
@@ -25,7 +26,7 @@ from lads.errors import ConfigError, DatasetNotFoundError, DiagnoseError, Intens
 from lads.frame import Frame, Item
 from lads.physics.materials import MAX_CLASS_ID, has_instance_bits
 from lads.physics.projection import MIN_RANGE_M
-from lads.readers import Reader, get_reader, reader_class
+from lads.readers import Reader, get_reader
 from lads.sensors.profile import SensorProfile, load_profile
 
 SOURCES: tuple[str, ...] = ("semantickitti", "nuscenes", "wads")
@@ -80,10 +81,10 @@ class Scan:
 
 @dataclass(frozen=True, slots=True)
 class _TreeSource:
-    """How to read one tree: a project reader and its items, or bare nuScenes files."""
+    """How to read one tree: its reader and items."""
 
     root: Path
-    reader: Reader | None
+    reader: Reader
     items: dict[str, Item]
     labelled: bool
 
@@ -124,35 +125,13 @@ class TreePair:
         return _read(self.source, self.profile, tree, src, relpath)
 
     def reader(self, tree: Tree) -> Reader:
-        """The project reader of the "sim" or "real" tree.
+        """The reader of the "sim" or "real" tree."""
+        return self._source(tree).reader
 
-        Raises:
-            DiagnoseError: the tree is a bare nuScenes folder (no devkit tables, no reader).
-        """
+    def read_frame(self, tree: Tree, relpath: str) -> Frame:
+        """Scan `relpath` as its reader reads it (every row, labels as stored)."""
         src = self._source(tree)
-        if src.reader is None:
-            raise DiagnoseError(f"{src.root}: a bare nuScenes folder has no reader.")
-        return src.reader
-
-    def read_frame(self, tree: Tree, relpath: str) -> Frame | None:
-        """Scan `relpath` as its reader reads it (every row, labels as stored), or None for a
-        bare nuScenes folder (`read_bare_points`)."""
-        src = self._source(tree)
-        return None if src.reader is None else src.reader.read(self._item(src, tree, relpath))
-
-    def read_bare_points(self, tree: Tree, relpath: str) -> tuple[npt.NDArray[np.float32],
-                                                                   tuple[str, ...]]:  # fmt: skip
-        """(N, C) float32 rows and column names of a bare nuScenes scan, C as the nuScenes
-        reader's columns.
-
-        Raises:
-            DiagnoseError: the size is not a whole number of rows.
-        """
-        src = self._source(tree)
-        path = src.root / self._item(src, tree, relpath).relpath
-        columns: tuple[str, ...] = reader_class(self.source).columns
-        _check_size(path, columns, self.source, self.profile, tree)
-        return np.fromfile(path, dtype="<f4").reshape(-1, len(columns)), columns
+        return src.reader.read(self._item(src, tree, relpath))
 
     def _source(self, tree: Tree) -> _TreeSource:
         if tree not in self._trees:
@@ -226,31 +205,21 @@ def _open_tree(root: Path, source: str, tree: str) -> _TreeSource:
             f"{root}: the {tree} tree root does not exist or is not a folder; pass the root "
             f"of a {source} tree."
         )
+    name = source
     if source == "nuscenes" and not any(d.is_dir() for d in root.glob("v1.0-*")):
-        files = {
-            p.relative_to(root).as_posix(): Item("nuscenes", p.relative_to(root).as_posix())
-            for p in root.rglob("*.pcd.bin")
-            if p.is_file()
-        }
-        if not files:
-            raise DiagnoseError(
-                f"{root}: the {tree} tree holds no nuScenes scans; expected a dataroot with a "
-                "v1.0-* table folder, or *.pcd.bin files (N x 5 float32: x, y, z, intensity, "
-                "ring) anywhere below it."
-            )
-        return _TreeSource(root, None, files, labelled=False)
-    reader = get_reader(source, root)
+        name = "nuscenes-scans"  # loose scans: no devkit tables to read
+    reader = get_reader(name, root)
     try:
         items = reader.items()
     except DatasetNotFoundError as exc:
-        raise DiagnoseError(f"the {tree} tree holds no {source} scans: {exc}") from exc
+        tables = " (or pass a dataroot with its v1.0-* table folder)" if name != source else ""
+        raise DiagnoseError(f"the {tree} tree holds no {source} scans: {exc}{tables}") from exc
     labelled = all(item.label_relpath is not None for item in items)
     return _TreeSource(reader.root, reader, {it.relpath: it for it in items}, labelled)
 
 
 def _profile_name(tree: _TreeSource) -> str:
-    # A bare nuScenes folder is read as the nuScenes reader's sensor would have written it.
-    return tree.reader.sensor if tree.reader is not None else reader_class("nuscenes").sensor
+    return tree.reader.sensor
 
 
 def _relpath_mismatch(
@@ -270,19 +239,10 @@ def _relpath_mismatch(
 
 def _read(source: str, profile: SensorProfile, tree: str, src: _TreeSource, relpath: str) -> Scan:
     path = src.root / relpath
-    columns: tuple[str, ...] = reader_class(source).columns
+    columns: tuple[str, ...] = src.reader.columns
     _check_size(path, columns, source, profile, tree)
-    labels_raw: npt.NDArray[Any] | None = None
-    if src.reader is None:
-        points = np.fromfile(path, dtype="<f4").reshape(-1, len(columns))
-        if not np.isfinite(points).all():
-            raise DiagnoseError(
-                f"{path}: NaN or infinite values in the {tree} tree's scan; expected finite "
-                f"float32 {', '.join(columns)}. Re-export the scan."
-            )
-    else:
-        frame = src.reader.read(src.items[relpath])
-        points, columns, labels_raw = frame.points, frame.columns, frame.labels
+    frame = src.reader.read(src.items[relpath])
+    points, columns, labels_raw = frame.points, frame.columns, frame.labels
     intensity = np.array(points[:, columns.index("intensity")], dtype=np.float32)
     try:
         profile.intensity.validate(intensity, f"{path} ({tree} tree)")
@@ -300,7 +260,7 @@ def _read(source: str, profile: SensorProfile, tree: str, src: _TreeSource, relp
     labels = None
     if labels_raw is not None:
         ids = labels_raw.astype(np.int64)
-        label_set = reader_class(source).label_set
+        label_set = src.reader.label_set
         instance_bits = label_set is not None and has_instance_bits(label_set)
         labels = (ids & MAX_CLASS_ID if instance_bits else ids).astype(np.int32)[keep]
     return Scan(

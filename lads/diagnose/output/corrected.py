@@ -129,13 +129,9 @@ def _rewrite(
 ) -> None:
     """Rewrite one scan of the corrected tree: the predicted intensities of `rows` and, with a
     fitted dropout, only the beams that survive it (their label rows with them). Files go
-    through the source's reader (`encode`); a bare nuScenes folder has none and is written
-    as the reader would (float32 rows of its columns)."""
+    through the tree's reader (`encode`)."""
     frame = pair.read_frame("sim", relpath)
-    if frame is None:
-        points, columns = pair.read_bare_points("sim", relpath)
-    else:
-        points, columns = frame.points.copy(), frame.columns
+    points, columns = frame.points.copy(), frame.columns
     step, top = sensor.step, sensor.max_value
     value = np.clip(np.round(intensity / step) * step, 0.0, top).astype(np.float32)
     points[rows, columns.index("intensity")] = value
@@ -145,9 +141,6 @@ def _rewrite(
         digest = hashlib.sha256(f"{seed}/{relpath}/corrected".encode()).digest()
         rng = np.random.default_rng(int.from_bytes(digest[:8], "little"))
         keep[rows] = rng.random(len(rows)) < np.clip(p_keep, 0.0, 1.0)
-    if frame is None:
-        atomic_write(out_root / relpath, points[keep].astype("<f4").tobytes())
-        return
     kept = replace(
         frame,
         points=points[keep],
