@@ -17,7 +17,7 @@ from typing import Any
 import click
 import numpy as np
 
-from lads.errors import ConfigError, InputDataError, LadsError
+from lads.errors import ConfigError, LadsError
 from lads.files import atomic_write
 from lads.physics.severity import SEVERITIES
 from lads.readers import READERS
@@ -157,6 +157,7 @@ def weather(
     Extra columns (e.g. the nuScenes ring) and labels follow each output point's source beam.
     """
     from lads.physics import weather as wx
+    from lads.readers.base import read_labels, read_records
     from lads.sensors.profile import load_profile
 
     chosen = [v is not None for v in (rain_mm_h, snow_mm_h, visibility_m)]
@@ -164,13 +165,9 @@ def weather(
         raise click.UsageError("give exactly one of --rain, --snow, --fog")
     profile = load_profile(sensor)
     ncol = columns or (5 if profile.has_ring_column else 4)
-    raw = np.fromfile(scan, dtype=np.float32)
-    if raw.size % ncol:
-        raise InputDataError(
-            f"{scan}: {raw.size} float32 values is not a multiple of {ncol} columns; "
-            "pass --columns with the file's column count."
-        )
-    points = raw.reshape(-1, ncol)
+    # A lone file has no reader's layout: the shared record helpers read it (readers/base.py).
+    what = f"a scan of {ncol} float32 columns (pass --columns with the file's column count)"
+    points = read_records(scan, np.float32, ncol, what)
     rng = np.random.default_rng(seed)
     if rain_mm_h is not None:
         result = wx.rain(
@@ -196,12 +193,7 @@ def weather(
     out[:, 3] = result.intensity
     atomic_write(output, out.tobytes())
     if labels_in is not None:
-        labels = np.fromfile(labels_in, dtype=np.uint32)
-        if labels.size != points.shape[0]:
-            raise InputDataError(
-                f"{labels_in}: {labels.size} labels for {points.shape[0]} points; "
-                "expected one uint32 label per point."
-            )
+        labels = read_labels(labels_in, np.uint32, points.shape[0], "uint32 labels", scan)
         target = labels_out or output.with_suffix(".label")
         atomic_write(target, labels[result.source_index].tobytes())
     c = result.counts()

@@ -79,7 +79,8 @@ def test_bad_input_maps_to_a_clear_error_and_exit_code(tmp_path):
         main, ["weather", str(path), str(tmp_path / "o.bin"), "--sensor", "hdl64e", "--fog", "50"]
     )
     assert result.exit_code == EXIT_LADS_ERROR
-    assert "not a multiple of 4 columns" in result.output
+    assert "not a whole number of 16-byte records" in result.output
+    assert "--columns" in result.output
 
 
 def test_profiles_command_lists_every_shipped_sensor():
