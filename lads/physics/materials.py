@@ -25,6 +25,7 @@ LABEL_SETS: tuple[str, ...] = ("semantickitti", "nuscenes", "voxelscape", "wads"
 MAX_REFLECTANCE = 1.2
 MAX_CLASS_ID = 0xFFFF
 _OUT_OF_RANGE = MAX_CLASS_ID + 1  # lookup slot for ids above 0xFFFF (unmasked label sets)
+FINISHES: tuple[str, ...] = ("clearcoat", "retroreflective")
 
 
 class UnknownLabelWarning(UserWarning):
@@ -37,12 +38,32 @@ class Material:
 
     texture_depth_mm: mean texture depth of a ground surface of this material, mm (how much
     water it holds before a film covers it, docs/physics.md §8); None for non-ground materials.
+    finish: how the surface departs from a diffuse one (one of FINISHES), or None.
     """
 
     name: str
     reflectance: float
     source: str
     texture_depth_mm: float | None = None
+    finish: str | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class ClassRoles:
+    """Class ids of one label set by what their surface does to a beam (materials.yaml).
+
+    Attributes:
+        clearcoat: classes whose material has a glossy lacquer (finish `clearcoat`).
+        retroreflective: classes whose material returns the beam whatever the incidence.
+        road_like: classes marked `ground` (a water film can lie on them).
+        level_ground: road_like and the classes marked `flat` (what a ground plane is
+            fitted to).
+    """
+
+    clearcoat: frozenset[int]
+    retroreflective: frozenset[int]
+    road_like: frozenset[int]
+    level_ground: frozenset[int]
 
 
 @dataclass(frozen=True, slots=True)
@@ -54,6 +75,7 @@ class _LabelSet:
     known: npt.NDArray[np.bool_]  # (MAX_CLASS_ID + 2,) id has an entry
     material: npt.NDArray[np.int16]  # (MAX_CLASS_ID + 2,) index into material_names()
     ground: npt.NDArray[np.bool_]  # (MAX_CLASS_ID + 2,) class is a ground surface
+    flat: frozenset[int]  # classes marked `flat` (level ground that is not road-like)
 
 
 @dataclass(frozen=True, slots=True)
@@ -165,6 +187,29 @@ def class_materials(label_set: str) -> dict[int, tuple[str, str]]:
     return dict(table.label_sets[label_set].classes)
 
 
+def class_roles(label_set: str) -> ClassRoles:
+    """The classes of `label_set` by surface role (materials.yaml `finish`, `ground`, `flat`).
+
+    Raises:
+        ConfigError: unknown label set.
+    """
+    table = _table()
+    if label_set not in table.label_sets:
+        raise ConfigError(
+            f"unknown label set '{label_set}'; known label sets: {', '.join(LABEL_SETS)}."
+        )
+    lset = table.label_sets[label_set]
+
+    def finished(finish: str) -> frozenset[int]:
+        return frozenset(
+            c for c, (_, m) in lset.classes.items() if table.materials[m].finish == finish
+        )
+
+    road_like = frozenset(int(c) for c in np.flatnonzero(lset.ground))
+    return ClassRoles(finished("clearcoat"), finished("retroreflective"), road_like,
+                      road_like | lset.flat)  # fmt: skip
+
+
 def has_instance_bits(label_set: str) -> bool:
     """Whether `label_set`'s stored labels carry an instance id above their low 16 bits
     (materials.yaml `instance_bits`; the class is then label & MAX_CLASS_ID).
@@ -255,8 +300,13 @@ def _material(name: str, spec: Any, where: str) -> Material:
         raise ConfigError(f"{where}: materials.{name} must be a mapping.")
     _require_keys(
         spec, {"reflectance", "source"}, f"{where}: materials.{name}",
-        optional=frozenset({"texture_depth_mm"}),
+        optional=frozenset({"texture_depth_mm", "finish"}),
     )  # fmt: skip
+    finish = spec.get("finish")
+    if finish is not None and finish not in FINISHES:
+        raise ConfigError(
+            f"{where}: materials.{name}.finish = {finish!r}; expected one of {list(FINISHES)}."
+        )
     depth = spec.get("texture_depth_mm")
     if depth is not None and (isinstance(depth, bool) or not isinstance(depth, int | float)
                               or not depth > 0):  # fmt: skip
@@ -272,8 +322,9 @@ def _material(name: str, spec: Any, where: str) -> Material:
     if not isinstance(spec["source"], str) or not spec["source"].strip():
         raise ConfigError(f"{where}: materials.{name}.source must cite where {rho} comes from.")
     return Material(
-        str(name), float(rho), spec["source"].strip(), None if depth is None else float(depth)
-    )
+        str(name), float(rho), spec["source"].strip(), None if depth is None else float(depth),
+        finish,
+    )  # fmt: skip
 
 
 def _label_set(
@@ -291,18 +342,21 @@ def _label_set(
     _require_keys(spec, required, ctx, optional=frozenset({"extends"}))
     classes: dict[int, tuple[str, str]] = {}
     grounds: set[int] = set()
+    flats: set[int] = set()
     if "extends" in spec:
         base = sets_raw.get(spec["extends"])
         if not isinstance(base, dict) or "extends" in base:
             raise ConfigError(f"{ctx}.extends must name a label set that extends nothing.")
-        inherited, inherited_ground = _classes(
+        inherited, inherited_ground, inherited_flat = _classes(
             base.get("classes"), f"{where}: label_sets.{spec['extends']}"
         )
         classes.update(inherited)
         grounds |= inherited_ground
-    own, own_ground = _classes(spec["classes"], ctx)
+        flats |= inherited_flat
+    own, own_ground, own_flat = _classes(spec["classes"], ctx)
     classes.update(own)
     grounds = (grounds - set(own)) | own_ground
+    flats = (flats - set(own)) | own_flat
     lookup = np.full(_OUT_OF_RANGE + 1, default.reflectance, dtype=np.float32)
     known = np.zeros(_OUT_OF_RANGE + 1, dtype=bool)
     order = {m: i for i, m in enumerate(materials)}
@@ -320,14 +374,16 @@ def _label_set(
         material_of[class_id] = order[material]
     for table in (lookup, known, material_of, ground):
         table.flags.writeable = False
-    return _LabelSet(name, bool(spec["instance_bits"]), classes, lookup, known, material_of, ground)
+    return _LabelSet(name, bool(spec["instance_bits"]), classes, lookup, known, material_of,
+                     ground, frozenset(flats))  # fmt: skip
 
 
-def _classes(raw: Any, ctx: str) -> tuple[dict[int, tuple[str, str]], set[int]]:
-    """Class id -> (name, material), and the ids marked `ground: true` (road-like surfaces)."""
+def _classes(raw: Any, ctx: str) -> tuple[dict[int, tuple[str, str]], set[int], set[int]]:
+    """Class id -> (name, material), the ids marked `ground: true` (road-like surfaces) and
+    those marked `flat: true` (other level ground)."""
     if not isinstance(raw, dict) or not raw:
         raise ConfigError(f"{ctx}.classes must be a non-empty mapping of class id -> entry.")
-    out, ground = {}, set()
+    out, ground, flat = {}, set(), set()
     for class_id, entry in raw.items():
         if isinstance(class_id, bool) or not isinstance(class_id, int):
             raise ConfigError(f"{ctx}.classes: key {class_id!r} is not an integer class id.")
@@ -337,14 +393,21 @@ def _classes(raw: Any, ctx: str) -> tuple[dict[int, tuple[str, str]], set[int]]:
             raise ConfigError(f"{ctx}.classes.{class_id} must be a mapping.")
         _require_keys(
             entry, {"name", "material"}, f"{ctx}.classes.{class_id}",
-            optional=frozenset({"ground"}),
+            optional=frozenset({"ground", "flat"}),
         )  # fmt: skip
-        if not isinstance(entry.get("ground", False), bool):
-            raise ConfigError(f"{ctx}.classes.{class_id}.ground must be true or false.")
+        for flag in ("ground", "flat"):
+            if not isinstance(entry.get(flag, False), bool):
+                raise ConfigError(f"{ctx}.classes.{class_id}.{flag} must be true or false.")
+        if entry.get("ground", False) and entry.get("flat", False):
+            raise ConfigError(
+                f"{ctx}.classes.{class_id}: `ground` classes are level already; drop `flat`."
+            )
         out[class_id] = (str(entry["name"]), str(entry["material"]))
         if entry.get("ground", False):
             ground.add(class_id)
-    return out, ground
+        if entry.get("flat", False):
+            flat.add(class_id)
+    return out, ground, flat
 
 
 def _require_keys(

@@ -14,7 +14,7 @@ import pytest
 from scipy.special import ndtr
 
 from lads.diagnose.data.table import BeamTable
-from lads.diagnose.effects.terms import candidates
+from lads.diagnose.effects.catalogue import candidates
 from lads.diagnose.fit.design import paired_design
 from lads.diagnose.fit.model import Model, fit_best, initial_base
 from tests.unit.test_diagnose_localize import make_table

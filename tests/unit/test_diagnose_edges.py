@@ -111,12 +111,12 @@ def test_the_mixed_pixel_term_averages_over_the_span_the_edge_may_lie_in():
 
     import torch
 
-    from lads.diagnose.effects.terms import _edge_cover
+    from lads.diagnose.effects.c8_edge_mixed_pixels import edge_cover
 
     e0 = torch.tensor(1.2, dtype=torch.float64)
     dist = torch.tensor([0.0, 1.0, 1.0, 4.0], dtype=torch.float64)
     span = torch.tensor([0.0, 0.0, 2.0, 3.0], dtype=torch.float64)
-    got = _edge_cover(SimpleNamespace(edge_beams=dist, edge_span_beams=span), e0).numpy()
+    got = edge_cover(SimpleNamespace(edge_beams=dist, edge_span_beams=span), e0).numpy()
     want = []
     for e, w in zip(dist.numpy(), span.numpy(), strict=True):
         grid = np.linspace(max(e - w / 2, 0.0), e + w / 2, 20001)

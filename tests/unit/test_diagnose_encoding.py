@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from lads.diagnose.data.table import BeamTable
-from lads.diagnose.effects.terms import candidates
+from lads.diagnose.effects.catalogue import candidates
 from lads.diagnose.fit.design import clip_level, paired_design
 from lads.diagnose.fit.model import Model, fit_best, initial_base
 from tests.unit.test_diagnose_localize import make_table

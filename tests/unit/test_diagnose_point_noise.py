@@ -9,7 +9,7 @@ import pytest
 
 from lads.diagnose.data.table import BeamTable
 from lads.diagnose.fit.design import Design, paired_design
-from lads.diagnose.verdict.analysis import POINT_NOISE_MIN_SLOPE
+from lads.diagnose.verdict.heldout import POINT_NOISE_MIN_SLOPE
 from lads.diagnose.verdict.point_noise import neighbour_pairs, point_noise
 from tests.unit.test_diagnose_localize import make_table
 

@@ -14,7 +14,10 @@ import pytest
 import torch
 
 from lads.diagnose.data.table import BeamTable
-from lads.diagnose.effects.terms import _one_class_scale, azimuth_spacing_deg, candidates, odd_rings
+from lads.diagnose.effects.c4_rings import odd_rings
+from lads.diagnose.effects.c6_class_reflectance import one_class_scale
+from lads.diagnose.effects.c11_azimuth_blockage import azimuth_spacing_deg
+from lads.diagnose.effects.catalogue import candidates
 from lads.diagnose.fit.bootstrap import group_multiplicity
 from lads.diagnose.fit.design import group_index, paired_design, sim_log_variance
 from lads.diagnose.fit.model import (
@@ -28,34 +31,35 @@ from lads.diagnose.fit.model import (
     nll_from_terms,
 )
 from lads.diagnose.fit.parallel import fit_models, fit_warm, map_fits, restrict
+from lads.diagnose.selection.compare import (
+    Comparison,
+    by_groups,
+    by_rows,
+    compare_groups,
+    row_gains,
+)
 from lads.diagnose.selection.select import (
     MIN_GAIN_NATS,
     MIN_SUPPORT_GROUPS,
     SHORTLIST,
     SHORTLIST_CONFINED,
     Z_ACCEPT,
-    Comparison,
     Selection,
     _passes,
-    by_groups,
-    by_rows,
-    compare_groups,
     crossfit_support,
     domain_rows,
     gain_floor,
     reference_levels,
-    row_gains,
 )
 from lads.diagnose.verdict.ambiguity import ground_only_rule, resample_swaps
 from lads.diagnose.verdict.analysis import (
     EffectReport,
     Settings,
-    _ci,
     claim_with_sets,
     diagnose_design,
-    effect_family,
-    interval95,
 )
+from lads.diagnose.verdict.intervals import ci95, interval95
+from lads.diagnose.verdict.stability import effect_family
 from tests.unit.test_diagnose_localize import make_table
 
 QUICK = Settings(fit_rows=12000, resamples=4, bootstrap=4, jobs=1)
@@ -365,7 +369,7 @@ def _sign_fits(ln_gain: float | None):
     held_out = np.isin(d.group, groups[::2])  # every other group held out
     weights = np.where(held_out, 0.0, 1.0)
     sign = d.classes.index(81)
-    c6 = _one_class_scale(sign, "traffic-sign")
+    c6 = one_class_scale(d, sign, "traffic-sign")
     start = initial_base(d, np.flatnonzero(weights))
     refs = reference_levels(d)
     baseline = fit_best(Model([], *refs), d, weights, start)
@@ -561,7 +565,7 @@ def test_a_warm_start_from_the_same_effects_in_another_order_reaches_the_same_fi
 
 def test_a_parameter_interval_is_never_narrower_than_its_resolution_floor():
     samples = [{"start_deg": 143.1 + 0.01 * k, "a": 0.4 + 0.001 * k} for k in range(40)]
-    ci = _ci({"start_deg": 143.3, "a": 0.42}, samples, {"start_deg": 0.5})
+    ci = ci95({"start_deg": 143.3, "a": 0.42}, samples, {"start_deg": 0.5})
     assert ci["start_deg"][0] == pytest.approx(142.8) and ci["start_deg"][1] == pytest.approx(143.8)
     # Without a floor: the samples' 95 % interval, read at order-statistic positions.
     assert ci["a"] == pytest.approx([0.400025, 0.438975])

@@ -173,6 +173,9 @@ def test_material_table_returns_a_copy():
         (lambda r: r.__setitem__("colour", 1), "unknown keys"),
         (lambda r: r["label_sets"]["nuscenes"]["classes"].__setitem__(
             70000, {"name": "x", "material": "tar"}), "outside"),
+        (lambda r: r["materials"]["tar"].__setitem__("finish", "matte"), "finish = 'matte'"),
+        (lambda r: r["label_sets"]["nuscenes"]["classes"][24].__setitem__("flat", True),
+         "drop `flat`"),
     ],
 )  # fmt: skip
 def test_invalid_tables_raise_config_error_naming_the_file(edit, message):
@@ -193,3 +196,25 @@ def test_instance_bits_are_read_from_the_label_sets():
     np.testing.assert_array_equal(class_ids(np.array([17, 24]), "nuscenes"), [17, 24])
     with pytest.raises(ConfigError, match="unknown label set"):
         has_instance_bits("kitti360")
+
+
+def test_surface_roles_follow_the_materials_of_every_label_set():
+    """Glossy paint, retro-reflectors and road-like ground are read from materials.yaml, so a
+    label set names them by its own ids (nuScenes cones and flat.* included)."""
+    from lads.physics.materials import LABEL_SETS, class_materials, class_roles
+
+    kitti = class_roles("semantickitti")
+    assert {10, 18, 252} <= kitti.clearcoat and 30 not in kitti.clearcoat
+    assert kitti.retroreflective == {81}
+    assert kitti.road_like == {40, 44, 48, 49, 60}
+    assert kitti.level_ground == kitti.road_like | {72}
+    nusc = class_roles("nuscenes")
+    assert nusc.retroreflective == {12}  # movable_object.trafficcone
+    assert nusc.road_like == {24, 25, 26} and nusc.level_ground == {24, 25, 26, 27}
+    assert 31 not in nusc.clearcoat  # the ego vehicle's own body is not a painted target
+    assert 256 in class_roles("voxelscape").retroreflective  # construction-cone
+    for name in LABEL_SETS:
+        roles, names = class_roles(name), class_materials(name)
+        for cid in roles.clearcoat:
+            assert names[cid][1] == "paint_vehicle"
+        assert roles.road_like <= roles.level_ground <= set(names)

@@ -33,19 +33,12 @@ from lads.diagnose.data.pairing import pair_points
 from lads.diagnose.data.table import EDGE_CAP_BEAMS, GROUP_TILE_M, ROW_FIELDS, BeamTable
 from lads.diagnose.data.trees import Scan, Tree, TreePair
 from lads.errors import DiagnoseError, InputDataError
-from lads.physics.materials import class_materials
+from lads.physics.materials import class_materials, class_roles
 from lads.physics.modalities import IncidenceSource, incidence
 from lads.physics.projection import project
 from lads.sensors.measure import rings_from_scan_order
 from lads.sensors.profile import SensorProfile
 
-# Ground classes per label set: SemanticKITTI road, parking, sidewalk, other-ground,
-# lane-marking, terrain (WADS shares the ids); nuScenes-lidarseg flat.*.
-GROUND_CLASSES: dict[str, tuple[int, ...]] = {
-    "semantickitti": (40, 44, 48, 49, 60, 72),
-    "wads": (40, 44, 48, 49, 60, 72),
-    "nuscenes": (24, 25, 26, 27),
-}
 GROUND_RADIUS_M = CONFIG.table.ground_radius_m
 GROUND_SEED_PERCENTILE = CONFIG.table.ground_seed_percentile
 # Refits keep points ever closer to the plane: the first band lets a tilted seed find the
@@ -213,7 +206,9 @@ def cloud_features(
     ground_class = None
     if label_set is not None and scan.labels is not None:
         class_id = scan.labels.astype(np.int32)
-        ground_class = np.isin(scan.labels, GROUND_CLASSES[label_set])
+        # Road-like classes and terrain (materials.yaml `ground` and `flat`).
+        level = sorted(class_roles(label_set).level_ground)
+        ground_class = np.isin(scan.labels, level)
     height = plane_height(xyz, fit_ground_plane(xyz, ground_class))
     is_ground = ground_class if ground_class is not None else np.abs(height) < GROUND_BAND_M
     cos = inc.cos.astype(np.float32)

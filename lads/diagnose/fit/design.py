@@ -89,6 +89,7 @@ class Design:
         group: int64 numpy group id per row (for splits and bootstraps).
         classes: class ids present, `class_index` points into it.
         class_names: name per entry of `classes`.
+        label_set: the label set the class ids belong to (`lads.physics.materials`), or None.
         half_step, full_scale, max_value, step: the encoding in stored units.
         n_rings, n_scans: sizes of the categorical features.
         paired: False for unpaired pseudo-pairs (no dropout information).
@@ -130,6 +131,7 @@ class Design:
     n_scans: int
     paired: bool
     real_clip: float | None = None
+    label_set: str | None = None
 
     def __len__(self) -> int:
         return int(self.y.shape[0])
@@ -495,4 +497,5 @@ def _design(
         n_scans=n_scans,
         paired=paired,
         real_clip=clip,
+        label_set=t.sensor.label_set,
     )

@@ -29,7 +29,7 @@ import scipy.optimize
 import torch
 
 from lads.diagnose.config import CONFIG
-from lads.diagnose.effects.terms import Effect
+from lads.diagnose.effects.base import Effect
 from lads.diagnose.fit.design import CensoredRows, Design
 
 BASE_NAMES: tuple[str, ...] = (

@@ -275,7 +275,7 @@ def bootstrap_histograms(samples: Mapping[str, npt.ArrayLike], path: Path) -> Pa
         arr = arr[np.isfinite(arr)]
         if arr.size:
             ax.hist(arr, bins=min(30, max(arr.size // 5, 5)), color="C0", alpha=0.8)
-            # The report's interval (analysis.interval95: order-statistic positions).
+            # The report's interval (verdict/intervals.py interval95: order-statistic positions).
             lo, med, hi = np.percentile(arr, [2.5, 50.0, 97.5], method="weibull")
             ax.axvline(med, color="k", linewidth=1.2)
             for x in (lo, hi):

@@ -10,13 +10,14 @@ import numpy as np
 import numpy.typing as npt
 
 from lads.diagnose.config import CONFIG
+from lads.diagnose.effects.base import Effect
 from lads.diagnose.effects.catalogue import CATALOGUE
-from lads.diagnose.effects.terms import Effect
 from lads.diagnose.fit.design import Design
 from lads.diagnose.fit.model import initial_base
 from lads.diagnose.fit.parallel import fit_models
+from lads.diagnose.selection.compare import gain_on
 from lads.diagnose.selection.grouping import Split
-from lads.diagnose.selection.select import CLAIM_FREQUENCY, POSSIBLE_FREQUENCY, Selection, gain_on
+from lads.diagnose.selection.select import CLAIM_FREQUENCY, POSSIBLE_FREQUENCY, Selection
 
 LONG_RANGE_BAND_M = CONFIG.verdict.long_range_band_m
 LONG_RANGE_MIN_SHARE = CONFIG.verdict.long_range_min_share

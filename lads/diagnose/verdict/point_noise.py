@@ -33,7 +33,7 @@ from scipy.special import gammaln
 
 from lads.diagnose.config import CONFIG
 from lads.diagnose.fit.design import Design, evenly_spaced, sim_log_variance
-from lads.diagnose.selection.select import by_rows
+from lads.diagnose.selection.compare import by_rows
 from lads.diagnose.where.binning import RANGE_EDGES_M
 
 NU = CONFIG.point_noise.nu
