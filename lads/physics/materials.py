@@ -58,12 +58,16 @@ class ClassRoles:
         road_like: classes marked `ground` (a water film can lie on them).
         level_ground: road_like and the classes marked `flat` (what a ground plane is
             fitted to).
+        moving: classes marked `moving` (things in motion when scanned).
+        ego: classes marked `ego` (the recording vehicle's own body).
     """
 
     clearcoat: frozenset[int]
     retroreflective: frozenset[int]
     road_like: frozenset[int]
     level_ground: frozenset[int]
+    moving: frozenset[int]
+    ego: frozenset[int]
 
 
 @dataclass(frozen=True, slots=True)
@@ -76,6 +80,8 @@ class _LabelSet:
     material: npt.NDArray[np.int16]  # (MAX_CLASS_ID + 2,) index into material_names()
     ground: npt.NDArray[np.bool_]  # (MAX_CLASS_ID + 2,) class is a ground surface
     flat: frozenset[int]  # classes marked `flat` (level ground that is not road-like)
+    moving: frozenset[int]  # classes marked `moving`
+    ego: frozenset[int]  # classes marked `ego`
 
 
 @dataclass(frozen=True, slots=True)
@@ -207,7 +213,7 @@ def class_roles(label_set: str) -> ClassRoles:
 
     road_like = frozenset(int(c) for c in np.flatnonzero(lset.ground))
     return ClassRoles(finished("clearcoat"), finished("retroreflective"), road_like,
-                      road_like | lset.flat)  # fmt: skip
+                      road_like | lset.flat, lset.moving, lset.ego)  # fmt: skip
 
 
 def has_instance_bits(label_set: str) -> bool:
@@ -343,20 +349,24 @@ def _label_set(
     classes: dict[int, tuple[str, str]] = {}
     grounds: set[int] = set()
     flats: set[int] = set()
+    movers: set[int] = set()
+    egos: set[int] = set()
     if "extends" in spec:
         base = sets_raw.get(spec["extends"])
         if not isinstance(base, dict) or "extends" in base:
             raise ConfigError(f"{ctx}.extends must name a label set that extends nothing.")
-        inherited, inherited_ground, inherited_flat = _classes(
-            base.get("classes"), f"{where}: label_sets.{spec['extends']}"
-        )
+        inherited, flags = _classes(base.get("classes"), f"{where}: label_sets.{spec['extends']}")
         classes.update(inherited)
-        grounds |= inherited_ground
-        flats |= inherited_flat
-    own, own_ground, own_flat = _classes(spec["classes"], ctx)
+        grounds |= flags["ground"]
+        flats |= flags["flat"]
+        movers |= flags["moving"]
+        egos |= flags["ego"]
+    own, own_flags = _classes(spec["classes"], ctx)
     classes.update(own)
-    grounds = (grounds - set(own)) | own_ground
-    flats = (flats - set(own)) | own_flat
+    grounds = (grounds - set(own)) | own_flags["ground"]
+    flats = (flats - set(own)) | own_flags["flat"]
+    movers = (movers - set(own)) | own_flags["moving"]
+    egos = (egos - set(own)) | own_flags["ego"]
     lookup = np.full(_OUT_OF_RANGE + 1, default.reflectance, dtype=np.float32)
     known = np.zeros(_OUT_OF_RANGE + 1, dtype=bool)
     order = {m: i for i, m in enumerate(materials)}
@@ -375,15 +385,19 @@ def _label_set(
     for table in (lookup, known, material_of, ground):
         table.flags.writeable = False
     return _LabelSet(name, bool(spec["instance_bits"]), classes, lookup, known, material_of,
-                     ground, frozenset(flats))  # fmt: skip
+                     ground, frozenset(flats), frozenset(movers), frozenset(egos))  # fmt: skip
 
 
-def _classes(raw: Any, ctx: str) -> tuple[dict[int, tuple[str, str]], set[int], set[int]]:
-    """Class id -> (name, material), the ids marked `ground: true` (road-like surfaces) and
-    those marked `flat: true` (other level ground)."""
+CLASS_FLAGS = ("ground", "flat", "moving", "ego")  # optional true/false keys of a class
+
+
+def _classes(raw: Any, ctx: str) -> tuple[dict[int, tuple[str, str]], dict[str, set[int]]]:
+    """Class id -> (name, material), and per flag of CLASS_FLAGS the ids marked true
+    (`ground`: road-like surfaces, `flat`: other level ground, `moving`, `ego`)."""
     if not isinstance(raw, dict) or not raw:
         raise ConfigError(f"{ctx}.classes must be a non-empty mapping of class id -> entry.")
-    out, ground, flat = {}, set(), set()
+    out: dict[int, tuple[str, str]] = {}
+    flags: dict[str, set[int]] = {f: set() for f in CLASS_FLAGS}
     for class_id, entry in raw.items():
         if isinstance(class_id, bool) or not isinstance(class_id, int):
             raise ConfigError(f"{ctx}.classes: key {class_id!r} is not an integer class id.")
@@ -393,21 +407,19 @@ def _classes(raw: Any, ctx: str) -> tuple[dict[int, tuple[str, str]], set[int], 
             raise ConfigError(f"{ctx}.classes.{class_id} must be a mapping.")
         _require_keys(
             entry, {"name", "material"}, f"{ctx}.classes.{class_id}",
-            optional=frozenset({"ground", "flat"}),
+            optional=frozenset(CLASS_FLAGS),
         )  # fmt: skip
-        for flag in ("ground", "flat"):
+        for flag in CLASS_FLAGS:
             if not isinstance(entry.get(flag, False), bool):
                 raise ConfigError(f"{ctx}.classes.{class_id}.{flag} must be true or false.")
+            if entry.get(flag, False):
+                flags[flag].add(class_id)
         if entry.get("ground", False) and entry.get("flat", False):
             raise ConfigError(
                 f"{ctx}.classes.{class_id}: `ground` classes are level already; drop `flat`."
             )
         out[class_id] = (str(entry["name"]), str(entry["material"]))
-        if entry.get("ground", False):
-            ground.add(class_id)
-        if entry.get("flat", False):
-            flat.add(class_id)
-    return out, ground, flat
+    return out, flags
 
 
 def _require_keys(

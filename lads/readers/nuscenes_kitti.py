@@ -22,8 +22,9 @@ from collections.abc import Iterable
 from pathlib import Path
 
 import numpy as np
+import numpy.typing as npt
 
-from lads.errors import DatasetNotFoundError
+from lads.errors import CorruptItemError, DatasetNotFoundError
 from lads.frame import Frame, Item
 from lads.readers.base import (
     EncodedFile,
@@ -34,6 +35,7 @@ from lads.readers.base import (
     read_labels,
     read_records,
 )
+from lads.readers.poses import read_pose_lines
 
 SCANS, LABELS = "velodyne", "sem_labels"
 
@@ -135,3 +137,25 @@ class NuScenesKittiReader:
     def encode(self, frame: Frame) -> list[EncodedFile]:
         """The scan (M x 16 bytes) and, if the item has one, the label file (M bytes)."""
         return encode_scan_and_labels(frame, 4, self.label_dtype)
+
+    def sensor_poses(self, items: list[Item]) -> dict[str, npt.NDArray[np.float64]]:
+        """(4, 4) lidar -> global pose of each item: line NNNNNN of its scene's poses.txt.
+
+        Raises:
+            CorruptItemError: poses.txt missing or malformed, or too few lines.
+        """
+        out: dict[str, npt.NDArray[np.float64]] = {}
+        for scene in sorted({it.relpath.rsplit("/", 2)[0] for it in items}):
+            path = self.root / scene / "poses.txt"
+            poses = read_pose_lines(path, "the scene's lidar -> global poses")
+            for it in items:
+                if it.relpath.rsplit("/", 2)[0] != scene:
+                    continue
+                k = int(Path(it.relpath).stem)
+                if k >= len(poses):
+                    raise CorruptItemError(
+                        f"{path}: {len(poses)} poses, none for keyframe {k} ({it.relpath}); "
+                        "expected one line per keyframe of the scene."
+                    )
+                out[it.relpath] = poses[k]
+        return out

@@ -20,8 +20,9 @@ from collections.abc import Iterable
 from pathlib import Path
 
 import numpy as np
+import numpy.typing as npt
 
-from lads.errors import DatasetNotFoundError
+from lads.errors import CorruptItemError, DatasetNotFoundError
 from lads.frame import Frame, Item
 from lads.readers.base import (
     EncodedFile,
@@ -34,6 +35,7 @@ from lads.readers.base import (
     read_records,
     select_sequences,
 )
+from lads.readers.poses import kitti_velodyne_to_camera, read_pose_lines
 
 
 class SemanticKittiReader:
@@ -128,3 +130,29 @@ class SemanticKittiReader:
     def encode(self, frame: Frame) -> list[EncodedFile]:
         """The scan (M x 16 bytes) and, if the item has one, the label file (M x 4 bytes)."""
         return encode_scan_and_labels(frame, 4, self.label_dtype)
+
+    def sensor_poses(self, items: list[Item]) -> dict[str, npt.NDArray[np.float64]]:
+        """(4, 4) Velodyne -> world pose of each item, from its sequence's poses.txt (line i
+        for scan i, camera frame) and calib.txt's Tr: Tr^-1 P_i Tr.
+
+        Raises:
+            CorruptItemError: poses.txt or calib.txt missing or malformed, or a scan number
+                beyond the last pose.
+        """
+        out: dict[str, npt.NDArray[np.float64]] = {}
+        for seq in sorted({it.relpath.split("/")[1] for it in items}):
+            base = self.root / "sequences" / seq
+            poses = read_pose_lines(base / "poses.txt", "the sequence's camera poses")
+            tr = kitti_velodyne_to_camera(base / "calib.txt")
+            tr_inv = np.linalg.inv(tr)
+            for it in items:
+                if it.relpath.split("/")[1] != seq:
+                    continue
+                k = int(Path(it.relpath).stem)
+                if k >= len(poses):
+                    raise CorruptItemError(
+                        f"{base / 'poses.txt'}: {len(poses)} poses, none for scan {k} "
+                        f"({it.relpath}); expected one line per scan of the sequence."
+                    )
+                out[it.relpath] = tr_inv @ poses[k] @ tr
+        return out

@@ -169,7 +169,7 @@ def _frame(scene: Scene, profile: SensorProfile, columns: int, seed: int, k: int
     # No 1/R^2: KITTI remission is (approximately) range-compensated, and LISA's convention
     # stores rho * cos(incidence); only detection depends on range (below).
     reflectivity = rho * cos_inc * texture
-    seen = rho * texture / (t * t) >= DETECTED_RHO / profile.max_range_m**2
+    seen = rho * texture / (t * t) >= detection_limit(profile)
     sigma = RANGE_NOISE_FRACTION * profile.range_accuracy_m
     range_m = np.clip(t + rng.normal(0.0, sigma, t.size), profile.min_range_m, profile.max_range_m)
     direction_sensor = d @ pose[:3, :3]  # R^T d, row-wise
@@ -183,6 +183,12 @@ def _frame(scene: Scene, profile: SensorProfile, columns: int, seed: int, k: int
         reflectivity=reflectivity[seen].astype(np.float32),
         part=part[seen],
     )
+
+
+def detection_limit(profile: SensorProfile) -> float:
+    """The synthetic sensor's detection limit, reflectivity / m^2: a return of reflectivity
+    rho (texture included, no incidence term) at range R is kept when rho / R^2 reaches it."""
+    return DETECTED_RHO / profile.max_range_m**2
 
 
 def _in_file_order(

@@ -1,0 +1,77 @@
+"""Sensor poses of a sequence, as the datasets store them (docs/formats.md §1.5, §4).
+
+KITTI odometry and SemanticKITTI: `sequences/SS/poses.txt` holds one 3 x 4 row-major pose per
+scan (line i for scan i), in the frame of the left grey camera of scan 0; `calib.txt`'s `Tr`
+maps Velodyne coordinates into that camera. The Velodyne's pose of scan i is then
+Tr^-1 P_i Tr. The KITTI-style nuScenes export stores the lidar -> global pose itself.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import numpy.typing as npt
+
+from lads.errors import CorruptItemError
+
+F64 = npt.NDArray[np.float64]
+
+
+def read_pose_lines(path: Path, what: str) -> F64:
+    """(K, 4, 4) float64 poses from a text file of K lines of 12 numbers (3 x 4 row-major).
+
+    Raises:
+        CorruptItemError: the file is missing or unreadable, or a line is not 12 numbers.
+    """
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise CorruptItemError(
+            f"{path}: cannot read {what} ({exc.strerror or exc}); a sensor transfer needs the "
+            "sequence's poses: put them there (one 3 x 4 row-major pose per scan)."
+        ) from exc
+    rows = [line.split() for line in text.splitlines() if line.strip()]
+    bad = [k for k, r in enumerate(rows) if len(r) != 12]
+    if bad:
+        raise CorruptItemError(
+            f"{path}: line {bad[0] + 1} has {len(rows[bad[0]])} numbers; expected 12 per line "
+            f"(a 3 x 4 row-major pose) in {what}."
+        )
+    try:
+        values = np.array(rows, dtype=np.float64).reshape(-1, 3, 4)
+    except ValueError as exc:
+        raise CorruptItemError(f"{path}: {what} holds text that is not a number ({exc}).") from exc
+    if not np.isfinite(values).all():
+        raise CorruptItemError(f"{path}: {what} holds NaN or infinite values.")
+    out = np.tile(np.eye(4), (len(values), 1, 1))
+    out[:, :3, :] = values
+    return out
+
+
+def kitti_velodyne_to_camera(calib: Path) -> F64:
+    """(4, 4) `Tr` of a KITTI `calib.txt`: Velodyne -> left grey camera.
+
+    Raises:
+        CorruptItemError: no readable `Tr:` line of 12 numbers.
+    """
+    try:
+        lines = calib.read_text(encoding="utf-8").splitlines()
+    except OSError as exc:
+        raise CorruptItemError(
+            f"{calib}: cannot read the calibration ({exc.strerror or exc}); a sensor transfer "
+            "of KITTI scans needs its Tr (Velodyne -> camera) to turn the camera poses into "
+            "Velodyne poses."
+        ) from exc
+    for line in lines:
+        key, _, rest = line.partition(":")
+        if key.strip() == "Tr":
+            nums = rest.split()
+            if len(nums) == 12:
+                tr = np.eye(4)
+                tr[:3, :] = np.array(nums, dtype=np.float64).reshape(3, 4)
+                return tr
+    raise CorruptItemError(
+        f"{calib}: no 'Tr:' line of 12 numbers; some KITTI downloads ship a calib.txt without "
+        "it: take calib.txt from the KITTI odometry calibration archive."
+    )

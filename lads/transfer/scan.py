@@ -1,0 +1,286 @@
+"""One scan as another sensor would have recorded it (docs/transfer.md).
+
+A window of source scans with their poses becomes a surfel scene (`surfels.scan_surfels`);
+moving things come from the centre scan alone. The target sensor is ray-cast against it from
+the centre scan's pose (`cast.cast_beams`); a beam returns where it meets a disk inside the
+target's range limits and the return is strong enough for its detector. Range noise, labels,
+intensity in the target's encoding and the source return behind every output point follow.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from lads.errors import InputDataError
+from lads.physics.materials import MAX_CLASS_ID, class_roles, has_instance_bits
+from lads.sensors.profile import SensorProfile
+from lads.transfer.cast import GEOMETRY, BeamHits, cast_beams
+from lads.transfer.surfels import (
+    ALBEDO_MIN_COS,
+    DEFAULT_SHAPE,
+    Surfels,
+    SurfelShape,
+    scan_surfels,
+)
+
+F64 = npt.NDArray[np.float64]
+# An instance whose centroid moved more than this between a neighbouring scan and the centre
+# scan is moving: its surfels come from the centre scan only. Twice a car's centroid jitter
+# from changing viewpoints, far below the 1 m it travels in 0.1 s at 36 km/h.
+MOVING_INSTANCE_M = 0.5
+# (albedo, cos incidence, range m) -> bool: whether the target's detector sees the return.
+Detector = Callable[[F64, F64, F64], npt.NDArray[np.bool_]]
+
+
+@dataclass(frozen=True, slots=True)
+class WindowScan:
+    """One source scan of a window.
+
+    Attributes:
+        xyz: (N, 3) float32/64 coordinates in m, sensor frame.
+        intensity: (N,) stored intensity in the source sensor's encoding.
+        labels: (N,) stored labels or None.
+        ring: (N,) channel per point or None.
+        pose: (4, 4) float64 sensor -> world.
+    """
+
+    xyz: npt.NDArray[np.floating]
+    intensity: npt.NDArray[np.floating]
+    labels: npt.NDArray[np.integer] | None
+    ring: npt.NDArray[np.integer] | None
+    pose: F64
+
+
+@dataclass(frozen=True, slots=True)
+class TransferredScan:
+    """The target sensor's scan, top channel first, each ring in azimuth order.
+
+    Attributes:
+        xyz: (M, 3) float32 coordinates in m, target frame.
+        intensity: (M,) float32 in the target's encoding.
+        labels: (M,) uint32 label of the surface hit (as stored by the source).
+        ring: (M,) int64 target channel, 0 = lowest.
+        column: (M,) int64 azimuth column of the beam.
+        source_frame: (M,) int32 window index of the scan the hit surface came from.
+        source_point: (M,) int64 row of that scan's return.
+        range_m: (H, W) float64 range of every beam, 0 where it returned nothing.
+    """
+
+    xyz: npt.NDArray[np.float32]
+    intensity: npt.NDArray[np.float32]
+    labels: npt.NDArray[np.uint32]
+    ring: npt.NDArray[np.int64]
+    column: npt.NDArray[np.int64]
+    source_frame: npt.NDArray[np.int32]
+    source_point: npt.NDArray[np.int64]
+    range_m: F64
+
+
+def profile_detector(target: SensorProfile) -> Detector:
+    """The target's median detection: albedo cos / R^2 at least its detection limit's
+    reflectivity / range^2 (`detection` of the profile, docs/physics.md §9.7)."""
+    limit = target.detection.reflectivity / target.detection.range_m**2
+
+    def detected(albedo: F64, cos: F64, range_m: F64) -> npt.NDArray[np.bool_]:
+        return albedo * cos / (range_m * range_m) >= limit
+
+    return detected
+
+
+def transfer_scan(
+    window: Sequence[WindowScan],
+    centre: int,
+    source: SensorProfile,
+    target: SensorProfile,
+    rng: np.random.Generator,
+    *,
+    label_set: str | None = None,
+    azimuth_offset_rad: float = 0.0,
+    target_from_source: F64 | None = None,
+    detector: Detector | None = None,
+    shape: SurfelShape = DEFAULT_SHAPE,
+) -> TransferredScan:
+    """Scan `window[centre]` again with the `target` sensor.
+
+    Args:
+        window: neighbouring scans of one sequence with their poses, in time order.
+        centre: index of the scan to transfer.
+        source: the sensor of the window's scans; target: the sensor to scan with.
+        rng: randomness of the target's range noise.
+        label_set: the label set of the labels (moving classes, retro-reflectors), or None.
+        azimuth_offset_rad: where the target's azimuth grid starts (its firing phase).
+        target_from_source: (4, 4) pose of the target in the source sensor's frame
+            (identity: mounted at the same place).
+        detector: which returns the target detects; default `profile_detector(target)`.
+        shape: how large the surfels are (`surfels.SurfelShape`).
+
+    Raises:
+        InputDataError: `centre` outside the window, or a pose that is not (4, 4) and finite.
+    """
+    parts = [window_surfels(scan, k, source, label_set, shape) for k, scan in enumerate(window)]
+    return transfer_surfels(parts, [s.pose for s in window], centre, source, target, rng,
+                            label_set=label_set, azimuth_offset_rad=azimuth_offset_rad,
+                            target_from_source=target_from_source,
+                            detector=detector)  # fmt: skip
+
+
+def window_surfels(
+    scan: WindowScan,
+    index: int,
+    source: SensorProfile,
+    label_set: str | None,
+    shape: SurfelShape = DEFAULT_SHAPE,
+) -> Surfels:
+    """The surfels of one window scan in its sensor frame (compute once per scan: every
+    window that holds the scan reuses them). Returns of the recording vehicle's own body
+    (classes marked `ego` in materials.yaml) give none: the target sits on another vehicle."""
+    bits = label_set is not None and has_instance_bits(label_set)
+    retro = None
+    if label_set is not None and scan.labels is not None:
+        classes = _class_ids(scan.labels, bits)
+        roles = class_roles(label_set)
+        retro = np.isin(classes, sorted(roles.retroreflective))
+    refl = source.intensity.to_reflectivity(scan.intensity)
+    s = scan_surfels(scan.xyz, refl, source, labels=scan.labels, retro=retro,
+                     ring=scan.ring, frame=index, shape=shape)  # fmt: skip
+    if label_set is not None and scan.labels is not None and roles.ego:
+        s = s.take(~np.isin(_class_ids(s.label, bits), sorted(roles.ego)))
+    return s
+
+
+def transfer_surfels(
+    parts: Sequence[Surfels],
+    poses: Sequence[F64],
+    centre: int,
+    source: SensorProfile,
+    target: SensorProfile,
+    rng: np.random.Generator,
+    *,
+    label_set: str | None = None,
+    azimuth_offset_rad: float = 0.0,
+    target_from_source: F64 | None = None,
+    detector: Detector | None = None,
+) -> TransferredScan:
+    """`transfer_scan` from each window scan's surfels (`window_surfels`) and poses."""
+    if not 0 <= centre < len(parts) or len(poses) != len(parts):
+        raise InputDataError(
+            f"transfer: centre {centre} of a window of {len(parts)} scans and {len(poses)} "
+            "poses; pass one pose per scan and a centre inside the window."
+        )
+    for k, pose in enumerate(poses):
+        if np.shape(pose) != (4, 4) or not np.isfinite(pose).all():
+            raise InputDataError(f"transfer: pose of window scan {k} is not a finite 4 x 4 matrix.")
+    poses64 = [np.asarray(pose, dtype=np.float64) for pose in poses]
+    bits = label_set is not None and has_instance_bits(label_set)
+    kept = [np.flatnonzero(m) for m in _static(parts, poses64, centre, label_set, bits)]
+    mount = np.eye(4) if target_from_source is None else np.asarray(target_from_source, float)
+    to_target = np.linalg.inv(poses64[centre] @ mount)
+    geometry = Surfels.gather(parts, kept, [to_target @ pose for pose in poses64], GEOMETRY)
+    hits = cast_beams(geometry, np.radians(np.asarray(target.elevation_deg)),
+                      target.range_image_width, azimuth_offset_rad=azimuth_offset_rad,
+                      max_range_m=target.max_range_m)  # fmt: skip
+    return _returns(hits, _Lookup(parts, kept), source, target, rng,
+                    detector or profile_detector(target))  # fmt: skip
+
+
+@dataclass(frozen=True, slots=True)
+class _Lookup:
+    """Per-surfel facts of the gathered scene that only its beams' owners need."""
+
+    parts: Sequence[Surfels]
+    kept: list[npt.NDArray[np.int64]]
+
+    def __call__(self, who: npt.NDArray[np.int64], name: str) -> npt.NDArray[np.generic]:
+        """Field `name` of the gathered surfels `who` (indices into the gathered scene)."""
+        offsets = np.cumsum([0] + [len(k) for k in self.kept])
+        part = np.searchsorted(offsets, who, side="right") - 1
+        first = getattr(self.parts[0], name)
+        out = np.empty(len(who), dtype=first.dtype)
+        for p in np.unique(part):
+            mine = part == p
+            out[mine] = getattr(self.parts[p], name)[self.kept[p][who[mine] - offsets[p]]]
+        return out
+
+
+def _class_ids(labels: npt.ArrayLike, instance_bits: bool) -> npt.NDArray[np.int64]:
+    ids = np.asarray(labels).astype(np.int64)
+    return ids & MAX_CLASS_ID if instance_bits else ids
+
+
+def _static(
+    parts: Sequence[Surfels], poses: list[F64], centre: int, label_set: str | None, bits: bool
+) -> list[npt.NDArray[np.bool_]]:
+    """Per scan, the surfels a neighbouring scan may lend: not of a moving class, and not of
+    an instance (id > 0) that is absent from the centre scan or whose world centroid moved
+    more than MOVING_INSTANCE_M against it there."""
+    moving = sorted(class_roles(label_set).moving) if label_set is not None else []
+    ref_n, ref_xyz = _centroids(parts[centre], poses[centre]) if bits else (None, None)
+    keep = []
+    for k, part in enumerate(parts):
+        ok = np.ones(len(part), dtype=bool)
+        if k != centre and moving:
+            ok &= ~np.isin(part.label & np.uint32(MAX_CLASS_ID), moving)
+        if k != centre and ref_n is not None and ref_xyz is not None:
+            n, xyz = _centroids(part, poses[k])
+            shift = np.linalg.norm(xyz - ref_xyz, axis=1)
+            gone = (n > 0) & ((ref_n == 0) | (shift > MOVING_INSTANCE_M))
+            gone[0] = False  # id 0: no instance
+            if gone.any():
+                ok &= ~gone[part.label >> np.uint32(16)]
+        keep.append(ok)
+    return keep
+
+
+def _centroids(part: Surfels, pose: F64) -> tuple[npt.NDArray[np.int64], F64]:
+    """(65536,) surfels per instance id of a scan and (65536, 3) their world centroids."""
+    ids = (part.label >> np.uint32(16)).astype(np.int64)
+    n = np.bincount(ids, minlength=1 << 16)
+    sums = np.stack([np.bincount(ids, weights=part.centre[:, a], minlength=1 << 16)
+                     for a in range(3)], axis=1)  # fmt: skip
+    mean = sums / np.maximum(n, 1)[:, None]
+    return n, mean @ pose[:3, :3].T + pose[:3, 3]
+
+
+def _returns(
+    hits: BeamHits,
+    lookup: _Lookup,
+    source: SensorProfile,
+    target: SensorProfile,
+    rng: np.random.Generator,
+    detector: Detector,
+) -> TransferredScan:
+    """The returns the target records from its beams' hits, in its file order."""
+    t = hits.range_m
+    in_range = np.isfinite(t) & (t >= target.min_range_m) & (t <= target.max_range_m)
+    owner = np.where(in_range, hits.owner, -1)
+    flat = np.flatnonzero(owner[::-1].reshape(-1) >= 0)  # top channel first, then azimuth
+    rows, cols = np.divmod(flat, t.shape[1])
+    ring = (t.shape[0] - 1 - rows).astype(np.int64)
+    who = owner[ring, cols]
+    cos = np.where(lookup(who, "retro"), 1.0, hits.cos_incidence[ring, cols])
+    albedo = hits.reflectivity[ring, cols] / np.maximum(cos, ALBEDO_MIN_COS)
+    rng_m = t[ring, cols]
+    seen = detector(albedo, cos, rng_m)
+    ring, cols, who, rng_m = ring[seen], cols[seen], who[seen], rng_m[seen]
+    refl = hits.reflectivity[ring, cols]
+    # The source's range noise is already in its returns: only the excess is added.
+    extra = np.sqrt(max(target.range_accuracy_m**2 - source.range_accuracy_m**2, 0.0))
+    if extra > 0:
+        rng_m = rng_m + rng.normal(0.0, extra, rng_m.size)
+    d = hits.directions()[ring, cols]
+    image = np.zeros_like(t)
+    image[ring, cols] = rng_m
+    return TransferredScan(
+        xyz=(d * rng_m[:, None]).astype(np.float32),
+        intensity=target.intensity.from_reflectivity(refl),
+        labels=lookup(who, "label").astype(np.uint32),
+        ring=ring,
+        column=cols.astype(np.int64),
+        source_frame=lookup(who, "frame").astype(np.int32),
+        source_point=lookup(who, "point").astype(np.int64),
+        range_m=image,
+    )

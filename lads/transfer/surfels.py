@@ -1,0 +1,227 @@
+"""A surfel scene model from scans and poses (docs/transfer.md §1).
+
+Every return of a source scan becomes a surfel: a small ellipse in the surface's plane,
+centred on the return, that covers the patch the source beam sampled. Its normal comes from
+the scan's own range image (neighbouring rings and azimuths); its two conjugate semi-axes are
+the source's azimuth step and ring gap at that range, projected along the beam onto the plane
+(so they stretch by 1 / cos on oblique surfaces), times a share. An ellipse, not a disk: a
+32-ring scan's rings lie four times farther apart than its azimuth samples, and a disk as wide
+as the ring gap fattens every object's edges sideways. A surfel keeps the return's label and
+the surface's albedo (its reflectivity divided by the source's cos of incidence). Surfels of
+several scans, moved into one frame with their poses, are the scene a target sensor is
+ray-cast against (`lads.transfer.cast`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from lads.physics.image_kernels import image_normals
+from lads.physics.modalities import DEFAULT_MAX_DEPTH_JUMP, MAX_COLUMN_GAP
+from lads.physics.projection import MIN_RANGE_M, organise
+from lads.sensors.profile import SensorProfile
+
+# Semi-axes of a surfel as a share of its beam cell (azimuth step by ring gap, at its range),
+# and the incidence cosine below which its stretching on oblique surfaces stops (a grazing
+# patch is long along the beam, but a longer ellipse reaches across edges it never sampled).
+# The share is at least 1 / sqrt(2), so one scan tiles a surface by itself (a stopped vehicle's
+# window adds no new samples); both values chosen on validation streets by Chamfer distance
+# (benchmarks/sensor_transfer.py).
+RADIUS_SHARE = 0.75
+MIN_COS = 0.1
+# Floor of the cos an albedo is divided by (against division by zero only).
+ALBEDO_MIN_COS = 0.02
+F64 = npt.NDArray[np.float64]
+_VECTORS = ("normal", "axis_a", "axis_b")  # fields that turn (but do not shift) with a pose
+
+
+@dataclass(frozen=True, slots=True)
+class SurfelShape:
+    """How large surfels are: `radius_share` of the beam cell, stretched on oblique surfaces
+    down to an incidence cosine of `min_cos`."""
+
+    radius_share: float = RADIUS_SHARE
+    min_cos: float = MIN_COS
+
+
+DEFAULT_SHAPE = SurfelShape()
+
+
+@dataclass(frozen=True, slots=True)
+class Surfels:
+    """Disks of one or more scans in one frame.
+
+    Attributes:
+        centre: (M, 3) float64 disk centres, m.
+        normal: (M, 3) float64 unit normals, facing the sensor that saw them.
+        axis_a, axis_b: (M, 3) float64 conjugate semi-axes of the ellipse in its plane, m
+            (along the source's azimuth and elevation steps).
+        radius_m: (M,) float64 a radius that bounds the ellipse (|axis_a| + |axis_b|), m.
+        label: (M,) uint32 stored label of the source return (0 when unlabelled).
+        albedo: (M,) float64 reflectivity / cos(incidence) of the surface, unitless.
+        weight: (M,) float64 how much the albedo is to be trusted: the source's cos^2 of
+            incidence (1 for retro-reflectors), the weight of a least-squares albedo.
+        retro: (M,) bool, a retro-reflector (returns as much at any incidence).
+        frame: (M,) int32 index of the source scan in the window.
+        point: (M,) int64 row of the source return in its scan file.
+    """
+
+    centre: F64
+    normal: F64
+    axis_a: F64
+    axis_b: F64
+    radius_m: F64
+    label: npt.NDArray[np.uint32]
+    albedo: F64
+    weight: F64
+    retro: npt.NDArray[np.bool_]
+    frame: npt.NDArray[np.int32]
+    point: npt.NDArray[np.int64]
+
+    def __len__(self) -> int:
+        return int(self.centre.shape[0])
+
+    def take(self, keep: npt.NDArray[np.bool_] | npt.NDArray[np.int64]) -> Surfels:
+        """The surfels selected by a mask or index array."""
+        return Surfels(*(getattr(self, f)[keep] for f in self.__slots__))  # type: ignore[arg-type]
+
+    def moved(self, pose: F64) -> Surfels:
+        """The surfels in the frame `pose` (4, 4) maps them to: x' = R x + t."""
+        rot, shift = pose[:3, :3], pose[:3, 3]
+        return Surfels(self.centre @ rot.T + shift, self.normal @ rot.T, self.axis_a @ rot.T,
+                       self.axis_b @ rot.T, self.radius_m, self.label, self.albedo,
+                       self.weight, self.retro, self.frame, self.point)  # fmt: skip
+
+    @staticmethod
+    def gather(
+        parts: Sequence[Surfels],
+        kept: Sequence[npt.NDArray[np.int64]],
+        poses: Sequence[F64],
+        fields: Sequence[str] | None = None,
+    ) -> dict[str, npt.NDArray[np.generic]]:
+        """The `kept` surfels of every part, each part moved by its pose (4, 4), as one array
+        per field (`fields`: default all)."""
+
+        def field(name: str) -> npt.NDArray[np.generic]:
+            out = []
+            for p, idx, pose in zip(parts, kept, poses, strict=True):
+                v = getattr(p, name)[idx]
+                if name == "centre":
+                    v = v @ pose[:3, :3].T + pose[:3, 3]
+                elif name in _VECTORS:
+                    v = v @ pose[:3, :3].T
+                out.append(v)
+            return np.concatenate(out)
+
+        return {f: field(f) for f in (fields or Surfels.__slots__)}
+
+    @staticmethod
+    def concat(parts: list[Surfels]) -> Surfels:
+        """One set of every part's surfels, in order."""
+        return Surfels(*(np.concatenate([getattr(p, f) for p in parts]) for f in Surfels.__slots__))  # type: ignore[arg-type]
+
+
+def scan_surfels(
+    xyz: npt.ArrayLike,
+    reflectivity: npt.ArrayLike,
+    profile: SensorProfile,
+    *,
+    labels: npt.ArrayLike | None = None,
+    retro: npt.ArrayLike | None = None,
+    ring: npt.ArrayLike | None = None,
+    frame: int = 0,
+    shape: SurfelShape = DEFAULT_SHAPE,
+) -> Surfels:
+    """The surfels of one scan, in its sensor frame.
+
+    Args:
+        xyz: (N, 3) coordinates in m, sensor frame. Returns at zero range (lost beams) give
+            no surfel.
+        reflectivity: (N,) linear reflectivity of each return (the encoding's
+            `to_reflectivity` of the stored intensity).
+        profile: the source sensor (elevations, range image width).
+        labels: (N,) stored labels, or None.
+        retro: (N,) bool, returns of retro-reflectors (their albedo is not divided by cos).
+        ring: (N,) channel per point, or None to take the nearest elevation.
+        frame: the scan's index in its window (kept per surfel).
+        shape: surfel size (`SurfelShape`).
+
+    Returns:
+        Surfels, one per return beyond MIN_RANGE_M, in file order.
+    """
+    xyz64 = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
+    r = np.sqrt(np.einsum("ij,ij->i", xyz64, xyz64))
+    valid = np.flatnonzero(r > MIN_RANGE_M)
+    pts, rng_m = xyz64[valid], r[valid]
+    chan = _channels(pts, rng_m, profile, None if ring is None else np.asarray(ring)[valid])
+    image = organise(pts, rng_m, chan, profile.channels, profile.range_image_width)
+    raw, ok = image_normals(image.xyz.astype(np.float64), image.range_m.astype(np.float64),
+                            image.index >= 0, MAX_COLUMN_GAP, DEFAULT_MAX_DEPTH_JUMP)  # fmt: skip
+    view = pts / rng_m[:, None]
+    normal = -view.copy()  # no estimate: a disk facing the sensor
+    owner = image.index[image.row, image.col] == np.arange(len(pts))
+    good = owner & ok[image.row, image.col]
+    est = raw[image.row[good], image.col[good]]
+    est /= np.linalg.norm(est, axis=1, keepdims=True)
+    flip = np.einsum("ij,ij->i", est, view[good]) > 0
+    est[flip] *= -1.0
+    normal[good] = est
+    cos_raw = -np.einsum("ij,ij->i", normal, view)
+    cos = np.clip(cos_raw, shape.min_cos, 1.0)
+    axis_a, axis_b = _cell_axes(pts, rng_m, view, normal, cos, profile, chan,
+                                shape.radius_share)  # fmt: skip
+    radius = np.linalg.norm(axis_a, axis=1) + np.linalg.norm(axis_b, axis=1)
+    refl = np.asarray(reflectivity, dtype=np.float64)[valid]
+    is_retro = (np.zeros(len(r), bool) if retro is None else np.asarray(retro, bool))[valid]
+    # The target multiplies by its own cos of the same normal: dividing by the same raw cos
+    # here (floored only against division by zero) keeps the two estimates' errors cancelling.
+    c = np.clip(cos_raw, ALBEDO_MIN_COS, 1.0)
+    albedo = np.where(is_retro, refl, refl / c)
+    weight = np.where(is_retro, 1.0, c * c)
+    lab = np.zeros(len(pts), np.uint32) if labels is None else np.asarray(labels)[valid]
+    return Surfels(pts, normal, axis_a, axis_b, radius, lab.astype(np.uint32), albedo, weight,
+                   is_retro,
+                   np.full(len(pts), frame, np.int32), valid.astype(np.int64))  # fmt: skip
+
+
+def _channels(
+    pts: F64, r: F64, profile: SensorProfile, ring: npt.NDArray[np.generic] | None
+) -> npt.NDArray[np.int64]:
+    if ring is not None:
+        return np.clip(np.asarray(ring).astype(np.int64), 0, profile.channels - 1)
+    return profile.channel_of(pts)
+
+
+def _cell_axes(
+    pts: F64,
+    r: F64,
+    view: F64,
+    normal: F64,
+    cos: F64,
+    profile: SensorProfile,
+    chan: npt.NDArray[np.int64],
+    share: float,
+) -> tuple[F64, F64]:
+    """(N, 3) each: the azimuth step and the ring gap of each return's beam cell at its range,
+    projected along the beam onto its plane, times `share`."""
+    el = np.radians(np.asarray(profile.elevation_deg, dtype=np.float64))
+    gaps = np.diff(el)
+    below = np.concatenate([[gaps[0]], gaps])
+    above = np.concatenate([gaps, [gaps[-1]]])
+    d_el = np.maximum(below, above)[chan]
+    d_az = 2.0 * np.pi / profile.range_image_width
+    horiz = np.maximum(np.hypot(pts[:, 0], pts[:, 1]), 1e-9)
+    east = np.stack([-pts[:, 1] / horiz, pts[:, 0] / horiz, np.zeros(len(pts))], axis=1)
+    up = np.cross(view, east)  # unit, along rising elevation
+    scale = share * r
+
+    def onto_plane(step: F64) -> F64:
+        # x - v (n . x) / (n . v): where the beam's neighbour would meet the plane.
+        along = np.einsum("ij,ij->i", normal, step) / cos
+        return step + view * along[:, None]
+
+    return onto_plane(east * (scale * d_az)[:, None]), onto_plane(up * (scale * d_el)[:, None])
