@@ -204,6 +204,32 @@ def read_labels(
     return labels
 
 
+def read_scan_and_labels(
+    root: Path,
+    item: Item,
+    columns: tuple[str, ...],
+    scan_what: str,
+    label_dtype: np.dtype,
+    label_what: str,
+    why: str,
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """An item's (N, len(columns)) float32 scan, finite, and its (N,) labels when the item
+    has a label file (`why` it must exist, for the message when it does not).
+
+    Raises:
+        CorruptItemError: naming the scan or label file that is unreadable, mis-sized,
+            non-finite or of another length.
+    """
+    path = root / item.relpath
+    points = read_records(path, np.float32, len(columns), scan_what)
+    check_finite(points, path, columns)
+    labels = None
+    if item.label_relpath is not None:
+        labels = read_labels(root / item.label_relpath, label_dtype, points.shape[0], label_what,
+                             path, why=why)  # fmt: skip
+    return points, labels
+
+
 def encode_points(frame: Frame, n_columns: int, relpath: str) -> EncodedFile:
     """(M, n_columns) float32 points of `frame` -> headerless little-endian scan bytes."""
     from lads.errors import InvalidPointsError

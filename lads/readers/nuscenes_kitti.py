@@ -28,12 +28,10 @@ from lads.errors import CorruptItemError, DatasetNotFoundError
 from lads.frame import Frame, Item
 from lads.readers.base import (
     EncodedFile,
-    check_finite,
     encode_scan_and_labels,
     entries_matching,
     present,
-    read_labels,
-    read_records,
+    read_scan_and_labels,
 )
 from lads.readers.poses import read_pose_lines
 
@@ -122,16 +120,11 @@ class NuScenesKittiReader:
 
     def read(self, item: Item) -> Frame:
         """Scan (N, 4) float32 and, when the scene is labelled, labels (N,) uint8."""
-        path = self.root / item.relpath
-        points = read_records(path, np.float32, 4, "nuScenes KITTI-style scan (N x 4 float32)")
-        check_finite(points, path, self.columns)
-        labels = None
-        if item.label_relpath is not None:
-            labels = read_labels(
-                self.root / item.label_relpath, self.label_dtype, points.shape[0],
-                "lidarseg labels (uint8 per point)", path,
-                why=f"this scene has a {LABELS}/ folder",
-            )  # fmt: skip
+        points, labels = read_scan_and_labels(
+            self.root, item, self.columns, "nuScenes KITTI-style scan (N x 4 float32)",
+            self.label_dtype, "lidarseg labels (uint8 per point)",
+            f"this scene has a {LABELS}/ folder",
+        )  # fmt: skip
         return Frame.from_source(item, self.sensor, self.columns, points, labels)
 
     def encode(self, frame: Frame) -> list[EncodedFile]:

@@ -22,13 +22,7 @@ import numpy as np
 
 from lads.errors import DatasetNotFoundError
 from lads.frame import Frame, Item
-from lads.readers.base import (
-    EncodedFile,
-    check_finite,
-    encode_scan_and_labels,
-    read_labels,
-    read_records,
-)
+from lads.readers.base import EncodedFile, encode_scan_and_labels, read_scan_and_labels
 
 SCAN_SUFFIX = ".pcd.bin"
 POINTS_NAME, LABELS_NAME = "points.bin", "ground.bin"
@@ -83,16 +77,11 @@ class NuScenesScansReader:
 
     def read(self, item: Item) -> Frame:
         """Scan (N, 5) float32 and, when it has a `ground.bin`, labels (N,) uint8."""
-        path = self.root / item.relpath
-        points = read_records(path, np.float32, 5, "nuScenes LIDAR_TOP scan (N x 5 float32)")
-        check_finite(points, path, self.columns)
-        labels = None
-        if item.label_relpath is not None:
-            labels = read_labels(
-                self.root / item.label_relpath, self.label_dtype, points.shape[0],
-                "lidarseg labels (uint8 per point)", path,
-                why=f"a {LABELS_NAME} lies beside the scan",
-            )  # fmt: skip
+        points, labels = read_scan_and_labels(
+            self.root, item, self.columns, "nuScenes LIDAR_TOP scan (N x 5 float32)",
+            self.label_dtype, "lidarseg labels (uint8 per point)",
+            f"a {LABELS_NAME} lies beside the scan",
+        )  # fmt: skip
         return Frame.from_source(item, self.sensor, self.columns, points, labels)
 
     def encode(self, frame: Frame) -> list[EncodedFile]:

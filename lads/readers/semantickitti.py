@@ -26,13 +26,11 @@ from lads.errors import CorruptItemError, DatasetNotFoundError
 from lads.frame import Frame, Item
 from lads.readers.base import (
     EncodedFile,
-    check_finite,
     encode_scan_and_labels,
     entries_matching,
     normalize_sequences,
     present,
-    read_labels,
-    read_records,
+    read_scan_and_labels,
     select_sequences,
 )
 from lads.readers.poses import kitti_velodyne_to_camera, read_pose_lines
@@ -112,19 +110,10 @@ class SemanticKittiReader:
 
     def read(self, item: Item) -> Frame:
         """Scan (N, 4) float32 and, when the item has them, labels (N,) uint32."""
-        path = self.root / item.relpath
-        points = read_records(path, np.float32, 4, self.scan_what)
-        check_finite(points, path, self.columns)
-        labels = None
-        if item.label_relpath is not None:
-            labels = read_labels(
-                self.root / item.label_relpath,
-                self.label_dtype,
-                points.shape[0],
-                self.label_what,
-                path,
-                why="this sequence has a labels/ folder",
-            )
+        points, labels = read_scan_and_labels(
+            self.root, item, self.columns, self.scan_what, self.label_dtype, self.label_what,
+            "this sequence has a labels/ folder",
+        )  # fmt: skip
         return Frame.from_source(item, self.sensor, self.columns, points, labels)
 
     def encode(self, frame: Frame) -> list[EncodedFile]:
