@@ -132,12 +132,7 @@ def material_index_for_labels(labels: npt.ArrayLike, label_set: str) -> npt.NDAr
 
 def _classes_of(labels: npt.ArrayLike, label_set: str) -> tuple[_LabelSet, npt.NDArray[np.intp]]:
     """The label set and each point's class id (warning once about ids without a material)."""
-    table = _table()
-    if label_set not in table.label_sets:
-        raise ConfigError(
-            f"unknown label set '{label_set}'; known label sets: {', '.join(LABEL_SETS)}."
-        )
-    lset = table.label_sets[label_set]
+    lset = _label_set_of(label_set)
     ids = _class_ids(labels, lset.instance_bits)
     unknown = ~lset.known[ids]
     if unknown.any():
@@ -185,26 +180,18 @@ def material_table() -> dict[str, Material]:
 
 def class_materials(label_set: str) -> dict[int, tuple[str, str]]:
     """Class id -> (class name, material name) for one label set, `extends` resolved."""
-    table = _table()
-    if label_set not in table.label_sets:
-        raise ConfigError(
-            f"unknown label set '{label_set}'; known label sets: {', '.join(LABEL_SETS)}."
-        )
-    return dict(table.label_sets[label_set].classes)
+    return dict(_label_set_of(label_set).classes)
 
 
 def class_roles(label_set: str) -> ClassRoles:
-    """The classes of `label_set` by surface role (materials.yaml `finish`, `ground`, `flat`).
+    """The classes of `label_set` by role (materials.yaml `finish`, `ground`, `flat`,
+    `moving`, `ego`).
 
     Raises:
         ConfigError: unknown label set.
     """
     table = _table()
-    if label_set not in table.label_sets:
-        raise ConfigError(
-            f"unknown label set '{label_set}'; known label sets: {', '.join(LABEL_SETS)}."
-        )
-    lset = table.label_sets[label_set]
+    lset = _label_set_of(label_set)
 
     def finished(finish: str) -> frozenset[int]:
         return frozenset(
@@ -223,12 +210,16 @@ def has_instance_bits(label_set: str) -> bool:
     Raises:
         ConfigError: unknown label set.
     """
+    return _label_set_of(label_set).instance_bits
+
+
+def _label_set_of(label_set: str) -> _LabelSet:
     table = _table()
     if label_set not in table.label_sets:
         raise ConfigError(
             f"unknown label set '{label_set}'; known label sets: {', '.join(LABEL_SETS)}."
         )
-    return table.label_sets[label_set].instance_bits
+    return table.label_sets[label_set]
 
 
 def _class_ids(labels: npt.ArrayLike, instance_bits: bool) -> npt.NDArray[np.intp]:
