@@ -90,10 +90,12 @@ def cast_beams(
     g: dict[str, Any] = (
         surfels if isinstance(surfels, dict) else {f: getattr(surfels, f) for f in GEOMETRY}
     )
-    t, owner, refl = _splat(g["centre"], g["normal"], g["axis_a"], g["axis_b"],
-                      g["radius_m"], g["albedo"], g["weight"], g["retro"], el,
-                      float(azimuth_offset_rad), int(columns), float(max_range_m),
-                      depth_tol_m, depth_tol_share)  # fmt: skip
+    best, best_cos, pix, hit_t, hit_cos, hit_w, hit_i = _record_hits(
+        g["centre"], g["normal"], g["axis_a"], g["axis_b"], g["radius_m"], el,
+        float(azimuth_offset_rad), int(columns), float(max_range_m),
+    )  # fmt: skip
+    t, owner, refl = _blend(best, best_cos, pix, hit_t, hit_cos, hit_w, hit_i, g["albedo"],
+                            g["weight"], g["retro"], depth_tol_m, depth_tol_share)  # fmt: skip
     hit = owner >= 0
     cos = np.zeros(t.shape)
     if hit.any():
@@ -103,47 +105,31 @@ def cast_beams(
 
 
 @numba.njit(cache=True, nogil=True)
-def _splat(
+def _record_hits(
     centre: F64,
     normal: F64,
     axis_a: F64,
     axis_b: F64,
     radius: F64,
-    albedo: F64,
-    trust: F64,
-    retro: npt.NDArray[np.bool_],
     el: F64,
     az0: float,
     columns: int,
     max_range: float,
-    depth_tol_m: float,
-    depth_tol_share: float,
-) -> tuple[F64, npt.NDArray[np.int64], F64]:
-    """(H, W) blended hit distance (inf: none), owning surfel (-1: none) and blended
-    reflectivity (0: none).
+) -> tuple[F64, F64, npt.NDArray[np.int64], F64, F64, F64, npt.NDArray[np.int64]]:
+    """Pass 1 of the cast: every surfel's hits, and each beam's nearest one.
 
     A beam meets a surfel where it crosses the surfel's plane at (alpha, beta) in the basis
-    of its semi-axes with alpha^2 + beta^2 <= 1. Pass 1 finds each beam's nearest hit t0.
-    Pass 2 blends every hit within max(depth_tol_m, depth_tol_share t0) / max(cos,
-    MIN_TOL_COS) behind it (cos: the incidence on the nearest surfel), weighted 1 - alpha^2
-    - beta^2: the surfels of one surface then vote for its depth instead of the nearest of
-    them winning (the nearest of many noisy surfels lies in front of the surface). The owner
-    is the surfel hit nearest its centre. Scalars only inside the loops: a numba helper
-    taking arrays costs far more than its work here."""
+    of its semi-axes with alpha^2 + beta^2 <= 1. Returns (H, W) nearest hit distance t0 (inf:
+    none) and |cos| of incidence there, then one record per hit: beam (k * W + j), distance,
+    |cos|, weight 1 - alpha^2 - beta^2 and surfel. Scalars only inside the loops: a numba
+    helper taking arrays costs far more than its work here."""
     rows = el.shape[0]
     step = 2.0 * math.pi / columns
     cos_el, sin_el = np.cos(el), np.sin(el)
     az = az0 + (np.arange(columns) + 0.5) * step
     cos_az, sin_az = np.cos(az), np.sin(az)
     best = np.full((rows, columns), np.inf)
-    owner = np.full((rows, columns), -1, dtype=np.int64)
-    sum_w = np.zeros((rows, columns))
-    sum_wt = np.zeros((rows, columns))
-    sum_wn = np.zeros((rows, columns))
-    sum_wd = np.zeros((rows, columns))
-    best_w = np.full((rows, columns), -1.0)
     best_cos = np.ones((rows, columns))
-    # Pass 1 records every hit (beam, depth, |cos|, weight, surfel); pass 2 reads the record.
     cap = 2 * centre.shape[0] + 1024
     hit_pix = np.empty(cap, dtype=np.int64)
     hit_t = np.empty(cap)
@@ -218,7 +204,39 @@ def _splat(
                 hit_w[n] = 1.0 - d2 + 1e-6
                 hit_i[n] = i
                 n += 1
-    for h in range(n):
+    return best, best_cos, hit_pix[:n], hit_t[:n], hit_cos[:n], hit_w[:n], hit_i[:n]
+
+
+@numba.njit(cache=True, nogil=True)
+def _blend(
+    best: F64,
+    best_cos: F64,
+    hit_pix: npt.NDArray[np.int64],
+    hit_t: F64,
+    hit_cos: F64,
+    hit_w: F64,
+    hit_i: npt.NDArray[np.int64],
+    albedo: F64,
+    trust: F64,
+    retro: npt.NDArray[np.bool_],
+    depth_tol_m: float,
+    depth_tol_share: float,
+) -> tuple[F64, npt.NDArray[np.int64], F64]:
+    """Pass 2: (H, W) blended distance (inf: none), owner (-1: none), reflectivity (0: none).
+
+    Every hit within max(depth_tol_m, depth_tol_share t0) / max(cos, MIN_TOL_COS) behind the
+    beam's nearest (cos: the incidence there) votes with its weight: the surfels of one
+    surface then vote for its depth instead of the nearest of them winning (the nearest of
+    many noisy surfels lies in front of the surface). The owner is the hit nearest its
+    surfel's centre."""
+    rows, columns = best.shape
+    owner = np.full((rows, columns), -1, dtype=np.int64)
+    sum_w = np.zeros((rows, columns))
+    sum_wt = np.zeros((rows, columns))
+    sum_wn = np.zeros((rows, columns))
+    sum_wd = np.zeros((rows, columns))
+    best_w = np.full((rows, columns), -1.0)
+    for h in range(hit_pix.shape[0]):
         k = hit_pix[h] // columns
         j = hit_pix[h] - k * columns
         t = hit_t[h]

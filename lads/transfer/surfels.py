@@ -158,18 +158,8 @@ def scan_surfels(
     valid = np.flatnonzero(r > MIN_RANGE_M)
     pts, rng_m = xyz64[valid], r[valid]
     chan = _channels(pts, rng_m, profile, None if ring is None else np.asarray(ring)[valid])
-    image = organise(pts, rng_m, chan, profile.channels, profile.range_image_width)
-    raw, ok = image_normals(image.xyz.astype(np.float64), image.range_m.astype(np.float64),
-                            image.index >= 0, MAX_COLUMN_GAP, DEFAULT_MAX_DEPTH_JUMP)  # fmt: skip
     view = pts / rng_m[:, None]
-    normal = -view.copy()  # no estimate: a disk facing the sensor
-    owner = image.index[image.row, image.col] == np.arange(len(pts))
-    good = owner & ok[image.row, image.col]
-    est = raw[image.row[good], image.col[good]]
-    est /= np.linalg.norm(est, axis=1, keepdims=True)
-    flip = np.einsum("ij,ij->i", est, view[good]) > 0
-    est[flip] *= -1.0
-    normal[good] = est
+    normal = _normals(pts, rng_m, view, chan, profile)
     cos_raw = -np.einsum("ij,ij->i", normal, view)
     cos = np.clip(cos_raw, shape.min_cos, 1.0)
     axis_a, axis_b = _cell_axes(pts, rng_m, view, normal, cos, profile, chan,
@@ -184,8 +174,28 @@ def scan_surfels(
     weight = np.where(is_retro, 1.0, c * c)
     lab = np.zeros(len(pts), np.uint32) if labels is None else np.asarray(labels)[valid]
     return Surfels(pts, normal, axis_a, axis_b, radius, lab.astype(np.uint32), albedo, weight,
-                   is_retro,
-                   np.full(len(pts), frame, np.int32), valid.astype(np.int64))  # fmt: skip
+                   is_retro, np.full(len(pts), frame, np.int32),
+                   valid.astype(np.int64))  # fmt: skip
+
+
+def _normals(
+    pts: F64, r: F64, view: F64, chan: npt.NDArray[np.int64], profile: SensorProfile
+) -> F64:
+    """(N, 3) unit normals facing the sensor, from the scan's range image; a return that
+    does not own its pixel or has no usable neighbourhood gets the view direction reversed
+    (a disk facing the sensor)."""
+    image = organise(pts, r, chan, profile.channels, profile.range_image_width)
+    raw, ok = image_normals(image.xyz.astype(np.float64), image.range_m.astype(np.float64),
+                            image.index >= 0, MAX_COLUMN_GAP, DEFAULT_MAX_DEPTH_JUMP)  # fmt: skip
+    normal = -view.copy()
+    owner = image.index[image.row, image.col] == np.arange(len(pts))
+    good = owner & ok[image.row, image.col]
+    est = raw[image.row[good], image.col[good]]
+    est /= np.linalg.norm(est, axis=1, keepdims=True)
+    flip = np.einsum("ij,ij->i", est, view[good]) > 0
+    est[flip] *= -1.0
+    normal[good] = est
+    return normal
 
 
 def _channels(
