@@ -7,7 +7,6 @@ message on stderr.
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 import sys
 from collections.abc import Callable
@@ -15,9 +14,8 @@ from pathlib import Path
 from typing import Any
 
 import click
-import numpy as np
 
-from lads.errors import ConfigError, LadsError
+from lads.errors import LadsError
 from lads.files import atomic_write
 from lads.physics.severity import SEVERITIES
 from lads.readers import READERS
@@ -56,6 +54,8 @@ class _LazyGroup(click.Group):
 
     LAZY = {
         "synth": ("lads.synth.command", "synth_command", False),
+        "weather": ("lads.weather_command", "weather_command", True),
+        "diagnose": ("lads.diagnose.command", "diagnose_command", True),
         "train": ("lads.intensity.commands", "train_command", True),
         "eval-intensity": ("lads.intensity.commands", "eval_intensity_command", True),
     }
@@ -116,91 +116,6 @@ def profiles() -> None:
             f"{p.vertical_fov_deg[0]:+.1f}..{p.vertical_fov_deg[1]:+.1f} deg  "
             f"{p.min_range_m:g}-{p.max_range_m:g} m  intensity {p.intensity.kind}  {p.description}"
         )
-
-
-@main.command()
-@click.argument("scan", type=click.Path(exists=True, dir_okay=False, path_type=Path))
-@click.argument("output", type=click.Path(dir_okay=False, path_type=Path))
-@click.option("--sensor", required=True, help="Profile name (see `lads profiles`).")
-@click.option(
-    "--columns",
-    type=int,
-    default=None,
-    help="float32 columns per point (default: 5 if the profile has a ring column, else 4).",
-)
-@click.option("--rain", "rain_mm_h", type=float, help="Rain rate, mm/h.")
-@click.option("--snow", "snow_mm_h", type=float, help="Snowfall rate (water equivalent), mm/h.")
-@click.option("--fog", "visibility_m", type=float, help="Fog visibility (MOR), m.")
-@click.option(
-    "--mode", type=click.Choice(["strongest", "last"]), default="strongest", show_default=True
-)
-@click.option("--seed", type=int, default=0, show_default=True)
-@click.option(
-    "--labels",
-    "labels_in",
-    type=click.Path(exists=True, dir_okay=False, path_type=Path),
-    help="Per-point uint32 labels to carry along.",
-)
-@click.option(
-    "--labels-out",
-    type=click.Path(dir_okay=False, path_type=Path),
-    help="Where to write the carried labels.",
-)
-@_lads_errors
-def weather(
-    scan: Path, output: Path, sensor: str, columns: int | None, rain_mm_h: float | None,
-    snow_mm_h: float | None, visibility_m: float | None, mode: str, seed: int,
-    labels_in: Path | None, labels_out: Path | None,
-) -> None:  # fmt: skip
-    """Apply one weather to a headerless float32 scan (KITTI .bin, nuScenes .pcd.bin).
-
-    Extra columns (e.g. the nuScenes ring) and labels follow each output point's source beam.
-    """
-    from lads.physics import weather as wx
-    from lads.readers.base import read_labels, read_records
-    from lads.sensors.profile import load_profile
-
-    chosen = [v is not None for v in (rain_mm_h, snow_mm_h, visibility_m)]
-    if sum(chosen) != 1:
-        raise click.UsageError("give exactly one of --rain, --snow, --fog")
-    profile = load_profile(sensor)
-    ncol = columns or (5 if profile.has_ring_column else 4)
-    # A lone file has no reader's layout: the shared record helpers read it (readers/base.py).
-    what = f"a scan of {ncol} float32 columns (pass --columns with the file's column count)"
-    points = read_records(scan, np.float32, ncol, what)
-    rng = np.random.default_rng(seed)
-    if rain_mm_h is not None:
-        result = wx.rain(
-            points[:, :3], points[:, 3], rate_mm_h=rain_mm_h, sensor=profile, rng=rng, mode=mode
-        )
-    elif snow_mm_h is not None:
-        result = wx.snow(
-            points[:, :3], points[:, 3], rate_mm_h=snow_mm_h, sensor=profile, rng=rng, mode=mode
-        )
-    else:
-        if visibility_m is None:  # exactly one of the three is given (checked above)
-            raise ConfigError("give exactly one of --rain, --snow, --fog")
-        result = wx.fog(
-            points[:, :3],
-            points[:, 3],
-            visibility_m=visibility_m,
-            sensor=profile,
-            rng=rng,
-            mode=mode,
-        )
-    out = points[result.source_index].copy()
-    out[:, :3] = result.xyz
-    out[:, 3] = result.intensity
-    atomic_write(output, out.tobytes())
-    if labels_in is not None:
-        labels = read_labels(labels_in, np.uint32, points.shape[0], "uint32 labels", scan)
-        target = labels_out or output.with_suffix(".label")
-        atomic_write(target, labels[result.source_index].tobytes())
-    c = result.counts()
-    click.echo(
-        f"{output}: {out.shape[0]} points (attenuated {c['attenuated']}, particle {c['particle']}, "
-        f"lost {c['lost']}); alpha = {result.extinction_per_m:.3e} 1/m"
-    )
 
 
 @main.command()
@@ -410,91 +325,6 @@ def card(out_root: Path) -> None:
     from lads.finalise import refresh_card
 
     click.echo(f"wrote {refresh_card(out_root)}")
-
-
-@main.command()
-@click.option(
-    "--sim",
-    "sim_root",
-    required=True,
-    type=click.Path(path_type=Path),
-    help="Simulated tree (the dataset's own layout).",
-)
-@click.option(
-    "--real",
-    "real_root",
-    required=True,
-    type=click.Path(path_type=Path),
-    help="Real tree of the same sensor.",
-)
-@click.option("--source", required=True, type=click.Choice(["semantickitti", "nuscenes", "wads"]))
-@click.option(
-    "--paired/--unpaired",
-    default=True,
-    show_default=True,
-    help="Paired: the same scans (same relative paths). Unpaired: other scenes of "
-    "the same sensor, compared by feature-conditional distributions only.",
-)
-@click.option("--out", required=True, type=click.Path(path_type=Path), help="Report folder.")
-@click.option("--seed", default=0, show_default=True, type=int)
-@click.option(
-    "--write-corrected",
-    "corrected",
-    type=click.Path(path_type=Path),
-    default=None,
-    help="Also write the simulated tree with the fitted effects applied here.",
-)
-@click.option(
-    "--resamples",
-    default=None,
-    type=int,
-    help="Selection reruns on group-bootstrap resamples (stability).",
-)
-@click.option("--bootstrap", default=None, type=int, help="Bootstrap refits for the CIs.")
-@click.option(
-    "--jobs",
-    default=None,
-    type=click.IntRange(min=1),
-    help="Processes for the resamples and bootstrap refits [default: 2]; the report does not "
-    "depend on it.",
-)
-@_lads_errors
-def diagnose(
-    sim_root: Path,
-    real_root: Path,
-    source: str,
-    paired: bool,
-    out: Path,
-    seed: int,
-    corrected: Path | None,
-    resamples: int | None,
-    bootstrap: int | None,
-    jobs: int | None,
-) -> None:
-    """Locate where simulation and reality differ, name and fit the missing physics."""
-    from lads.diagnose.run import diagnose as run_diagnose
-    from lads.diagnose.verdict.analysis import Settings
-
-    settings = Settings()
-    if resamples is not None:
-        settings = dataclasses.replace(settings, resamples=resamples)
-    if bootstrap is not None:
-        settings = dataclasses.replace(settings, bootstrap=bootstrap)
-    if jobs is not None:
-        settings = dataclasses.replace(settings, jobs=jobs)
-    doc = run_diagnose(
-        sim_root,
-        real_root,
-        source,
-        out,
-        paired=paired,
-        seed=seed,
-        write_corrected_to=corrected,
-        settings=settings,
-        progress=True,
-    )
-    names = ", ".join(f"{e['id']} {e['key']}" for e in doc["effects"]) or "none"
-    click.echo(f"verdict: {doc['verdict']}; effects: {names}; report: {out / 'report.md'}")
 
 
 if __name__ == "__main__":

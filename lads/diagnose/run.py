@@ -20,7 +20,8 @@ from lads.diagnose.config import CONFIG
 from lads.diagnose.data.beams import paired_table, unpaired_tables
 from lads.diagnose.data.table import BeamTable
 from lads.diagnose.data.trees import open_trees
-from lads.diagnose.fit.design import Design, paired_design, unpaired_design
+from lads.diagnose.fit.design import Design
+from lads.diagnose.fit.from_table import paired_design, unpaired_design
 from lads.diagnose.output import figures
 from lads.diagnose.output.corrected import write_corrected
 from lads.diagnose.output.report import build_report, write_report

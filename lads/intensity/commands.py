@@ -32,8 +32,9 @@ def evaluate_pair(
     from lads.intensity.baselines import InSampleBound, fit_baselines
     from lads.intensity.cache import role_split
     from lads.intensity.checkpoint import resolve_model
+    from lads.intensity.eval_metrics import BOUND_PREFIX
     from lads.intensity.eval_report import write_report
-    from lads.intensity.evaluate import BOUND_PREFIX, evaluate
+    from lads.intensity.evaluate import evaluate
     from lads.intensity.predict import predict_points
 
     target = pair.target

@@ -11,7 +11,8 @@ from typing import Any
 
 from lads.files import atomic_write
 from lads.intensity import targets
-from lads.intensity.evaluate import MIN_CELL_POINTS, SUBJECT, EvalResult, best_methods, jsonable
+from lads.intensity.eval_metrics import MIN_CELL_POINTS, SUBJECT, best_methods, jsonable
+from lads.intensity.evaluate import EvalResult
 
 # Report columns: metric key, header.
 REPORT_COLUMNS: tuple[tuple[str, str], ...] = (

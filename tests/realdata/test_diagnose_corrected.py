@@ -16,8 +16,9 @@ import pytest
 from benchmarks.diagnose_cases.generate import generate_case
 from lads.diagnose.data.beams import paired_table, unpaired_tables
 from lads.diagnose.data.trees import open_trees
-from lads.diagnose.fit.design import paired_design, unpaired_design
-from lads.diagnose.fit.model import Fit, Model
+from lads.diagnose.fit.from_table import paired_design, unpaired_design
+from lads.diagnose.fit.likelihood import Model
+from lads.diagnose.fit.model import Fit
 from lads.diagnose.output.corrected import write_corrected
 from lads.diagnose.selection.select import reference_levels
 from lads.errors import DiagnoseError

@@ -9,7 +9,7 @@ import pytest
 from lads.diagnose.effects import catalogue
 from lads.diagnose.effects.base import catalogue_name
 from lads.diagnose.effects.catalogue import CATALOGUE, FAMILIES, candidates
-from lads.diagnose.fit.design import paired_design
+from lads.diagnose.fit.from_table import paired_design
 from tests.unit.test_diagnose_localize import make_table
 
 

@@ -9,7 +9,7 @@ import pytest
 
 from lads.diagnose.config import CONFIG, TUNED_ON, DiagnoseConfig
 from lads.diagnose.data import beams
-from lads.diagnose.fit import design, model
+from lads.diagnose.fit import from_table, model
 from lads.diagnose.selection import select
 from lads.diagnose.verdict import ambiguity
 
@@ -17,7 +17,7 @@ from lads.diagnose.verdict import ambiguity
 def test_the_modules_read_their_thresholds_from_the_config():
     assert select.Z_ACCEPT is CONFIG.select.z_accept
     assert model.MAXCOR is CONFIG.fit.maxcor
-    assert design.TOBIT_MAX_ROWS is CONFIG.design.tobit_max_rows
+    assert from_table.TOBIT_MAX_ROWS is CONFIG.design.tobit_max_rows
     assert beams.GROUND_INLIER_M is CONFIG.table.ground_inlier_m
     assert ambiguity.LONG_RANGE_BAND_M is CONFIG.verdict.long_range_band_m
 

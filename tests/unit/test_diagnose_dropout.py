@@ -15,8 +15,9 @@ from scipy.special import ndtr
 
 from lads.diagnose.data.table import BeamTable
 from lads.diagnose.effects.catalogue import candidates
-from lads.diagnose.fit.design import paired_design
-from lads.diagnose.fit.model import Model, fit_best, initial_base
+from lads.diagnose.fit.from_table import paired_design
+from lads.diagnose.fit.likelihood import Model
+from lads.diagnose.fit.model import fit_best, initial_base
 from tests.unit.test_diagnose_localize import make_table
 
 LN_TAU, S = -2.5, 0.2

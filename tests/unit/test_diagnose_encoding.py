@@ -10,8 +10,9 @@ import pytest
 
 from lads.diagnose.data.table import BeamTable
 from lads.diagnose.effects.catalogue import candidates
-from lads.diagnose.fit.design import clip_level, paired_design
-from lads.diagnose.fit.model import Model, fit_best, initial_base
+from lads.diagnose.fit.from_table import clip_level, paired_design
+from lads.diagnose.fit.likelihood import Model
+from lads.diagnose.fit.model import fit_best, initial_base
 from tests.unit.test_diagnose_localize import make_table
 
 GAMMA, OFFSET, I_MAX, NOISE = 0.7, 0.02, 0.6, 0.35

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from lads.diagnose.data.table import BeamTable
-from lads.diagnose.fit.design import Design, paired_design
+from lads.diagnose.fit.design import Design
+from lads.diagnose.fit.from_table import paired_design
 from lads.diagnose.verdict.heldout import POINT_NOISE_MIN_SLOPE
 from lads.diagnose.verdict.point_noise import neighbour_pairs, point_noise
 from tests.unit.test_diagnose_localize import make_table

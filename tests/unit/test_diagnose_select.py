@@ -19,17 +19,10 @@ from lads.diagnose.effects.c6_class_reflectance import one_class_scale
 from lads.diagnose.effects.c11_azimuth_blockage import azimuth_spacing_deg
 from lads.diagnose.effects.catalogue import candidates
 from lads.diagnose.fit.bootstrap import group_multiplicity
-from lads.diagnose.fit.design import group_index, paired_design, sim_log_variance
-from lads.diagnose.fit.model import (
-    BASE_NAMES,
-    Fit,
-    Model,
-    directional_gain,
-    fit,
-    fit_best,
-    initial_base,
-    nll_from_terms,
-)
+from lads.diagnose.fit.design import group_index
+from lads.diagnose.fit.from_table import paired_design, sim_log_variance
+from lads.diagnose.fit.likelihood import BASE_NAMES, Model, nll_from_terms
+from lads.diagnose.fit.model import Fit, directional_gain, fit, fit_best, initial_base
 from lads.diagnose.fit.parallel import fit_models, fit_warm, map_fits, restrict
 from lads.diagnose.selection.compare import (
     Comparison,

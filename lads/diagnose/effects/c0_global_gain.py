@@ -1,6 +1,6 @@
 """C0 global gain: + ln_gain on every predicted ln I.
 
-Part of every model's baseline (fit/model.py), so it is never offered as a candidate.
+Part of every model's baseline (fit/likelihood.py), so it is never offered as a candidate.
 """
 
 from __future__ import annotations

@@ -41,7 +41,7 @@ def _encoding(d: Design) -> Effect:
     def export(th: npt.NDArray[np.float64]) -> dict[str, Any]:
         out = {"gamma": float(th[0]), "offset": float(th[1])}
         if clip is not None:
-            # The clip is read off the data (design.clip_level), not fitted: its rows are
+            # The clip is read off the data (fit/from_table.py clip_level), not fitted: its rows are
             # censored in every model, so they cannot bias gamma.
             out["i_max"] = clip
         return out

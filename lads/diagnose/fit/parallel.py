@@ -20,7 +20,8 @@ import torch
 from threadpoolctl import threadpool_limits
 
 from lads.diagnose.fit.design import Design
-from lads.diagnose.fit.model import BASE_NAMES, Fit, Model, fit, fit_best
+from lads.diagnose.fit.likelihood import BASE_NAMES, Model
+from lads.diagnose.fit.model import Fit, fit, fit_best
 
 T = TypeVar("T")
 

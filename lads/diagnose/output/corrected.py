@@ -26,7 +26,8 @@ import numpy.typing as npt
 
 from lads.diagnose.data.table import BeamTable, SensorInfo
 from lads.diagnose.data.trees import TreePair
-from lads.diagnose.fit.design import Design, prediction_design, saturated_rows
+from lads.diagnose.fit.design import Design
+from lads.diagnose.fit.from_table import prediction_design, saturated_rows
 from lads.diagnose.fit.model import Fit
 from lads.errors import DiagnoseError
 from lads.files import atomic_write

@@ -10,7 +10,8 @@ import numpy as np
 import numpy.typing as npt
 
 from lads.diagnose.fit.design import Design, group_index
-from lads.diagnose.fit.model import Fit, RowTerms, directional_gain
+from lads.diagnose.fit.likelihood import RowTerms
+from lads.diagnose.fit.model import Fit, directional_gain
 
 
 @dataclass(frozen=True)

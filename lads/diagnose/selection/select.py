@@ -18,7 +18,8 @@ from scipy import stats
 from lads.diagnose.config import CONFIG
 from lads.diagnose.effects.base import Effect
 from lads.diagnose.fit.design import Design
-from lads.diagnose.fit.model import Fit, Model, fit, initial_base
+from lads.diagnose.fit.likelihood import Model
+from lads.diagnose.fit.model import Fit, fit, initial_base
 from lads.diagnose.fit.parallel import fit_models, fit_warm
 from lads.diagnose.selection.compare import (
     Comparison,

@@ -16,7 +16,8 @@ from lads.diagnose.effects.base import Effect
 from lads.diagnose.effects.catalogue import candidates
 from lads.diagnose.fit.bootstrap import bootstrap_params
 from lads.diagnose.fit.design import Design, evenly_spaced
-from lads.diagnose.fit.model import BASE_NAMES, Fit, fit_best, initial_base
+from lads.diagnose.fit.likelihood import BASE_NAMES
+from lads.diagnose.fit.model import Fit, fit_best, initial_base
 from lads.diagnose.fit.parallel import one_thread
 from lads.diagnose.selection.compare import Comparison, compare
 from lads.diagnose.selection.grouping import Split, fit_weights, split_groups

@@ -12,7 +12,8 @@ from scipy.stats import wasserstein_distance
 
 from lads.diagnose.config import CONFIG
 from lads.diagnose.fit.design import Design
-from lads.diagnose.fit.model import Fit, Model, fit
+from lads.diagnose.fit.likelihood import Model
+from lads.diagnose.fit.model import Fit, fit
 from lads.diagnose.selection.compare import compare_on
 from lads.diagnose.selection.grouping import Split
 from lads.diagnose.selection.select import Z_ACCEPT, Selection
@@ -51,7 +52,7 @@ def noise_model(
         "range_slope": float(th[2]),
         "level_slope": float(th[3]),
         "return_probability": float(1.0 / (1.0 + math.exp(-th[4]))),
-        # Real values stored at a clip below the encoding's maximum are censored (design.py).
+        # Real values stored at a clip below the encoding's maximum are censored (from_table).
         "real_clip_level": d.real_clip,
     }
     if boot.shape[0] >= 5:

@@ -32,7 +32,8 @@ import scipy.optimize
 from scipy.special import gammaln
 
 from lads.diagnose.config import CONFIG
-from lads.diagnose.fit.design import Design, evenly_spaced, sim_log_variance
+from lads.diagnose.fit.design import Design, evenly_spaced
+from lads.diagnose.fit.from_table import sim_log_variance
 from lads.diagnose.selection.compare import by_rows
 from lads.diagnose.where.binning import RANGE_EDGES_M
 
