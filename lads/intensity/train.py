@@ -62,9 +62,9 @@ from lads.intensity.sampler import Batch, Sampler
 from lads.intensity.selection import BEST, Selector, score, validation_frames
 from lads.intensity.train_config import TrainConfig
 from lads.physics.materials import material_names
+from lads.physics.materials_schema import MAX_REFLECTANCE  # the top of the material scale
 
 GEOMETRY = ("ln_range", "cos_incidence", "elevation", "mask")
-MAX_REFLECTANCE = 1.2
 CHECKPOINT = "checkpoints/latest.pt"
 
 

@@ -33,17 +33,15 @@ from lads.diagnose.selection.compare import (
 )
 from lads.diagnose.selection.select import (
     MIN_GAIN_NATS,
-    MIN_SUPPORT_GROUPS,
     SHORTLIST,
     SHORTLIST_CONFINED,
     Z_ACCEPT,
     Selection,
     _passes,
-    crossfit_support,
-    domain_rows,
     gain_floor,
     reference_levels,
 )
+from lads.diagnose.selection.support import MIN_SUPPORT_GROUPS, crossfit_support, domain_rows
 from lads.diagnose.verdict.ambiguity import ground_only_rule, resample_swaps
 from lads.diagnose.verdict.analysis import (
     EffectReport,

@@ -115,7 +115,7 @@ class Effect:
         class_index: the class it is confined to, or -1.
         domain: for an effect confined to rows its fit chooses (an azimuth sector, a few
             rings): (numpy theta of this effect, design) -> (N,) bool, the rows it acts on.
-            The held-out test then also reads those rows alone (select.domain_rows).
+            The held-out test then also reads those rows alone (selection/support.py domain_rows).
     """
 
     info: EffectInfo
