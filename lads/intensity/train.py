@@ -25,19 +25,17 @@ scored best on the validation split (`selection`), the last one when there is no
 
 from __future__ import annotations
 
-import io
 import json
 import math
-from collections.abc import Iterable
 from pathlib import Path
-from typing import Any, cast
+from typing import Any
 
 import numpy as np
 import torch
 from tqdm.auto import tqdm
 
 from lads.errors import TrainingError
-from lads.files import atomic_copy, atomic_write, atomic_write_figure
+from lads.files import atomic_copy, atomic_write
 from lads.intensity.cache import build_cache, iter_frames
 from lads.intensity.cache_statistics import Statistics
 from lads.intensity.checkpoint import (
@@ -49,87 +47,22 @@ from lads.intensity.checkpoint import (
 )
 from lads.intensity.features import (
     FEATURE_VERSION,
-    NORMALISED_CHANNELS,
     PHYSICS_FLOOR,
-    STYLES,
     channel_names,
 )
 from lads.intensity.law_reference import TorchLaw, fit_law
 from lads.intensity.losses import balanced_l1, masked_l1, masked_mse_to
-from lads.intensity.model import Discriminator, Generator, make_generator
+from lads.intensity.model import Discriminator
 from lads.intensity.run_statistics import run_statistics
 from lads.intensity.sampler import Batch, Sampler
 from lads.intensity.selection import BEST, Selector, score, validation_frames
 from lads.intensity.train_config import TrainConfig
+from lads.intensity.train_nets import Nets, set_statistics
+from lads.intensity.train_state import resume, save_checkpoint, write_loss_figure
 from lads.physics.materials import material_names
 from lads.physics.materials_schema import MAX_REFLECTANCE  # the top of the material scale
 
-GEOMETRY = ("ln_range", "cos_incidence", "elevation", "mask")
 CHECKPOINT = "checkpoints/latest.pt"
-
-
-class Nets(torch.nn.Module):
-    """G_S2T, G_T2S and the critics of one run."""
-
-    def __init__(self, cfg: TrainConfig, labelled_targets: dict[str, bool]) -> None:
-        super().__init__()
-        weather = cfg.kind == "weather"
-        self.channels = channel_names(weather)
-        styles = STYLES if weather else ()
-        size, depth = cfg.generator_size
-        self.g = make_generator(
-            cfg.architecture, self.channels, NORMALISED_CHANNELS, size=size, depth=depth,
-            materials=len(material_names()), material_dims=MATERIAL_DIMS,
-        )  # fmt: skip
-        self.inv_channels = GEOMETRY + ("particle",) + styles + ("z_intensity",)
-        self.inv = Generator(self.inv_channels, ("ln_range", "cos_incidence"),
-                             base=cfg.base, blocks=cfg.blocks)  # fmt: skip
-        self.ds_channels = GEOMETRY + styles + ("reflectance",)
-        self.d_s = Discriminator(self.ds_channels, ("ln_range", "cos_incidence", "reflectance"),
-                                 cfg.disc_base)  # fmt: skip
-        self.dt_channels: dict[str, tuple[str, ...]] = {}
-        self.d_t = torch.nn.ModuleDict()
-        for pair in cfg.pairs:
-            extra = ("reflectance",) if labelled_targets[pair.key] else ()
-            names = GEOMETRY + ("particle",) + extra + ("z_intensity",)
-            self.dt_channels[pair.key] = names
-            self.d_t[pair.key] = Discriminator(
-                names, ("ln_range", "cos_incidence", "reflectance"), cfg.disc_base
-            )
-
-    def use_laws(
-        self, laws: dict[str, TorchLaw], zstats: dict[str, tuple[float, float, float]],
-        residual: bool,
-    ) -> None:  # fmt: skip
-        """The fitted law of each target, and whether G predicts a correction to it."""
-        self.laws, self.zstats, self.residual = laws, zstats, residual
-
-    def translate(
-        self, raw: torch.Tensor, mask: torch.Tensor, key: str, extinction: torch.Tensor
-    ) -> torch.Tensor:
-        """G_S2T in target `key`'s z-space: G's output, plus the target's fitted law when the
-        run is residual (`TrainConfig.residual`); a pointwise G also sees the law."""
-        if not self.residual:
-            return self.g(raw, mask)
-        mean, std, _ = self.zstats[key]
-        law = (self.laws[key].ln_reference(raw, extinction) - mean) / std
-        return self.g(raw, mask, law) + law
-
-    def pick(
-        self, raw: torch.Tensor, names: tuple[str, ...], **extra: torch.Tensor
-    ) -> torch.Tensor:
-        """Stack the named channels: from `raw` by name, or given as (B, 1, H, W) tensors."""
-        planes = [extra[n] if n in extra else raw[:, self.channels.index(n)][:, None]
-                  for n in names]  # fmt: skip
-        return torch.cat(planes, 1)
-
-
-def set_statistics(nets: Nets, stats: Any) -> None:
-    nets.g.norm.set_stats(stats.mean, stats.std)
-    nets.inv.norm.set_stats(stats.mean, stats.std)
-    nets.d_s.norm.set_stats(stats.mean, stats.std)
-    for d in cast("Iterable[Discriminator]", nets.d_t.values()):  # d_t holds critics only
-        d.norm.set_stats(stats.mean, stats.std)
 
 
 def train(
@@ -180,7 +113,7 @@ def train(
     resumable["data_hash"] = cfg.data_hash()  # checkpoints of other source frames never resume
     config_id = json.dumps(resumable, sort_keys=True, default=str)
     if ckpt_path.is_file():
-        start, history = _resume(ckpt_path, config_id, nets, opt_g, opt_d, rng)
+        start, history = resume(ckpt_path, config_id, nets, opt_g, opt_d, rng)
 
     targets = {k: (v["log_mean"], v["log_std"], v["floor"]) for k, v in stats.targets.items()}
     log_k = {k: v["log_k"] for k, v in stats.targets.items()}
@@ -212,7 +145,7 @@ def train(
         bar.set_postfix(g=f"{losses['generator']:.3f}", d=f"{losses['critic']:.3f}")
         done = step + 1
         if done % cfg.checkpoint_every == 0 or done == end:
-            _checkpoint(ckpt_path, config_id, done, nets, opt_g, opt_d, rng, history)
+            save_checkpoint(ckpt_path, config_id, done, nets, opt_g, opt_d, rng, history)
             write_loss_figure(history, run / "loss.png", cfg.name)
             meta = _meta(cfg, stats, channels, record, history, done)
             _offer(nets, selector, meta, validation, done, device)
@@ -429,79 +362,3 @@ def _to(batch: Batch, device: str) -> Batch:
     return Batch(batch.raw.to(device), batch.mask.to(device),
                  None if batch.z is None else batch.z.to(device), batch.labelled,
                  batch.extinction.to(device))  # fmt: skip
-
-
-def _checkpoint(path: Path, config_id: str, step: int, nets: Nets, opt_g: Any, opt_d: Any,
-                rng: np.random.Generator, history: list[dict[str, float]]) -> None:  # fmt: skip
-    blob = {
-        "config": config_id,
-        "step": step,
-        "nets": nets.state_dict(),
-        "opt_g": opt_g.state_dict(),
-        "opt_d": opt_d.state_dict(),
-        "numpy_rng": json.dumps(rng.bit_generator.state),
-        "torch_rng": torch.get_rng_state(),
-        "history": json.dumps(history),
-    }
-    buffer = io.BytesIO()
-    torch.save(blob, buffer)
-    atomic_write(path, buffer.getvalue())
-
-
-def _resume(path: Path, config_id: str, nets: Nets, opt_g: Any, opt_d: Any,
-            rng: np.random.Generator) -> tuple[int, list[dict[str, float]]]:  # fmt: skip
-    try:
-        blob = torch.load(path, map_location="cpu", weights_only=True)
-        if blob["config"] != config_id:
-            raise TrainingError(
-                f"{path}: checkpoint of another config; delete it (or the run folder) to "
-                "start over, or restore the config it was made with."
-            )
-        nets.load_state_dict(blob["nets"])
-        opt_g.load_state_dict(blob["opt_g"])
-        opt_d.load_state_dict(blob["opt_d"])
-        rng.bit_generator.state = json.loads(blob["numpy_rng"])
-        torch.set_rng_state(blob["torch_rng"])
-        return int(blob["step"]), list(json.loads(blob["history"]))
-    except TrainingError:
-        raise
-    except Exception as exc:
-        raise TrainingError(
-            f"{path}: cannot resume from this checkpoint ({type(exc).__name__}: {exc}); delete "
-            "it to start over."
-        ) from None
-
-
-def write_loss_figure(history: list[dict[str, float]], path: Path, title: str) -> None:
-    """Loss curves (moving average over 25 steps) as a PNG."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    if not history:
-        return
-    fig, axes = plt.subplots(1, 2, figsize=(11, 3.6))
-    steps = np.arange(1, len(history) + 1)
-    panels = (
-        (axes[0], ("generator", "critic")),
-        (axes[1], ("adversarial", "cycle", "physics", "identity", "style")),
-    )
-    for ax, names in panels:
-        for name in names:
-            values = np.array([h[name] for h in history])
-            if not np.any(values):
-                continue
-            k = min(25, len(values))
-            smooth = np.convolve(values, np.ones(k) / k, mode="valid")
-            ax.plot(steps[k - 1 :], smooth, label=name)
-        ax.set_xlabel("step")
-        ax.set_ylabel("loss (25-step mean)")
-        ax.set_yscale("log")
-        ax.legend(fontsize=8)
-        ax.grid(alpha=0.3)
-    axes[0].set_title(f"{title}: objectives")
-    axes[1].set_title("generator terms (unweighted)")
-    fig.tight_layout()
-    atomic_write_figure(fig, path, dpi=110)
-    plt.close(fig)
