@@ -18,7 +18,6 @@ from typing import Any
 
 from lads import provenance
 from lads.built_tree import (
-    MANIFEST,
     PLAN_JSON,
     RUN_JSON,
     RUN_REPORT,
@@ -27,7 +26,6 @@ from lads.built_tree import (
     BuildPlan,
     freeze_options,
     identity,
-    state_path,
 )
 from lads.config import PipelineConfig
 from lads.errors import BuildError, OutputWriteError
@@ -36,6 +34,7 @@ from lads.finalise import finalise
 from lads.frame import Item
 from lads.lock import LOCK_NAME, output_lock
 from lads.readers.base import unreadable_reason
+from lads.resume import finished_rows
 from lads.worker import process_items, reader_for, stages_for
 
 __all__ = ["BuildReport", "run_build"]
@@ -157,79 +156,6 @@ def _claim_output(out_root: Path, plan: BuildPlan) -> None:
             "another --out, or delete it to rebuild."
         )
     atomic_write(marker, json.dumps(ident, sort_keys=True).encode())
-
-
-def _json_lines(path: Path) -> list[dict[str, Any]]:
-    """The JSON objects of a JSON-lines file; damaged lines (a torn or edited file) are
-    skipped, so their items are rebuilt."""
-    out: list[dict[str, Any]] = []
-    try:
-        text = path.read_text()
-    except (OSError, UnicodeDecodeError):
-        return out
-    for line in text.splitlines():
-        try:
-            row = json.loads(line)
-        except json.JSONDecodeError:
-            continue
-        if isinstance(row, dict) and isinstance(row.get("item_id"), str):
-            out.append(row)
-    return out
-
-
-def _finished_rows(
-    out_root: Path, source_root: Path, items: list[Item]
-) -> dict[str, dict[str, Any]]:
-    """Rows of items already built whose every artefact is still intact on disk: each
-    output file (size and sha256), the provenance group (`provenance.item_intact`, against
-    the SHA256SUMS of an earlier finished run when there is one), and the source files the
-    item was built from (unchanged since). Anything else is rebuilt, so a rerun repairs
-    whatever damage it finds and follows a source that changed."""
-    rows = {r["item_id"]: r for r in _json_lines(out_root / MANIFEST)}
-    for item in items:
-        for row in _json_lines(state_path(out_root, item.item_id)):
-            rows[item.item_id] = row
-    listed = _listed_sums(out_root / SHA256SUMS)
-    intact = {}
-    wanted = {i.item_id for i in items}
-    for item_id, row in rows.items():
-        if (
-            item_id in wanted
-            and row.get("status") == "ok"
-            and _files_intact(out_root, row.get("outputs"))
-            and _files_intact(source_root, row.get("source"))
-            and provenance.item_intact(out_root, row, listed)
-        ):
-            intact[item_id] = row
-    return intact
-
-
-def _listed_sums(path: Path) -> dict[str, str]:
-    """relpath -> sha256 of a SHA256SUMS file ({} when absent or unreadable)."""
-    try:
-        lines = path.read_text().splitlines()
-    except (OSError, UnicodeDecodeError):
-        return {}
-    return {line[66:]: line[:64] for line in lines if len(line) > 66 and line[64:66] == "  "}
-
-
-def _files_intact(root: Path, entries: Any) -> bool:
-    """Whether every {path, bytes, sha256} entry (a row's outputs or sources) is on disk
-    under `root` with that size and digest."""
-    if not isinstance(entries, list) or not entries:
-        return False
-    try:
-        for entry in entries:
-            path = root / entry["path"]
-            if (
-                not path.is_file()
-                or path.stat().st_size != entry["bytes"]
-                or sha256_file(path) != entry["sha256"]
-            ):
-                return False
-    except (OSError, KeyError, TypeError):
-        return False
-    return True
 
 
 def _copy_files(reader: Any, source_root: Path, out_root: Path) -> list[dict[str, Any]]:
@@ -395,7 +321,7 @@ def _build_locked(
         )
     except OSError as exc:
         raise write_error(out_root / provenance.STORE_NAME, exc) from exc
-    done = _finished_rows(out_root, Path(reader.root), items)
+    done = finished_rows(out_root, Path(reader.root), items)
     todo = [i for i in items if i.item_id not in done]
     report.skipped = len(done)
     rows = dict(done)

@@ -27,92 +27,15 @@ import torch.nn.functional as F
 from torch import nn
 
 from lads.intensity.features import STYLES
-
-LEAK = 0.2
-
-
-class WrapConv(nn.Module):
-    """Conv2d with circular padding along azimuth (W) and zeros along elevation (H)."""
-
-    def __init__(self, c_in: int, c_out: int, k: int, stride: int = 1) -> None:
-        super().__init__()
-        self.pad = (k - 1) // 2
-        self.pad_w_extra = (k - 1) - 2 * self.pad  # even kernels pad one more on the right
-        self.conv = nn.Conv2d(c_in, c_out, k, stride=stride)
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        p, e = self.pad, self.pad_w_extra
-        if e:
-            x = F.pad(x, (p, p + e, 0, 0), mode="circular")
-            x = F.pad(x, (0, 0, p, p + e))
-            return self.conv(x)
-        # Padding a whole (C, 64, 2048) map circularly copies it, which cost as much as the
-        # convolutions; instead convolve with zero padding and redo only the few output
-        # columns whose window wraps around, from narrow bands of the input.
-        out = self._conv(x, p)
-        if p == 0:
-            return out
-        s, width, out_w = self.conv.stride[1], x.shape[-1], out.shape[-1]
-        left = -(-p // s)  # outputs 0..left-1 reach left of column 0
-        right = (width - 1 - p) // s + 1  # outputs right.. reach past column W-1
-        out[..., :left] = self._conv(
-            torch.cat([x[..., width - p :], x[..., : s * (left - 1) + p + 1]], -1), 0
-        )
-        if right < out_w:
-            tail = s * (out_w - 1) + p - width + 1
-            out[..., right:] = self._conv(
-                torch.cat([x[..., s * right - p :], x[..., :tail]], -1), 0
-            )
-        return out
-
-    def _conv(self, x: torch.Tensor, pad_w: int) -> torch.Tensor:
-        c = self.conv
-        return F.conv2d(x, c.weight, c.bias, c.stride, (self.pad, pad_w))
-
-
-class _Residual(nn.Module):
-    def __init__(self, c: int) -> None:
-        super().__init__()
-        self.a = WrapConv(c, c, 3)
-        self.b = WrapConv(c, c, 3)
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return x + self.b(F.leaky_relu(self.a(x), LEAK))
-
-
-class Normaliser(nn.Module):
-    """z-scores selected raw channels with stored statistics (buffers, saved with weights)."""
-
-    # Buffers (register_buffer), declared so their type is Tensor rather than Tensor | Module.
-    mean: torch.Tensor
-    std: torch.Tensor
-    active: torch.Tensor
-
-    def __init__(self, channels: Sequence[str], normalised: Sequence[str]) -> None:
-        super().__init__()
-        self.channels = tuple(channels)
-        self.register_buffer("mean", torch.zeros(len(self.channels)))
-        self.register_buffer("std", torch.ones(len(self.channels)))
-        flags = [name in normalised for name in self.channels]
-        self.register_buffer("active", torch.tensor(flags, dtype=torch.bool))
-
-    def set_stats(self, mean: dict[str, float], std: dict[str, float]) -> None:
-        for i, name in enumerate(self.channels):
-            if bool(self.active[i]):
-                self.mean[i] = float(mean[name])
-                self.std[i] = max(float(std[name]), 1e-6)
-
-    def forward(
-        self, raw: torch.Tensor, mask: torch.Tensor, picked: torch.Tensor | None = None
-    ) -> torch.Tensor:
-        """raw (B, C, H, W) -> z-scored where active, kept 0 on empty pixels; with `picked`
-        (channel indices) only those channels, (B, len(picked), H, W)."""
-        mean = torch.where(self.active, self.mean, torch.zeros_like(self.mean))
-        std = torch.where(self.active, self.std, torch.ones_like(self.std))
-        if picked is not None:
-            raw, mean, std = raw.index_select(1, picked), mean[picked], std[picked]
-        z = (raw - mean.view(1, -1, 1, 1)) / std.view(1, -1, 1, 1)
-        return z * mask
+from lads.intensity.layers import (
+    LEAK,
+    Normaliser,
+    ResidualBlock,
+    WrapConv,
+    material_table,
+    material_vectors,
+    with_materials,
+)
 
 
 class Generator(nn.Module):
@@ -155,7 +78,7 @@ class Generator(nn.Module):
         self.e0 = WrapConv(c, base, 3)
         self.e1 = WrapConv(base, 2 * base, 3, stride=2)
         self.e2 = WrapConv(2 * base, 4 * base, 3, stride=2)
-        self.mid = nn.Sequential(*[_Residual(4 * base) for _ in range(blocks)])
+        self.mid = nn.Sequential(*[ResidualBlock(4 * base) for _ in range(blocks)])
         self.u1 = WrapConv(4 * base + 2 * base, 2 * base, 3)
         self.u0 = WrapConv(2 * base + base, base, 3)
         self.head = nn.Conv2d(base, 1, 1)
@@ -219,7 +142,7 @@ class Generator(nn.Module):
         a0 = F.leaky_relu(conv(self.e0, x), LEAK)
         a1 = F.leaky_relu(conv(self.e1, a0), LEAK)
         a2 = F.leaky_relu(conv(self.e2, a1), LEAK)
-        for block in cast("Iterable[_Residual]", self.mid):  # mid holds _Residual blocks only
+        for block in cast("Iterable[ResidualBlock]", self.mid):  # mid holds residual blocks only
             a2 = a2 + conv(block.b, F.leaky_relu(conv(block.a, a2), LEAK))
         b1 = F.interpolate(a2, scale_factor=2.0, mode="nearest")
         b1 = F.leaky_relu(conv(self.u1, torch.cat([b1, a1], 1)), LEAK)
@@ -231,28 +154,6 @@ class Generator(nn.Module):
     def _with_materials(self, x: torch.Tensor, raw: torch.Tensor) -> torch.Tensor:
         return with_materials(x, raw, self.material_embedding.weight, self.material_channel,
                               self.kept)  # fmt: skip
-
-
-def with_materials(
-    x: torch.Tensor, raw: torch.Tensor, table: torch.Tensor, channel: int, kept: torch.Tensor
-) -> torch.Tensor:
-    """x with its material channel swapped for the material embedding (0 when empty)."""
-    return torch.cat([x.index_select(1, kept), material_vectors(raw, table, channel)], 1)
-
-
-def material_table(materials: int, dims: int) -> nn.Embedding:
-    """The learned vector of each material (row 1 + index; row 0 = empty pixel), all zero at
-    the start, so a material never seen in training adds nothing."""
-    table = nn.Embedding(materials + 1, dims)
-    nn.init.zeros_(table.weight)
-    return table
-
-
-def material_vectors(raw: torch.Tensor, table: torch.Tensor, channel: int) -> torch.Tensor:
-    """(B, D, H, W) the table's vector of each pixel's material, raw channel `channel`."""
-    index = raw[:, channel].round().long().clamp_(0, table.shape[0] - 1)
-    # Row 0 (empty pixel) starts at zero and padding_idx keeps it out of every update.
-    return F.embedding(index, table, padding_idx=0).permute(0, 3, 1, 2)
 
 
 # The channels a pointwise generator reads (styles too, when present). The others (I_P,

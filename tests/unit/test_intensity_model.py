@@ -12,7 +12,7 @@ import torch.nn.functional as F
 from lads.errors import ConfigError, InvalidPointsError, LadsError, ModelError
 from lads.intensity.checkpoint import ModelMeta, TargetSpec, build_generator, load_model, save_model
 from lads.intensity.features import FEATURE_VERSION, channel_names, frame_image
-from lads.intensity.model import WrapConv
+from lads.intensity.layers import WrapConv
 from lads.intensity.predict import MAX_SHARED_RATIO, predict_points
 from lads.physics.materials import material_names
 from lads.physics.projection import project

@@ -10,19 +10,17 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
 from lads.diagnose.data.table import BeamTable
+from lads.diagnose.output import figure_style as style
 from lads.diagnose.selection.select import Z_ACCEPT
 from lads.diagnose.where.binning import RANGE_EDGES_M
-from lads.diagnose.where.localize import FeatureProfile, Localization
-from lads.files import atomic_write_figure
+from lads.diagnose.where.localize import Localization
 
-DPI = 100
-MAX_TICKS = 12
 MAX_CLASS_PANELS = 6
 MAX_HISTOGRAMS = 30
 MIN_RATE_ROWS = 20  # a return-rate point needs this many sim beams in its range bin
@@ -58,19 +56,19 @@ def residual_panels(loc_before: Localization, loc_after: Localization | None, pa
     names = list(loc_before.features)
     cols = 3
     rows = max(math.ceil(len(names) / cols), 1)
-    fig, axes = _figure((4.6 * cols, 3.3 * rows), rows, cols)
+    fig, axes = style.figure((4.6 * cols, 3.3 * rows), rows, cols)
     for ax, name in zip(axes, names, strict=False):
         before = loc_before.features[name]
-        _profile(ax, before, BEFORE, "before", 0.0)
+        style.profile(ax, before, BEFORE, "before", 0.0)
         if loc_after is not None and name in loc_after.features:
-            _profile(ax, loc_after.features[name], AFTER, "after", 0.15)
+            style.profile(ax, loc_after.features[name], AFTER, "after", 0.15)
         ax.axhline(0.0, color="0.3", linewidth=0.8)
         q = before.intensity.q_value
         ax.set_title(f"{before.title} (q = {q:.2g})" if math.isfinite(q) else before.title,
                      fontsize=9)  # fmt: skip
         ax.set_xlabel(AXIS_LABELS.get(name, name), fontsize=8)
         ax.set_ylabel(R_LABEL, fontsize=8)
-        _ticks(ax, before.labels)
+        style.ticks(ax, before.labels)
         if loc_after is not None:
             ax.legend(fontsize=7)
     for ax in axes[len(names) :]:
@@ -78,7 +76,7 @@ def residual_panels(loc_before: Localization, loc_after: Localization | None, pa
     after = " before (blue) and after (red) the fit" if loc_after is not None else ""
     fig.suptitle(f"binned residual ln(I_real/I_sim) with 95% cluster-bootstrap CIs{after}",
                  fontsize=10)  # fmt: skip
-    return _save(fig, path)
+    return style.save(fig, path)
 
 
 def heatmaps(loc: Localization, path: Path) -> Path:
@@ -95,11 +93,11 @@ def heatmaps(loc: Localization, path: Path) -> Path:
         path.
     """
     maps = list(loc.heatmaps.values())
-    fig, axes = _figure((5.4 * max(len(maps), 1) + 1.0, 5.2), 1, max(len(maps), 1),
+    fig, axes = style.figure((5.4 * max(len(maps), 1) + 1.0, 5.2), 1, max(len(maps), 1),
                         layout="constrained")  # fmt: skip
     finite = np.concatenate([m.mean[np.isfinite(m.mean)] for m in maps] + [np.zeros(1)])
     vmax = max(float(np.percentile(np.abs(finite), 99)), 1e-3)
-    cmap = _cmap("RdBu_r", bad="0.85")
+    cmap = style.cmap("RdBu_r", bad="0.85")
     image = None
     for ax, m in zip(axes, maps, strict=False):
         image = ax.imshow(m.mean, aspect="auto", origin="lower", cmap=cmap, vmin=-vmax,
@@ -107,15 +105,15 @@ def heatmaps(loc: Localization, path: Path) -> Path:
         ax.set_xlabel(AXIS_LABELS.get(m.cols, m.cols), fontsize=8)
         ax.set_ylabel(AXIS_LABELS.get(m.rows, m.rows), fontsize=8)
         ax.set_title(f"{m.rows} x {m.cols}", fontsize=9)
-        _ticks(ax, m.col_labels)
-        _ticks(ax, m.row_labels, axis="y")
+        style.ticks(ax, m.col_labels)
+        style.ticks(ax, m.row_labels, axis="y")
     if image is None:
         axes[0].text(0.5, 0.5, "no heatmap data", ha="center", va="center")
     else:
         bar = fig.colorbar(image, ax=list(axes))
         bar.set_label(R_LABEL, fontsize=8)
     fig.suptitle("mean residual ln(I_real/I_sim) by two features (grey: < 20 rows)", fontsize=10)
-    return _save(fig, path, margins=False)
+    return style.save(fig, path, margins=False)
 
 
 def ring_gains(
@@ -139,7 +137,7 @@ def ring_gains(
     """
     v, lo, hi = (np.asarray(a, dtype=np.float64).reshape(-1) for a in (values_by_ring, ci_low,
                                                                       ci_high))  # fmt: skip
-    fig, axes = _figure((max(6.0, 0.16 * v.size + 2.0), 3.6), 1, 1)
+    fig, axes = style.figure((max(6.0, 0.16 * v.size + 2.0), 3.6), 1, 1)
     ax = axes[0]
     ring = np.arange(v.size)
     err = np.vstack([np.clip(v - lo, 0, None), np.clip(hi - v, 0, None)])
@@ -150,7 +148,7 @@ def ring_gains(
     ax.set_ylabel(ylabel, fontsize=8)
     ax.set_title("per-ring gain with 95% CI", fontsize=10)
     ax.tick_params(labelsize=7)
-    return _save(fig, path)
+    return style.save(fig, path)
 
 
 def return_rate(table: BeamTable, predicted_return_prob: npt.ArrayLike | None, path: Path) -> Path:
@@ -185,7 +183,7 @@ def return_rate(table: BeamTable, predicted_return_prob: npt.ArrayLike | None, p
     bins = np.clip(np.searchsorted(edges[1:-1], table.range_m, side="right"), 0, centres.size - 1)
     cols = min(len(panels), 3)
     rows = math.ceil(len(panels) / cols)
-    fig, axes = _figure((4.4 * cols, 3.3 * rows), rows, cols)
+    fig, axes = style.figure((4.4 * cols, 3.3 * rows), rows, cols)
     for ax, (name, rows_mask) in zip(axes, panels, strict=False):
         n = np.bincount(bins[rows_mask], minlength=centres.size)
         shown = n >= MIN_RATE_ROWS
@@ -210,7 +208,7 @@ def return_rate(table: BeamTable, predicted_return_prob: npt.ArrayLike | None, p
     for ax in axes[len(panels) :]:
         ax.set_visible(False)
     fig.suptitle("return rate vs range of beams the simulation returned", fontsize=10)
-    return _save(fig, path)
+    return style.save(fig, path)
 
 
 def point_noise(noise: Mapping[str, Any], path: Path) -> Path:
@@ -225,7 +223,7 @@ def point_noise(noise: Mapping[str, Any], path: Path) -> Path:
         path.
     """
     bins = list(noise.get("by_range") or [])
-    fig, axes = _figure((6.0, 3.8), 1, 1)
+    fig, axes = style.figure((6.0, 3.8), 1, 1)
     ax = axes[0]
     if bins:
         r = np.array([b["range_m"] for b in bins])
@@ -245,7 +243,7 @@ def point_noise(noise: Mapping[str, Any], path: Path) -> Path:
     slope = noise.get("range_slope")
     extra = f", range slope {slope:+.2f} per ln R" if slope is not None else ""
     ax.set_title(f"point noise: {noise.get('kind', '?')}{extra}", fontsize=10)
-    return _save(fig, path)
+    return style.save(fig, path)
 
 
 def bootstrap_histograms(samples: Mapping[str, npt.ArrayLike], path: Path) -> Path:
@@ -270,7 +268,7 @@ def bootstrap_histograms(samples: Mapping[str, npt.ArrayLike], path: Path) -> Pa
     series = series[:MAX_HISTOGRAMS]
     cols = min(max(len(series), 1), 4)
     rows = max(math.ceil(len(series) / cols), 1)
-    fig, axes = _figure((3.6 * cols, 2.8 * rows), rows, cols)
+    fig, axes = style.figure((3.6 * cols, 2.8 * rows), rows, cols)
     for ax, (name, arr) in zip(axes, series, strict=False):
         arr = arr[np.isfinite(arr)]
         if arr.size:
@@ -290,7 +288,7 @@ def bootstrap_histograms(samples: Mapping[str, npt.ArrayLike], path: Path) -> Pa
         ax.set_visible(False)
     fig.suptitle("cluster-bootstrap replicates: median (solid) and 95% interval (dashed)",
                  fontsize=10)  # fmt: skip
-    return _save(fig, path)
+    return style.save(fig, path)
 
 
 def selection_trace(steps: Sequence[Mapping[str, Any]], path: Path) -> Path:
@@ -306,19 +304,19 @@ def selection_trace(steps: Sequence[Mapping[str, Any]], path: Path) -> Path:
     Returns:
         path.
     """
-    fig, axes = _figure((max(6.0, 0.45 * len(steps) + 2.5), 4.2), 1, 1)
+    fig, axes = style.figure((max(6.0, 0.45 * len(steps) + 2.5), 4.2), 1, 1)
     ax = axes[0]
     if steps:
         x = np.arange(len(steps))
-        delta = np.array([_num(s.get("delta_loss")) for s in steps])
-        se = np.array([_num(s.get("se")) for s in steps])
+        delta = np.array([style.num(s.get("delta_loss")) for s in steps])
+        se = np.array([style.num(s.get("se")) for s in steps])
         accepted = [bool(s.get("accepted")) for s in steps]
         colours = ["C2" if a else "0.65" for a in accepted]
         ax.bar(x, np.nan_to_num(delta), color=colours, edgecolor=["k" if a else "none"
                                                                  for a in accepted])  # fmt: skip
         ax.errorbar(x, delta, yerr=np.nan_to_num(se), fmt="none", ecolor="0.2", lw=0.8)
         for xi, d, e, s in zip(x, delta, se, steps, strict=True):
-            z = _num(s.get("z"))
+            z = style.num(s.get("z"))
             if math.isfinite(z):
                 top = (d if math.isfinite(d) else 0.0) + (e if math.isfinite(e) else 0.0)
                 ax.annotate(f"z {z:.1f}", (xi, max(top, 0.0)), xytext=(0, 3),
@@ -334,72 +332,4 @@ def selection_trace(steps: Sequence[Mapping[str, Any]], path: Path) -> Path:
     ax.set_ylabel("held-out loss reduction (nats per beam)", fontsize=8)
     ax.set_title(f"forward selection (green: accepted; error bars 1 SE; z: directional score, "
                  f"accepted above {Z_ACCEPT:.0f})", fontsize=10)  # fmt: skip
-    return _save(fig, path)
-
-
-# --- helpers ----------------------------------------------------------------------------
-
-
-def _profile(ax: Any, p: FeatureProfile, colour: str, label: str, shift: float) -> None:
-    s = p.intensity
-    x = np.arange(len(p.labels), dtype=np.float64)
-    ok = np.isfinite(s.mean)
-    lo = np.where(np.isfinite(s.mean_low), s.mean_low, s.mean)
-    hi = np.where(np.isfinite(s.mean_high), s.mean_high, s.mean)
-    if p.ordered:
-        ax.plot(x[ok], s.mean[ok], "o-", color=colour, markersize=3, label=label)
-        ax.fill_between(x[ok], lo[ok], hi[ok], color=colour, alpha=0.25, linewidth=0)
-    else:
-        err = np.vstack([np.clip(s.mean - lo, 0, None), np.clip(hi - s.mean, 0, None)])[:, ok]
-        ax.errorbar(x[ok] + shift, s.mean[ok], yerr=err, fmt="o", color=colour, markersize=3,
-                    elinewidth=0.8, label=label)  # fmt: skip
-
-
-def _ticks(ax: Any, labels: Sequence[str], axis: str = "x") -> None:
-    step = max(1, math.ceil(len(labels) / MAX_TICKS))
-    pos = np.arange(0, len(labels), step)
-    text = [_short(labels[i]) for i in pos]
-    if axis == "x":
-        ax.set_xticks(pos, text, rotation=45, ha="right", fontsize=6)
-    else:
-        ax.set_yticks(pos, text, fontsize=6)
-    ax.tick_params(labelsize=6)
-
-
-def _short(label: str, width: int = 16) -> str:
-    return label if len(label) <= width else "..." + label[-(width - 3) :]
-
-
-def _num(value: Any) -> float:
-    try:
-        return float(value)
-    except (TypeError, ValueError):
-        return math.nan
-
-
-def _figure(
-    size: tuple[float, float], rows: int, cols: int, *, layout: Literal["constrained"] | None = None
-) -> tuple[Any, list[Any]]:
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=size, dpi=DPI, layout=layout)
-    FigureCanvasAgg(fig)
-    axes = fig.subplots(rows, cols, squeeze=False)
-    return fig, list(axes.reshape(-1))
-
-
-def _cmap(name: str, *, bad: str) -> Any:
-    import matplotlib
-
-    return matplotlib.colormaps[name].with_extremes(bad=bad)
-
-
-def _save(fig: Any, path: Path, *, margins: bool = True, bottom_in: float = 0.9) -> Path:
-    # Fixed margins in inches: tight_layout costs about a second per multi-panel figure.
-    if margins:
-        width, height = fig.get_figwidth(), fig.get_figheight()
-        fig.subplots_adjust(left=0.75 / width, right=1 - 0.2 / width, top=1 - 0.65 / height,
-                            bottom=bottom_in / height, wspace=0.35, hspace=0.75)  # fmt: skip
-    atomic_write_figure(fig, Path(path), dpi=DPI)
-    return Path(path)
+    return style.save(fig, path)
