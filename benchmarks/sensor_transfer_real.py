@@ -28,17 +28,13 @@ from lads.readers import get_reader
 from lads.sensors.profile import SensorProfile, load_profile
 from lads.transfer.metrics import covered_rings
 from lads.transfer.scan import WindowScan, transfer_surfels, window_surfels
+from tests.trees import _link
 
 HALF_WINDOW = 5  # scans each side of the one transferred (a 10-scan window)
 # Beyond this range a return is not the recording vehicle's body (nuScenes: every return
 # within 1.1 m is labelled vehicle.ego; KITTI's roof-mounted sensor sees no body).
 BODY_M = 2.5
 KITTI_FRAMES = ("000000", "000001", "000002", "000052", "000088", "000850", "004501")
-
-
-def _link(target: Path, link: Path) -> None:
-    link.parent.mkdir(parents=True, exist_ok=True)
-    link.symlink_to(target)
 
 
 def kitti_tree(root: Path) -> Path:

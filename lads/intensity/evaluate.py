@@ -48,9 +48,8 @@ from lads.intensity.eval_metrics import (
 from lads.intensity.features import FrameImage, frame_image
 from lads.physics.materials import (
     LABEL_SETS,
-    MAX_CLASS_ID,
+    class_ids,
     class_materials,
-    has_instance_bits,
 )
 from lads.sensors.profile import SensorProfile
 
@@ -148,13 +147,6 @@ class EvalFrame:
     @property
     def n_points(self) -> int:
         return len(self.xyz)
-
-
-def class_ids(labels: npt.ArrayLike, label_set: str) -> npt.NDArray[np.int64]:
-    """(N,) int64 semantic class of each label: label & 0xFFFF where the label set stores
-    instance bits (materials.yaml, `has_instance_bits`), else the label itself."""
-    arr = np.asarray(labels).astype(np.int64, copy=False)
-    return arr & MAX_CLASS_ID if has_instance_bits(label_set) else arr
 
 
 def retro_classes(label_set: str) -> frozenset[int]:

@@ -169,6 +169,13 @@ def class_roles(label_set: str) -> ClassRoles:
                       road_like | lset.flat, lset.moving, lset.ego)  # fmt: skip
 
 
+def class_ids(labels: npt.ArrayLike, label_set: str) -> npt.NDArray[np.int64]:
+    """(N,) int64 semantic class of each label: label & 0xFFFF where the label set stores
+    instance bits (materials.yaml, `has_instance_bits`), else the label itself."""
+    arr = np.asarray(labels).astype(np.int64, copy=False)
+    return arr & MAX_CLASS_ID if has_instance_bits(label_set) else arr
+
+
 def has_instance_bits(label_set: str) -> bool:
     """Whether `label_set`'s stored labels carry an instance id above their low 16 bits
     (materials.yaml `instance_bits`; the class is then label & MAX_CLASS_ID).

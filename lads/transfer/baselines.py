@@ -14,7 +14,6 @@ the target's encoding through reflectivity.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -22,6 +21,7 @@ import numpy.typing as npt
 
 from lads.physics.projection import MIN_RANGE_M
 from lads.sensors.profile import SensorProfile
+from lads.transfer.metrics import grid_column
 
 
 @dataclass(frozen=True, slots=True)
@@ -105,7 +105,7 @@ def row_resample(
     pts = np.asarray(xyz, dtype=np.float64)
     ok = np.linalg.norm(pts, axis=1) > MIN_RANGE_M
     width = target.range_image_width
-    col = _columns(pts, width, azimuth_offset_rad)
+    col = grid_column(pts, width, azimuth_offset_rad)
     ring64 = np.asarray(ring, dtype=np.int64)
     rng_m = np.linalg.norm(pts, axis=1)
     picked_rows, picked_ring = [], []
@@ -120,11 +120,6 @@ def row_resample(
     rows = np.concatenate(picked_rows) if picked_rows else np.zeros(0, np.int64)
     rings = np.concatenate(picked_ring) if picked_ring else np.zeros(0, np.int64)
     return _baseline(xyz, intensity, labels, rings, rows, source, target, azimuth_offset_rad)
-
-
-def _columns(pts: npt.NDArray[np.float64], width: int, offset: float) -> npt.NDArray[np.int64]:
-    az = np.mod(np.arctan2(pts[:, 1], pts[:, 0]) - offset, 2.0 * math.pi)
-    return np.minimum((az / (2.0 * math.pi / width)).astype(np.int64), width - 1)
 
 
 def _baseline(
@@ -144,5 +139,5 @@ def _baseline(
         intensity=target.intensity.from_reflectivity(refl),
         labels=np.asarray(labels)[rows].astype(np.uint32),
         ring=rings.astype(np.int64),
-        column=_columns(pts, target.range_image_width, offset),
+        column=grid_column(pts, target.range_image_width, offset),
     )

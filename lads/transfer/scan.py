@@ -16,7 +16,7 @@ import numpy as np
 import numpy.typing as npt
 
 from lads.errors import InputDataError
-from lads.physics.materials import MAX_CLASS_ID, class_roles, has_instance_bits
+from lads.physics.materials import MAX_CLASS_ID, class_ids, class_roles, has_instance_bits
 from lads.sensors.profile import SensorProfile
 from lads.transfer.cast import GEOMETRY, BeamHits, cast_beams
 from lads.transfer.surfels import (
@@ -83,7 +83,7 @@ class TransferredScan:
 def profile_detector(target: SensorProfile) -> Detector:
     """The target's median detection: albedo cos / R^2 at least its detection limit's
     reflectivity / range^2 (`detection` of the profile, docs/physics.md §9.7)."""
-    limit = target.detection.reflectivity / target.detection.range_m**2
+    limit = target.detection.power
 
     def detected(albedo: F64, cos: F64, range_m: F64) -> npt.NDArray[np.bool_]:
         return albedo * cos / (range_m * range_m) >= limit
@@ -138,17 +138,16 @@ def window_surfels(
     """The surfels of one window scan in its sensor frame (compute once per scan: every
     window that holds the scan reuses them). Returns of the recording vehicle's own body
     (classes marked `ego` in materials.yaml) give none: the target sits on another vehicle."""
-    bits = label_set is not None and has_instance_bits(label_set)
-    retro = None
+    classes = None
     if label_set is not None and scan.labels is not None:
-        classes = _class_ids(scan.labels, bits)
+        classes = class_ids(scan.labels, label_set)
         roles = class_roles(label_set)
-        retro = np.isin(classes, sorted(roles.retroreflective))
     refl = source.intensity.to_reflectivity(scan.intensity)
+    retro = None if classes is None else np.isin(classes, sorted(roles.retroreflective))
     s = scan_surfels(scan.xyz, refl, source, labels=scan.labels, retro=retro,
                      ring=scan.ring, frame=index, shape=shape)  # fmt: skip
-    if label_set is not None and scan.labels is not None and roles.ego:
-        s = s.take(~np.isin(_class_ids(s.label, bits), sorted(roles.ego)))
+    if classes is not None and roles.ego:
+        s = s.take(~np.isin(classes[s.point], sorted(roles.ego)))
     return s
 
 
@@ -204,11 +203,6 @@ class _Lookup:
             mine = part == p
             out[mine] = getattr(self.parts[p], name)[self.kept[p][who[mine] - offsets[p]]]
         return out
-
-
-def _class_ids(labels: npt.ArrayLike, instance_bits: bool) -> npt.NDArray[np.int64]:
-    ids = np.asarray(labels).astype(np.int64)
-    return ids & MAX_CLASS_ID if instance_bits else ids
 
 
 def _static(

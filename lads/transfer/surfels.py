@@ -22,7 +22,7 @@ import numpy.typing as npt
 
 from lads.physics.image_kernels import image_normals
 from lads.physics.modalities import DEFAULT_MAX_DEPTH_JUMP, MAX_COLUMN_GAP
-from lads.physics.projection import MIN_RANGE_M, organise
+from lads.physics.projection import MIN_RANGE_M, channels_of, organise
 from lads.sensors.profile import SensorProfile
 
 # Semi-axes of a surfel as a share of its beam cell (azimuth step by ring gap, at its range),
@@ -89,13 +89,6 @@ class Surfels:
         """The surfels selected by a mask or index array."""
         return Surfels(*(getattr(self, f)[keep] for f in self.__slots__))  # type: ignore[arg-type]
 
-    def moved(self, pose: F64) -> Surfels:
-        """The surfels in the frame `pose` (4, 4) maps them to: x' = R x + t."""
-        rot, shift = pose[:3, :3], pose[:3, 3]
-        return Surfels(self.centre @ rot.T + shift, self.normal @ rot.T, self.axis_a @ rot.T,
-                       self.axis_b @ rot.T, self.radius_m, self.label, self.albedo,
-                       self.weight, self.retro, self.frame, self.point)  # fmt: skip
-
     @staticmethod
     def gather(
         parts: Sequence[Surfels],
@@ -118,11 +111,6 @@ class Surfels:
             return np.concatenate(out)
 
         return {f: field(f) for f in (fields or Surfels.__slots__)}
-
-    @staticmethod
-    def concat(parts: list[Surfels]) -> Surfels:
-        """One set of every part's surfels, in order."""
-        return Surfels(*(np.concatenate([getattr(p, f) for p in parts]) for f in Surfels.__slots__))  # type: ignore[arg-type]
 
 
 def scan_surfels(
@@ -157,7 +145,7 @@ def scan_surfels(
     r = np.sqrt(np.einsum("ij,ij->i", xyz64, xyz64))
     valid = np.flatnonzero(r > MIN_RANGE_M)
     pts, rng_m = xyz64[valid], r[valid]
-    chan = _channels(pts, rng_m, profile, None if ring is None else np.asarray(ring)[valid])
+    chan = channels_of(pts, profile, None if ring is None else np.asarray(ring)[valid])
     view = pts / rng_m[:, None]
     normal = _normals(pts, rng_m, view, chan, profile)
     cos_raw = -np.einsum("ij,ij->i", normal, view)
@@ -196,14 +184,6 @@ def _normals(
     est[flip] *= -1.0
     normal[good] = est
     return normal
-
-
-def _channels(
-    pts: F64, r: F64, profile: SensorProfile, ring: npt.NDArray[np.generic] | None
-) -> npt.NDArray[np.int64]:
-    if ring is not None:
-        return np.clip(np.asarray(ring).astype(np.int64), 0, profile.channels - 1)
-    return profile.channel_of(pts)
 
 
 def _cell_axes(

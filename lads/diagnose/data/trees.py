@@ -24,7 +24,7 @@ import numpy.typing as npt
 from lads.diagnose.data.table import SensorInfo
 from lads.errors import ConfigError, DatasetNotFoundError, DiagnoseError, IntensityEncodingError
 from lads.frame import Frame, Item
-from lads.physics.materials import MAX_CLASS_ID, has_instance_bits
+from lads.physics.materials import class_ids
 from lads.physics.projection import MIN_RANGE_M
 from lads.readers import Reader, get_reader
 from lads.sensors.profile import SensorProfile, load_profile
@@ -259,10 +259,9 @@ def _read(source: str, profile: SensorProfile, tree: str, src: _TreeSource, relp
     keep = np.flatnonzero(np.sqrt(np.einsum("ij,ij->i", xyz, xyz)) > MIN_RANGE_M)
     labels = None
     if labels_raw is not None:
-        ids = labels_raw.astype(np.int64)
         label_set = src.reader.label_set
-        instance_bits = label_set is not None and has_instance_bits(label_set)
-        labels = (ids & MAX_CLASS_ID if instance_bits else ids).astype(np.int32)[keep]
+        ids = labels_raw.astype(np.int64) if label_set is None else class_ids(labels_raw, label_set)
+        labels = ids.astype(np.int32)[keep]
     return Scan(
         relpath=relpath,
         xyz=xyz[keep],
