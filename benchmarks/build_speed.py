@@ -40,7 +40,7 @@ from benchmarks.common import (
     reference_workload_ms,
     write_result,
 )
-from lads.config import PipelineConfig, find_pipeline, load_pipeline
+from lads.config import PipelineConfig, pipeline_for
 from lads.runner import run_build
 
 FRAMES = 120
@@ -101,7 +101,7 @@ def make_nuscenes_tree(root: Path, frames: int) -> Path:
 
 def pipeline_of(variant: str, reader: str = "semantickitti") -> PipelineConfig:
     name = variant.split()[0]
-    return load_pipeline(find_pipeline(reader, name)).with_overrides(**VARIANTS[variant])
+    return pipeline_for(reader, name).with_overrides(**VARIANTS[variant])
 
 
 def timed_build(source: Path, out: Path, pipeline: PipelineConfig, reader: str = "semantickitti",

@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from lads.config import find_pipeline, load_pipeline
+from lads.config import pipeline_for
 from lads.errors import LadsError
 from lads.runner import BuildReport, run_build
 from lads.verify import verify_tree
@@ -69,7 +69,7 @@ class Bench:
         return path
 
     def build(self, src: Path, out: Path, **kw: Any) -> BuildReport | LadsError:
-        pipeline = load_pipeline(find_pipeline("semantickitti", self.variant))
+        pipeline = pipeline_for("semantickitti", self.variant)
         try:
             return run_build("semantickitti", src, out, pipeline, progress=False, **kw)
         except LadsError as exc:

@@ -15,6 +15,7 @@ from typing import Any
 
 import click
 
+from lads.correspondence import POINT_MODES
 from lads.errors import LadsError
 from lads.files import atomic_write
 from lads.physics.severity import SEVERITIES
@@ -122,12 +123,12 @@ def profiles() -> None:
 @_lads_errors
 def variants() -> None:
     """List the variants of every source and the shipped pipeline each one runs."""
-    from lads.config import find_pipeline, load_pipeline, variants_for
+    from lads.config import find_pipeline, pipeline_for, variants_for
 
     for source in sorted(READERS):
         for variant in variants_for(source):
             path = find_pipeline(source, variant)
-            stages = ", ".join(s.stage for s in load_pipeline(path).stages)
+            stages = ", ".join(s.stage for s in pipeline_for(source, variant).stages)
             click.echo(f"{source:14s} {variant:20s} {path.name:24s} {stages}")
 
 
@@ -135,8 +136,9 @@ def variants() -> None:
 @click.option("--source", required=True, type=click.Choice(sorted(READERS)), help="Reader.")
 @click.option(
     "--variant",
-    help="Variant: snow, rain, fog, intensity-kitti or intensity-nuscenes (`lads variants` "
-    "lists them per source with the shipped pipeline each one runs).",
+    help="Variant: snow, rain, fog, wet-ground, intensity-kitti, intensity-nuscenes or "
+    "sensor-<profile> (`lads variants` lists them per source with the shipped pipeline each "
+    "one runs).",
 )
 @click.option(
     "--pipeline",
@@ -186,10 +188,15 @@ def variants() -> None:
 )  # fmt: skip
 @click.option(
     "--points",
-    type=click.Choice(["physical", "aligned"]),
+    type=click.Choice(list(POINT_MODES)),
     help="Point correspondence (docs/output_tree.md).",
 )
 @click.option("--particle-label", type=int, help="Label of particle returns in physical mode.")
+@click.option(
+    "--neighbours", type=int,
+    help="Sensor variants: neighbouring scans in each frame's window (default 10; 0: each "
+    "frame from its own scan, no poses needed). docs/transfer.md.",
+)  # fmt: skip
 @click.option(
     "--intensity",
     "intensity_model",
@@ -232,6 +239,7 @@ def build(
     seed: int, rate_mm_h: float | None, visibility_m: float | None,
     water_film_mm: float | None, severity: str | None,
     weather_settings: str | None, detection: str | float | None, mode: str | None,
+    neighbours: int | None,
     points: str | None,
     particle_label: int | None, intensity_model: str | None,
     device: str | None, sequences: str | None, nuscenes_version: str | None,
@@ -239,17 +247,18 @@ def build(
     fail_fast: bool, wait: bool, limit: int | None, figures: bool,
 ) -> None:  # fmt: skip
     """Build a variant tree: one output item per source item, same format and layout."""
-    from lads.config import find_pipeline, load_pipeline
+    from lads.config import load_pipeline, pipeline_for
     from lads.runner import run_build
 
     if (variant is None) == (pipeline_file is None):
         raise click.UsageError("give exactly one of --variant and --pipeline")
-    path = pipeline_file or find_pipeline(source, variant)  # type: ignore[arg-type]
-    pipeline = load_pipeline(path).with_overrides(
+    loaded = (load_pipeline(pipeline_file) if pipeline_file is not None
+              else pipeline_for(source, variant))  # type: ignore[arg-type]  # fmt: skip
+    pipeline = loaded.with_overrides(
         rate_mm_h=rate_mm_h, visibility_m=visibility_m, water_film_mm=water_film_mm,
         severity=severity, mode=mode,
         settings=weather_settings, detection=detection, points=points,
-        particle_label=particle_label, intensity=intensity_model,
+        particle_label=particle_label, intensity=intensity_model, neighbours=neighbours,
     )  # fmt: skip
     if device is not None:
         pipeline = pipeline.with_overrides(device=device)

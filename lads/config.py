@@ -16,14 +16,15 @@ from typing import Any
 
 import yaml
 
-from lads.errors import ConfigError
+from lads.correspondence import POINT_MODES
+from lads.errors import ConfigError, LadsError
 from lads.physics.detection import resolve_detection
 from lads.physics.severity import PRESETS, SEVERITIES, with_severity
 from lads.readers import READERS
 from lads.resources import pipelines_dir
+from lads.transfer.window import check_neighbours
 
 SCHEMA_VERSION = 1
-POINT_MODES = ("physical", "aligned")
 RETURN_MODES = ("strongest", "last", "dual")
 
 # Parameters each stage accepts, with a validator per parameter.
@@ -37,8 +38,16 @@ _STAGE_PARAMS: dict[str, dict[str, str]] = {
     "fog": {"visibility_m": "visibility", **_WEATHER_PARAMS},
     "wet_ground": {"water_film_mm": "film", "severity": "severity", "detection": "detection"},
     "intensity": {"model": "text", "target": "optional_text", "device": "device"},
+    "sensor": {"target": "profile", "neighbours": "neighbours"},
 }
-_OPTIONAL_KINDS = {"return_mode", "optional_text", "device", "severity", "settings", "detection"}
+_OPTIONAL_KINDS = {"return_mode", "optional_text", "device", "severity", "settings", "detection",
+                   "neighbours"}  # fmt: skip
+# pipelines/sensor.yaml holds the settings of every `sensor-<profile>` variant: the variant
+# `sensor-P` is that pipeline with the target P (`pipeline_for`).
+SENSOR_PIPELINE = "sensor"
+# Stages that may follow a sensor transfer: they keep its points (a weather stage would mix
+# the transfer's provenance with its own; build the weather from the transferred tree).
+_AFTER_SENSOR = ("intensity",)
 # Stages whose physical strength a `severity` preset can give (lads.physics.severity).
 _SEVERITY_STAGES = ("rain", "snow", "fog", "wet_ground")
 # The physical strengths a severity preset names (rate, visibility, water film).
@@ -99,10 +108,40 @@ class PipelineConfig:
                 "tree keeps one row per source beam and cannot hold a beam's second return. "
                 "Use points: physical (both returns written, strongest first) or another mode."
             )
+        self._check_sensor_stage()
         if self.particle_label is not None and not 0 <= self.particle_label < 2**16:
             raise ConfigError(
                 f"writer.particle_label is {self.particle_label}; expected a class id in 0..65535."
             )
+
+    def _check_sensor_stage(self) -> None:
+        """A sensor stage comes first, once, followed only by _AFTER_SENSOR stages, and
+        writes in resampled mode; resampled mode needs a sensor stage."""
+        names = [s.stage for s in self.stages]
+        if "sensor" not in names:
+            if self.points == "resampled":
+                raise ConfigError(
+                    "writer.points is resampled, which only a sensor stage writes; use "
+                    "physical or aligned, or add a sensor stage."
+                )
+            return
+        later = [n for n in names[1:] if n not in _AFTER_SENSOR]
+        if names[0] != "sensor" or later:
+            raise ConfigError(
+                f"stages {names}: a sensor stage must come first, followed only by "
+                f"{', '.join(_AFTER_SENSOR)}; build weather from the transferred tree instead."
+            )
+        if self.points != "resampled":
+            raise ConfigError(
+                f"writer.points is {self.points!r}, but a sensor stage writes new beams: "
+                "set writer.points to resampled."
+            )
+
+    def output_sensor(self, source_sensor: str) -> str:
+        """The sensor profile of the built tree's scans: a sensor stage's target, else the
+        source's own."""
+        targets = [s.params["target"] for s in self.stages if s.stage == "sensor"]
+        return str(targets[0]) if targets else source_sensor
 
     def to_dict(self) -> dict[str, Any]:
         """Canonical dict, as saved in OUT/pipeline.yaml (`sources` only when restricted)."""
@@ -221,6 +260,17 @@ def _check_value(kind: str, value: Any, where: str) -> None:
         try:
             resolve_detection(value, 1.0, 1.0, 1.0)
         except ConfigError as exc:
+            raise ConfigError(f"{where}: {exc}") from None
+        return
+    if kind == "neighbours":
+        check_neighbours(value, where)
+        return
+    if kind == "profile":
+        from lads.sensors.profile import load_profile
+
+        try:
+            load_profile(value)
+        except LadsError as exc:
             raise ConfigError(f"{where}: {exc}") from None
         return
     if kind == "severity":
@@ -350,8 +400,34 @@ def variants_for(source: str, directory: Path | None = None) -> list[str]:
             if owner == source:
                 names.add(stem[len(owner) + 1 :])
         elif source in (load_pipeline(path).sources or (source,)):
-            names.add(stem)
+            names.update(_sensor_variants(source) if stem == SENSOR_PIPELINE else [stem])
     return sorted(names)
+
+
+def _sensor_variants(source: str) -> list[str]:
+    """`sensor-<profile>` for every shipped profile but the source's own sensor."""
+    from lads.readers import reader_class
+    from lads.sensors.profile import available_profiles
+
+    own = reader_class(source).sensor
+    return [f"{SENSOR_PIPELINE}-{p}" for p in available_profiles() if p != own]
+
+
+def pipeline_for(source: str, variant: str, directory: Path | None = None) -> PipelineConfig:
+    """The shipped pipeline of (source, variant), loaded (`find_pipeline`); a
+    `sensor-<profile>` variant is sensor.yaml with that target.
+
+    Raises:
+        ConfigError: no such variant for this source (as `find_pipeline`).
+    """
+    path = find_pipeline(source, variant, directory)
+    pipeline = load_pipeline(path)
+    if path.stem != SENSOR_PIPELINE or variant == SENSOR_PIPELINE:
+        return pipeline
+    target = variant[len(SENSOR_PIPELINE) + 1 :]
+    stages = tuple(StageConfig(s.stage, {**s.params, "target": target})
+                   if s.stage == "sensor" else s for s in pipeline.stages)  # fmt: skip
+    return replace(pipeline, variant=variant, stages=stages)
 
 
 def _source_prefix(stem: str) -> str | None:
@@ -375,7 +451,7 @@ def find_pipeline(source: str, variant: str, directory: Path | None = None) -> P
         return own
     valid = variants_for(source, directory)
     if variant in valid:
-        return files[variant]
+        return files[variant] if variant in files else files[SENSOR_PIPELINE]
     others = [s for s in sorted(READERS) if s != source and variant in variants_for(s, directory)]
     elsewhere = f" '{variant}' exists for: {', '.join(others)}." if others else ""
     raise ConfigError(

@@ -7,6 +7,9 @@ offers two ways to put that on disk (docs/output_tree.md):
   particle returns get the particle label.
 - aligned: N and order of the source; lost beams sit at the sensor origin with intensity 0,
   labels are the source labels unchanged.
+- resampled: a sensor transfer's output (`lads.transfer`): every point is a beam of the
+  target sensor, RESAMPLED from a surface of the source scan or of a scan of its window;
+  labels follow the surface hit.
 """
 
 from __future__ import annotations
@@ -18,6 +21,10 @@ import numpy.typing as npt
 
 from lads.frame import Frame
 from lads.physics.result import Outcome
+
+# The writer's point-correspondence modes (`writer.points` of a pipeline, `points_mode` of
+# run.json); docs/output_tree.md.
+POINT_MODES = ("physical", "aligned", "resampled")
 
 
 def physical(
@@ -75,7 +82,8 @@ def outcome_counts(
     source_index: npt.NDArray[np.int64] | None = None,
 ) -> dict[str, int]:
     """Point counts for the manifest: source, output, kept, attenuated, particle, lost, and
-    (dual-return trees only) second_returns, the output points that are a beam's second."""
+    (dual-return trees only) second_returns, the output points that are a beam's second,
+    and (sensor transfers only) resampled, the target's beams."""
     found = np.bincount(outcome, minlength=len(Outcome))
     counts = {
         "source": int(source_points),
@@ -85,7 +93,11 @@ def outcome_counts(
         "particle": int(found[Outcome.PARTICLE]),
         "lost": int(lost),
     }
-    second = 0 if source_index is None else int(np.count_nonzero(np.diff(source_index) == 0))
+    if found[Outcome.RESAMPLED]:
+        counts["resampled"] = int(found[Outcome.RESAMPLED])
+    # A transfer's beams may share a source return (two beams on one surfel): not a dual return.
+    dual = source_index is not None and not found[Outcome.RESAMPLED]
+    second = int(np.count_nonzero(np.diff(source_index) == 0)) if dual else 0  # type: ignore[arg-type]
     if second:
         counts["second_returns"] = second
     return counts

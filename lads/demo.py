@@ -18,7 +18,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from lads.config import find_pipeline, load_pipeline
+from lads.config import pipeline_for
 from lads.figures import correspondence_figure, variant_figure
 from lads.runner import run_build
 from lads.synth import write_synthetic_dataset
@@ -61,7 +61,7 @@ def run_demo(
     }
     built: dict[str, Path] = {}
     for variant in VARIANTS:
-        pipeline = load_pipeline(find_pipeline("semantickitti", variant))
+        pipeline = pipeline_for("semantickitti", variant)
         out = out_dir / variant
         report = run_build("semantickitti", source, out, pipeline, seed=seed, jobs=jobs)
         check = verify_tree(out, source, regenerate=1, seed=seed)

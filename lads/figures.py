@@ -23,6 +23,7 @@ OUTCOME_STYLE = {
     Outcome.ATTENUATED: ("#2f7ed8", "attenuated"),
     Outcome.PARTICLE: ("#e8112d", "particle return"),
     Outcome.LOST: ("#f5a623", "lost (aligned: at origin)"),
+    Outcome.RESAMPLED: ("#2a9d4a", "resampled (another sensor's beam)"),
 }
 BEV_PIXELS = 400  # cells per side of the bird's-eye raster (0.2 m at the default 40 m)
 
@@ -54,6 +55,13 @@ def _range_image(xyz: npt.NDArray[np.float32], values: npt.NDArray[Any], sensor:
     return grid
 
 
+def _shown(pts: npt.NDArray[np.float32], sensor: str, as_reflectivity: bool) -> Any:
+    """The intensity column of a scan, or its reflectivity in the sensor's encoding."""
+    if not as_reflectivity:
+        return pts[:, 3]
+    return load_profile(sensor).intensity.to_reflectivity(pts[:, 3])
+
+
 def _bev_raster(
     xy: npt.NDArray[np.float32], outcome: npt.NDArray[np.uint8], extent_m: float
 ) -> npt.NDArray[np.float32]:
@@ -62,7 +70,7 @@ def _bev_raster(
     A raster, because a scatter of 10^5 points per panel took seconds to draw."""
     from matplotlib.colors import to_rgba_array
 
-    palette = to_rgba_array([OUTCOME_STYLE[Outcome(o)][0] for o in range(4)]).astype(np.float32)
+    palette = to_rgba_array([OUTCOME_STYLE[o][0] for o in Outcome]).astype(np.float32)
     cell = np.floor((xy + extent_m) / (2.0 * extent_m) * BEV_PIXELS).astype(np.int64)
     inside = np.all((cell >= 0) & (cell < BEV_PIXELS), axis=1)
     top = np.full((BEV_PIXELS, BEV_PIXELS), -1, dtype=np.int64)
@@ -74,7 +82,7 @@ def _bev_raster(
 
 def variant_figure(
     source_root: Path, variants: dict[str, Path], relpath: str, path: Path, *, sensor: str,
-    columns: int = 4, extent_m: float = 40.0,
+    columns: int = 4, extent_m: float = 40.0, variant_sensor: str | None = None,
 ) -> Path:  # fmt: skip
     """One row per tree (source first, then each variant): BEV coloured by outcome and a
     range image of intensity; a last panel overlays the intensity histograms.
@@ -82,7 +90,8 @@ def variant_figure(
     Args:
         source_root: the source tree; variants: name -> built tree.
         relpath: the scan to show (same relative path in every tree).
-        sensor: profile used for the range-image projection.
+        sensor: profile used for the range-image projection; variant_sensor: the
+            variants' profile when it differs (a sensor transfer).
         columns: float32 columns per point in the scan file.
     """
     plt = _plt()
@@ -90,35 +99,40 @@ def variant_figure(
     fig = plt.figure(figsize=(16, 3.2 * rows))
     grid = fig.add_gridspec(rows, 3, width_ratios=(1.0, 3.2, 1.3))
     src = _scan(source_root / relpath, columns)
-    trees = [("source (clear)", src, np.full(src.shape[0], Outcome.KEPT, np.uint8))]
+    trees = [("source", src, np.full(src.shape[0], Outcome.KEPT, np.uint8), sensor)]
     for name, root in variants.items():
         pts = _scan(root / relpath, columns)
         _, outcome, _ = provenance.read_item(root, relpath)
-        trees.append((name, pts, outcome))
+        trees.append((name, pts, outcome, variant_sensor or sensor))
     hist_ax = fig.add_subplot(grid[:, 2])
-    bins = np.linspace(0.0, float(max(src[:, 3].max(), 1e-3)), 60)
-    for r, (name, pts, outcome) in enumerate(trees):
+    # Trees of two sensors store intensity in two encodings: compare their reflectivity.
+    as_refl = variant_sensor not in (None, sensor)
+    what = "reflectivity" if as_refl else "stored intensity"
+    bins = np.linspace(0.0, float(max(_shown(src, sensor, as_refl).max(), 1e-3)), 60)
+    for r, (name, pts, outcome, tree_sensor) in enumerate(trees):
         bev = fig.add_subplot(grid[r, 0])
         box = (-extent_m, extent_m, -extent_m, extent_m)
         bev.imshow(_bev_raster(pts[:, :2], outcome, extent_m), origin="lower", extent=box,
                    interpolation="nearest")  # fmt: skip
         bev.set(xlim=(-extent_m, extent_m), ylim=(-extent_m, extent_m), aspect="equal")
-        counts = np.bincount(outcome, minlength=4)
+        counts = np.bincount(outcome, minlength=len(Outcome))
         bev.set_title(f"{name}\n{pts.shape[0]:,} pts · particle {counts[2]:,}", fontsize=9)
         bev.tick_params(labelsize=7)
         keep = outcome != Outcome.LOST
         img = fig.add_subplot(grid[r, 1])
         shown = img.imshow(
-            _range_image(pts[keep, :3], pts[keep, 3], sensor), aspect="auto", cmap="viridis",
+            _range_image(pts[keep, :3], _shown(pts[keep], tree_sensor, as_refl), tree_sensor),
+            aspect="auto", cmap="viridis",
             interpolation="nearest", vmin=0.0, vmax=bins[-1],
         )  # fmt: skip
-        img.set_title(f"{name}: intensity range image (rows = channels)", fontsize=9)
+        img.set_title(f"{name}: {what} range image (rows = channels)", fontsize=9)
         img.tick_params(labelsize=7)
         fig.colorbar(shown, ax=img, fraction=0.02)
-        hist_ax.hist(pts[keep, 3], bins=bins, histtype="step", density=True, label=name)
+        hist_ax.hist(_shown(pts[keep], tree_sensor, as_refl), bins=bins, histtype="step",
+                     density=True, label=name)  # fmt: skip
     hist_ax.set_yscale("log")
-    hist_ax.set_xlabel("stored intensity")
-    hist_ax.set_title("intensity histograms", fontsize=9)
+    hist_ax.set_xlabel(what)
+    hist_ax.set_title(f"{what} histograms", fontsize=9)
     hist_ax.legend(fontsize=7)
     handles = [
         plt.Line2D([], [], marker="o", ls="", color=c, label=label)

@@ -57,7 +57,7 @@ def finalise(
         "variant": plan.pipeline.variant,
         "source_root": plan.source_root,
         "points_mode": plan.pipeline.points,
-        "sensor": reader_for(plan).sensor,
+        "sensor": plan.pipeline.output_sensor(reader_for(plan).sensor),
         "device": _device(plan),
         "libraries": library_versions(),
         "items": len(manifest),
@@ -97,6 +97,7 @@ def _preview(out_root: Path, plan: BuildPlan, manifest: list[dict[str, Any]]) ->
     variant_figure(
         Path(reader.root), {plan.pipeline.variant: out_root}, scan["path"], out_root / relpath,
         sensor=reader.sensor, columns=scan["record_bytes"] // 4,
+        variant_sensor=plan.pipeline.output_sensor(reader.sensor),
     )  # fmt: skip
     return [relpath]
 

@@ -72,6 +72,11 @@ class Frame:
         n_source: N, the point count of the source scan.
         conditions: what earlier stages did to the whole frame, as (key, value) pairs,
             e.g. ("style", "snow"), ("extinction_per_m", 0.004); later stages read them.
+        window: relpaths of the scans a sensor transfer drew its points from, in scan
+            order (the item's own among them); () when every point comes from the item's
+            own scan.
+        source_scan: (M,) int16 index into `window` of the scan each point's source_index
+            is a row of; empty when `window` is ().
     """
 
     item: Item
@@ -85,6 +90,8 @@ class Frame:
     lost_index: npt.NDArray[np.int64] = field(default_factory=_empty_index)
     n_source: int = -1
     conditions: tuple[tuple[str, str | float], ...] = ()
+    window: tuple[str, ...] = ()
+    source_scan: npt.NDArray[np.int16] = field(default_factory=lambda: np.zeros(0, np.int16))
 
     def condition(self, key: str, default: str | float | None = None) -> str | float | None:
         """The value an earlier stage recorded under `key`, else `default`."""
@@ -152,6 +159,7 @@ class Frame:
             labels=None if self.labels is None else self.labels[rows],
             extra_labels={k: v[rows] for k, v in self.extra_labels.items()},
             source_index=self.source_index[rows],
+            source_scan=self.source_scan[rows] if self.window else self.source_scan,
             outcome=np.maximum(self.outcome[rows], outcome).astype(np.uint8),
             lost_index=lost,
         )

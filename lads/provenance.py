@@ -54,8 +54,14 @@ def write_item(
     source_index: npt.NDArray[np.int64],
     outcome: npt.NDArray[np.uint8],
     n_source: int,
+    window: tuple[str, ...] = (),
+    source_scan: npt.NDArray[np.int16] | None = None,
 ) -> None:
     """Write one item's provenance (overwriting a partial earlier attempt).
+
+    A sensor transfer's item also gets `window` (attribute: the relpaths of the scans its
+    points came from) and `source_scan` ((M,) int16, the index into `window` of each
+    point's scan): its source_index is then a row of that scan.
 
     The group is a plain Zarr v3 group (read back with zarr, `read_item`), but written here
     directly as its five files: zarr's own writer spent ~12 ms of event-loop round trips per
@@ -66,9 +72,18 @@ def write_item(
     group = out_root / STORE_NAME / node_name(relpath)
     if group.exists():
         shutil.rmtree(group)
-    attrs = {"item_id": item_id, "relpath": relpath, "n_source": int(n_source),
-             "n_output": int(source_index.size)}  # fmt: skip
-    for name, values in (("source_index", source_index.astype("<i8")), ("outcome", outcome)):
+    attrs: dict[str, Any] = {
+        "item_id": item_id,
+        "relpath": relpath,
+        "n_source": int(n_source),
+        "n_output": int(source_index.size),
+    }
+    arrays = [("source_index", source_index.astype("<i8")), ("outcome", outcome)]
+    if window:
+        attrs["window"] = list(window)
+        scans = np.zeros(0, "<i2") if source_scan is None else source_scan.astype("<i2")
+        arrays.append(("source_scan", scans))
+    for name, values in arrays:
         folder = group / name
         atomic_write(folder / "zarr.json", _json(_array_metadata(values)))
         if values.size:
@@ -138,6 +153,27 @@ def read_item(
         ) from exc
 
 
+def read_source_scan(out_root: Path, relpath: str) -> tuple[list[str], npt.NDArray[np.int16]]:
+    """(window relpaths, (M,) int16 scan of each point) of a sensor transfer's item; for
+    any other item ([relpath], zeros): every point is a row of the item's own scan."""
+    import zarr
+
+    source, _, attrs = read_item(out_root, relpath)
+    window = attrs.get("window")
+    if not window:
+        return [relpath], np.zeros(source.size, np.int16)
+    path = out_root / STORE_NAME / node_name(relpath)
+    try:
+        group = zarr.open_group(path, mode="r", zarr_format=3)
+        scans = cast(npt.NDArray[np.int16], cast(zarr.Array, group["source_scan"])[:])
+        return list(window), scans
+    except (FileNotFoundError, KeyError, zarr.errors.NodeNotFoundError) as exc:  # type: ignore[attr-defined]
+        raise ManifestError(
+            f"{path}: no provenance for {relpath}; the build is incomplete. Run the same "
+            "`lads build` again to finish it."
+        ) from exc
+
+
 def group_files(out_root: Path, relpath: str) -> list[Path]:
     """Every file of one item's group (its metadata and chunks)."""
     base = out_root / STORE_NAME / node_name(relpath)
@@ -165,6 +201,13 @@ def item_intact(out_root: Path, row: dict, listed: dict[str, str] | None = None)
             "n_source": points.get("source"), "n_output": points.get("output")}  # fmt: skip
     if {k: attrs.get(k) for k in want} != want or source_index.shape != outcome.shape:
         return False
+    if attrs.get("window"):
+        try:
+            window, scans = read_source_scan(out_root, relpath)
+        except Exception:  # noqa: BLE001 - as above: any damage means rebuild
+            return False
+        if scans.shape != outcome.shape or (scans.size and int(scans.max()) >= len(window)):
+            return False
     counts = outcome_counts(points.get("source", -1), outcome, points.get("lost", -1), source_index)
     if counts != points:
         return False

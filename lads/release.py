@@ -28,7 +28,7 @@ from pathlib import Path
 from typing import Any
 
 from lads.built_tree import MANIFEST, RUN_JSON, SHA256SUMS
-from lads.config import find_pipeline, load_pipeline
+from lads.config import pipeline_for
 from lads.runner import run_build
 from lads.verify import verify_tree
 
@@ -100,7 +100,7 @@ def synthetic_table(out: Path, frames: int, seed: int) -> list[Entry]:
 
 def build_entry(entry: Entry, out: Path, *, seed: int, jobs: int) -> dict[str, Any]:
     """Build, verify and collect the manifests of one table entry."""
-    pipeline = load_pipeline(find_pipeline(entry.source, entry.variant))
+    pipeline = pipeline_for(entry.source, entry.variant)
     tree = out / entry.name
     report = run_build(
         entry.source, entry.root, tree, pipeline, seed=seed, reader_options=dict(entry.options),

@@ -25,6 +25,7 @@ from lads.readers.base import EncodedFile, Reader
 from lads.seeding import rng_for, seed_entropy
 from lads.stages import build_stage
 from lads.stages.base import Stage
+from lads.windows import run_window_stage, window_source_rows
 
 
 @functools.lru_cache(maxsize=4)
@@ -76,9 +77,15 @@ def _rng(plan: BuildPlan, item: Item, stage: Stage) -> Any:
 def _run_stages(
     item: Item, plan: BuildPlan, frame: Frame, stages: tuple[Stage, ...], clock: _Clock
 ) -> Frame:
-    """`frame` through `stages` in order, each with its own rng; one lap per stage."""
+    """`frame` through `stages` in order, each with its own rng; one lap per stage. A stage
+    that transfers from a window (the sensor stage) gets the window read here."""
     for stage in stages:
-        frame = stage(frame, _rng(plan, item, stage))
+        if hasattr(stage, "call_window"):
+            key = f"{plan.pipeline.config_hash()}:{stage.name}"
+            frame = run_window_stage(stage, key, reader_for(plan), item, frame,  # type: ignore[arg-type]
+                                     _rng(plan, item, stage))  # fmt: skip
+        else:
+            frame = stage(frame, _rng(plan, item, stage))
         clock.lap(f"stage:{stage.name}")
     return frame
 
@@ -116,7 +123,9 @@ def transform(
             {"name": stage.name, "version": stage.version, "params_hash": spec.params_hash(),
              "seed_entropy": entropy}
         )  # fmt: skip
-    if plan.pipeline.points == "aligned":
+    if plan.pipeline.points == "resampled":
+        encoded_frame, source_index, outcome = frame, frame.source_index, frame.outcome
+    elif plan.pipeline.points == "aligned":
         encoded_frame, source_index, outcome = correspondence.aligned(source, frame)
     else:
         label = (
@@ -248,21 +257,23 @@ def process_item(
     out_root = Path(plan.out_root)
     timings = {} if timings is None else timings
     try:
-        _, files, fields, (source_index, outcome, n_source) = transform(
+        frame, files, fields, (source_index, outcome, n_source) = transform(
             item, plan, timings, partial
         )
         clock = _Clock(timings)
+        reader = reader_for(plan)
         row: dict[str, Any] = {
             **fields,
             "status": "ok",
-            "source": _source_rows(item, reader_for(plan).root),
+            "source": _source_rows(item, reader.root)
+            + window_source_rows(reader, item, frame.window),
             "outputs": _output_rows(files),
         }
         clock.lap("hash")
         for f in files:
             atomic_write(out_root / f.relpath, f.payload)
         clock.lap("write")
-        _write_provenance(out_root, item, source_index, outcome, n_source)
+        _write_provenance(out_root, item, source_index, outcome, n_source, frame)
         clock.lap("provenance")
     except OutputWriteError:
         raise
@@ -280,10 +291,13 @@ def process_item(
     return row
 
 
-def _write_provenance(out_root: Path, item: Item, source_index: Any, outcome: Any, n: int) -> None:
+def _write_provenance(
+    out_root: Path, item: Item, source_index: Any, outcome: Any, n: int, frame: Frame
+) -> None:
     """provenance.write_item, with a write failure of the store said in words."""
     try:
-        provenance.write_item(out_root, item.relpath, item.item_id, source_index, outcome, n)
+        provenance.write_item(out_root, item.relpath, item.item_id, source_index, outcome, n,
+                              frame.window, frame.source_scan)  # fmt: skip
     except OSError as exc:
         raise write_error(out_root / provenance.STORE_NAME, exc) from exc
 

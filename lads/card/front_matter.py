@@ -10,7 +10,10 @@ import yaml
 from lads.card.sections import PHYSICS
 from lads.card.sources import CONFIRM, SOURCES, Source
 
-TAGS = ["lidar", "point-cloud", "autonomous-driving", "weather-augmentation", "synthetic"]
+TAGS = ["lidar", "point-cloud", "autonomous-driving", "synthetic"]
+# The tag of each kind of variant (lads.card.kinds.variant_kind).
+KIND_TAGS = {"weather": "weather-augmentation", "sensor": "sensor-adaptation",
+             "intensity": "intensity-adaptation"}  # fmt: skip
 
 # Offline copies of the Hub's enums (hub-docs datasetcard.md, repositories-licenses.md,
 # huggingface.js tasks); only these values pass `validate_card`.
@@ -61,8 +64,9 @@ def size_category(n: int) -> str:
 
 
 def render_front_matter(
-    run: dict[str, Any], src: Source, n_ok: int, splits: list[dict[str, Any]]
-) -> str:
+    run: dict[str, Any], src: Source, n_ok: int, splits: list[dict[str, Any]],
+    kind: str = "weather",
+) -> str:  # fmt: skip
     """The YAML front matter (without the '---' lines), with a note on the inherited licence."""
     synthetic = src is SOURCES["synthetic"]
     copied = sum(int(c.get("bytes", 0)) for c in run.get("copied_files") or [])
@@ -71,7 +75,8 @@ def render_front_matter(
         "license": src.license,
         "license_name": src.license_name,
         "license_link": src.license_link,
-        "tags": TAGS + [s for s in PHYSICS if s in str(run.get("variant", ""))],
+        "tags": [*TAGS[:3], KIND_TAGS[kind], *TAGS[3:]]
+        + [s for s in PHYSICS if s in str(run.get("variant", ""))],
         "annotations_creators": ["machine-generated" if synthetic else "expert-generated"],
         "size_categories": [size_category(n_ok)],
         "source_datasets": ["original"] if not src.hf_id else [f"extended|{src.hf_id}"],

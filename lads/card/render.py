@@ -8,6 +8,7 @@ from string import Template
 
 from lads.card import sections, tree_facts
 from lads.card.front_matter import render_front_matter
+from lads.card.kinds import variant_kind
 from lads.card.sources import source_info
 from lads.files import atomic_write
 from lads.resources import card_template
@@ -33,7 +34,8 @@ def render_card(out_root: Path, *, figures: list[str] | tuple[str, ...] = ()) ->
     src = source_info(run, out_root)
     ok = [r for r in rows if r.get("status") == "ok"]
     splits = tree_facts.splits(run, ok, src)
-    front = render_front_matter(run, src, len(ok), splits)
+    kind = variant_kind([name for name, _ in sections.pipeline_stages(pipeline_text)])
+    front = render_front_matter(run, src, len(ok), splits, kind)
     fields = sections.fields(run, rows, ok, src, splits, pipeline_text, figures)
     body = Template(card_template().read_text()).substitute(fields)
     return f"---\n{front}---\n\n" + re.sub(r"\n{3,}", "\n\n", body)

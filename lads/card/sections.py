@@ -8,6 +8,7 @@ from typing import Any
 
 import yaml
 
+from lads.card.kinds import NOT_MODELLED_BY_KIND, WEATHER_STAGES, kind_fields, variant_kind
 from lads.card.sources import REALITY, Source
 
 NOT_MODELLED = (
@@ -29,6 +30,14 @@ PHYSICS = {
     "fog": "fog: extinction from the meteorological optical range (visibility), hard-target "
     "attenuation exp(-2 alpha R) and the soft volume return of the fog itself (Mie lidar "
     "ratio of advection-fog droplets, about 17 sr).",
+    "sensor": "sensor: the returns of a window of source scans, placed with the sequence's "
+    "poses, become surfels (ellipses in the surface plane carrying label and albedo); the "
+    "target's beams (its elevations, azimuth step, range limits) are ray-cast against them "
+    "from the frame's pose, depths blended over the beam's footprint, returns kept where the "
+    "target's detector sees them, its range noise added, intensity in its encoding. Moving "
+    "classes and moved instances come from the frame's own scan only.",
+    "intensity": "intensity: a learned generator predicts every point's intensity from range, "
+    "incidence and material (docs/intensity.md of lads).",
 }
 
 
@@ -40,6 +49,9 @@ POINTS_MODE_TEXT = {
     "aligned": "Point count and order are unchanged and label files are byte-identical to the "
     "source. Lost beams sit at the sensor origin with intensity 0; particle returns keep "
     "their source label.",
+    "resampled": "Every point is a beam of the target sensor, in its order; label files are "
+    "rewritten to match (the label of the surface each beam hit), so a file's point count is "
+    "the target's, not the source's.",
 }
 
 
@@ -55,10 +67,14 @@ def fields(
     """The values of the ${...} placeholders of dataset_cards/template.md."""
     total = sum(int(o.get("bytes", 0)) for r in ok for o in r.get("outputs", []))
     mode = str(run.get("points_mode", "unknown"))
+    kind = variant_kind([name for name, _ in pipeline_stages(pipeline_text)])
+    texts = kind_fields(kind, src.pretty)
     return {
+        **texts,
         "pretty_name": f"LADS {src.pretty}: {run.get('variant', 'variant')}",
-        "summary": f"`{run.get('variant', '?')}`, a weather variant of {src.pretty} built by "
-        "lads: every source scan once, in the source's own format and folder layout.",
+        "summary": f"`{run.get('variant', '?')}`, a {texts['kind_word']} variant of "
+        f"{src.pretty} built by lads: every source scan once, in the source's own format and "
+        "folder layout.",
         "description": _description(run, src),
         "lads_version": str(run.get("lads_version", "?")),
         "source_pretty": src.pretty,
@@ -83,7 +99,9 @@ def fields(
         "stages_table": _stages_table(ok, pipeline_text),
         "pipeline_yaml": pipeline_text.rstrip("\n"),
         "physics_text": _physics(run, pipeline_text),
-        "not_modelled": "\n".join(f"- {line}" for line in NOT_MODELLED),
+        "not_modelled": "\n".join(
+            f"- {line}" for line in NOT_MODELLED_BY_KIND.get(kind, NOT_MODELLED)
+        ),
         "figures": "\n".join(f"![{Path(f).stem}]({f})" for f in figures),
         "citation": "\n".join(c for c in (src.citation, REALITY) if c),
     }
@@ -184,10 +202,11 @@ def _physics(run: dict[str, Any], pipeline_text: str) -> str:
         shown = ", ".join(f"{k}={v}" for k, v in params.items()) or "defaults"
         text = PHYSICS[kind] if kind else f"{name}: see the stage's documentation in lads."
         lines.append(f"- `{name}` ({shown}): {text}")
-    lines.append(
-        "\nFaint returns (drops, flakes, fog) are suppressed near the sensor by a "
-        "transmitter/receiver overlap ramp; bright hard targets still pass at short range."
-    )
+    if any(name in WEATHER_STAGES for name, _ in pipeline_stages(pipeline_text)):
+        lines.append(
+            "\nFaint returns (drops, flakes, fog) are suppressed near the sensor by a "
+            "transmitter/receiver overlap ramp; bright hard targets still pass at short range."
+        )
     return "\n".join(lines)
 
 

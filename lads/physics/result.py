@@ -19,12 +19,16 @@ class Outcome(IntEnum):
         return on this beam; the output point lies on the same ray at the particle range.
     LOST: no return above the detection threshold; never in `WeatherResult.outcome`, only
         used by writers that keep N unchanged and mark the point instead.
+    RESAMPLED: a beam of another sensor (a sensor transfer, `lads.transfer`) that hit the
+        surface a source return gave; its source index names that return, in the scan of
+        the frame's window its provenance names.
     """
 
     KEPT = 0
     ATTENUATED = 1
     PARTICLE = 2
     LOST = 3
+    RESAMPLED = 4
 
 
 @dataclass(frozen=True, slots=True)

@@ -131,6 +131,11 @@ class NuScenesKittiReader:
         """The scan (M x 16 bytes) and, if the item has one, the label file (M bytes)."""
         return encode_scan_and_labels(frame, 4, self.label_dtype)
 
+    def scan_position(self, item: Item) -> tuple[str, int]:
+        """(scene, keyframe number) of an item: its place in time, for a sensor transfer's
+        window (`lads.transfer.window`)."""
+        return item.relpath.rsplit("/", 2)[0], int(Path(item.relpath).stem)
+
     def sensor_poses(self, items: list[Item]) -> dict[str, npt.NDArray[np.float64]]:
         """(4, 4) lidar -> global pose of each item: line NNNNNN of its scene's poses.txt.
 

@@ -120,6 +120,11 @@ class SemanticKittiReader:
         """The scan (M x 16 bytes) and, if the item has one, the label file (M x 4 bytes)."""
         return encode_scan_and_labels(frame, 4, self.label_dtype)
 
+    def scan_position(self, item: Item) -> tuple[str, int]:
+        """(sequence, scan number) of an item: its place in time, for a sensor transfer's
+        window (`lads.transfer.window`)."""
+        return item.relpath.split("/")[1], int(Path(item.relpath).stem)
+
     def sensor_poses(self, items: list[Item]) -> dict[str, npt.NDArray[np.float64]]:
         """(4, 4) Velodyne -> world pose of each item, from its sequence's poses.txt (line i
         for scan i, camera frame) and calib.txt's Tr: Tr^-1 P_i Tr.

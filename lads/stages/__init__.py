@@ -12,6 +12,7 @@ from lads.config import StageConfig
 from lads.errors import ConfigError
 from lads.stages.base import Stage
 from lads.stages.intensity import IntensityStage
+from lads.stages.sensor import SensorStage
 from lads.stages.weather import WeatherStage
 from lads.stages.wet_ground import WetGroundStage
 
@@ -28,6 +29,7 @@ STAGES: dict[str, StageClass] = {
     "fog": WeatherStage,
     "intensity": IntensityStage,
     "wet_ground": WetGroundStage,
+    "sensor": SensorStage,
 }
 
 

@@ -50,8 +50,8 @@ class WindowScan:
 
     xyz: npt.NDArray[np.floating]
     intensity: npt.NDArray[np.floating]
-    labels: npt.NDArray[np.integer] | None
-    ring: npt.NDArray[np.integer] | None
+    labels: npt.NDArray[np.generic] | None
+    ring: npt.NDArray[np.generic] | None
     pose: F64
 
 
@@ -230,13 +230,16 @@ def _static(
 
 
 def _centroids(part: Surfels, pose: F64) -> tuple[npt.NDArray[np.int64], F64]:
-    """(65536,) surfels per instance id of a scan and (65536, 3) their world centroids."""
+    """(65536,) surfels per instance id > 0 of a scan and (65536, 3) their world centroids
+    (id 0, no instance, counts none: most surfels have it, and no test reads it)."""
     ids = (part.label >> np.uint32(16)).astype(np.int64)
+    some = np.flatnonzero(ids)
+    ids, centre = ids[some], part.centre[some]
     n = np.bincount(ids, minlength=1 << 16)
-    sums = np.stack([np.bincount(ids, weights=part.centre[:, a], minlength=1 << 16)
+    sums = np.stack([np.bincount(ids, weights=centre[:, a], minlength=1 << 16)
                      for a in range(3)], axis=1)  # fmt: skip
     mean = sums / np.maximum(n, 1)[:, None]
-    return n, mean @ pose[:3, :3].T + pose[:3, 3]
+    return n, mean @ np.ascontiguousarray(pose[:3, :3].T) + pose[:3, 3]
 
 
 def _returns(

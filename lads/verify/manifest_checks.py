@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 from typing import Any
 
+from lads.correspondence import POINT_MODES
 from lads.verify.hashing import SUMS, parse_sums
 from lads.verify.state import Verifier, count, entries
 
@@ -61,8 +62,8 @@ def check_run_json(v: Verifier) -> None:
         if key in run and run[key] != have:
             what = f"{key} is {run[key]!r} but manifest.jsonl has {have}"
             v.add("run.json", "manifest_inconsistent", what)
-    if run.get("points_mode") not in ("physical", "aligned"):
-        what = f"points_mode {run.get('points_mode')!r} is not 'physical' or 'aligned'"
+    if run.get("points_mode") not in POINT_MODES:
+        what = f"points_mode {run.get('points_mode')!r} is not one of {POINT_MODES}"
         v.add("run.json", "manifest_inconsistent", what)
 
 
@@ -165,6 +166,10 @@ def _check_points(
         rules += [("kept+attenuated+particle == output", returned == o)]
         second = pts.get("second_returns", 0)
         rules += [("output + lost == source + second_returns", o + lost == s + second)]
+    elif mode == "resampled":
+        resampled = pts.get("resampled", 0)
+        rules += [("kept+attenuated+particle+resampled == output", returned + resampled == o)]
+        rules += [("lost == 0 (a transfer loses no source beam)", lost == 0)]
     elif mode == "aligned":
         rules += [("output == source", o == s)]
         rules += [("kept+attenuated+particle+lost == source", returned + lost == s)]

@@ -23,7 +23,7 @@ from click.testing import CliRunner
 
 from lads import provenance
 from lads.cli import main
-from lads.config import find_pipeline, load_pipeline
+from lads.config import pipeline_for
 from lads.errors import BuildError
 from lads.physics.result import Outcome
 from lads.runner import run_build
@@ -44,7 +44,7 @@ def snow(**overrides):
     # The builder's machinery on small random trees: physics intensity (the learned stage
     # has its own tests in test_build_intensity.py).
     overrides.setdefault("intensity", "physics")
-    return load_pipeline(find_pipeline("semantickitti", "snow")).with_overrides(**overrides)
+    return pipeline_for("semantickitti", "snow").with_overrides(**overrides)
 
 
 def tree_digest(root: Path, skip=("run_report.json",)) -> dict[str, str]:

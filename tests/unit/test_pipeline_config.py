@@ -67,10 +67,15 @@ def test_another_sources_pipeline_file_is_not_a_variant():
 def test_every_source_offers_every_shipped_variant():
     # The matrix users build; tests/realdata/test_matrix_real.py builds it on real frames.
     expected = ["fog", "intensity-kitti", "intensity-nuscenes", "rain", "snow"]
+    # A sensor transfer needs poses and scan order: every profile but the source's own.
+    sensors = {
+        "semantickitti": ["sensor-hdl32e", "sensor-voxelscape64", "sensor-wads64"],
+        "nuscenes-kitti": ["sensor-hdl64e", "sensor-voxelscape64", "sensor-wads64"],
+    }
     for source in READERS:
         # A wet road needs labels to find the road: every source but RADIATE has them.
         wet = [] if source == "radiate" else ["wet-ground"]
-        assert variants_for(source) == expected + wet, source
+        assert variants_for(source) == sorted(expected + sensors.get(source, []) + wet), source
 
 
 @pytest.mark.parametrize(

@@ -1,0 +1,132 @@
+"""The sensor stage: a frame as another LiDAR would have scanned it (docs/transfer.md).
+
+The stage sees the frame and its window: the surfels of neighbouring scans of the sequence
+with their poses, which the worker reads (`lads.worker`; the stage does no I/O). Called on
+a frame alone, the window is the frame's own scan. Every output point is a beam of the
+target sensor (`Outcome.RESAMPLED`): its source index is the row of the return whose surface
+it hit, in the window scan its `source_scan` names. Labels follow the surface hit; the
+intensity is the surface's albedo seen by the target at its incidence, in the target's
+encoding; a nuScenes-style `ring` column gets the target's channel.
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+
+import numpy as np
+import numpy.typing as npt
+
+from lads.config import StageConfig
+from lads.errors import InputDataError
+from lads.frame import Frame
+from lads.physics.result import Outcome
+from lads.readers import label_set_for
+from lads.sensors.profile import SensorProfile, load_profile
+from lads.transfer.scan import WindowScan, transfer_surfels, window_surfels
+from lads.transfer.surfels import Surfels
+from lads.transfer.window import DEFAULT_NEIGHBOURS
+
+# Bump when the stage's output bytes change for the same input.
+SENSOR_STAGE_VERSION = "1"
+# Point columns the stage knows how to fill; any other column of a source format is refused.
+_KNOWN_COLUMNS = ("x", "y", "z", "intensity", "ring")
+
+
+@functools.lru_cache(maxsize=8)
+def _profile(name: str) -> SensorProfile:
+    return load_profile(name)
+
+
+@dataclass(frozen=True, slots=True)
+class SensorStage:
+    """Scan each frame again with the `target` sensor, from the frame's own pose.
+
+    Attributes:
+        name: "sensor".
+        target: the target sensor profile (`lads profiles`, or a profile YAML path).
+        neighbours: neighbouring scans of the sequence in each frame's window
+            (`lads.transfer.window`); 0 transfers each frame from its own scan.
+    """
+
+    name: str
+    target: str
+    neighbours: int = DEFAULT_NEIGHBOURS
+    version: str = SENSOR_STAGE_VERSION
+
+    @classmethod
+    def from_config(cls, config: StageConfig) -> SensorStage:
+        return cls(name=config.stage, **config.params)
+
+    def prepare(self, frame: Frame) -> Surfels:
+        """The surfels of one scan of a window, in its sensor frame (deterministic: the
+        worker computes them once per scan and lends them to every window that holds it)."""
+        _check_columns(frame)
+        ring = frame.points[:, frame.columns.index("ring")] if "ring" in frame.columns else None
+        scan = WindowScan(frame.xyz, frame.intensity, frame.labels, ring, np.eye(4))
+        return window_surfels(scan, 0, _profile(frame.sensor), label_set_for(frame.item.dataset))
+
+    def __call__(self, frame: Frame, rng: np.random.Generator) -> Frame:
+        """The frame transferred from its own scan alone (a window of one)."""
+        return self.call_window(frame, [self.prepare(frame)], [np.eye(4)], 0,
+                                (frame.item.relpath,), rng)  # fmt: skip
+
+    def call_window(
+        self,
+        frame: Frame,
+        parts: Sequence[Surfels],
+        poses: Sequence[npt.NDArray[np.float64]],
+        centre: int,
+        window: tuple[str, ...],
+        rng: np.random.Generator,
+    ) -> Frame:
+        """The frame transferred from its window.
+
+        Args:
+            frame: the window's centre scan as read.
+            parts: `prepare` of every window scan, in scan order.
+            poses: (4, 4) float64 sensor -> world pose of every window scan.
+            centre: index of `frame` in the window.
+            window: relpaths of the window scans (recorded in the provenance).
+            rng: randomness of the target's range noise.
+        """
+        _check_columns(frame)
+        if frame.extra_labels:
+            raise InputDataError(
+                f"{frame.item.relpath}: the sensor stage cannot carry the per-point files "
+                f"{sorted(frame.extra_labels)} to new beams; transfer a source without them."
+            )
+        numbered = [replace(p, frame=np.full(len(p), k, np.int32)) for k, p in enumerate(parts)]
+        out = transfer_surfels(numbered, poses, centre, _profile(frame.sensor),
+                               _profile(self.target), rng,
+                               label_set=label_set_for(frame.item.dataset))  # fmt: skip
+        points = np.zeros((out.xyz.shape[0], len(frame.columns)), np.float32)
+        points[:, :3] = out.xyz
+        points[:, 3] = out.intensity
+        if "ring" in frame.columns:
+            points[:, frame.columns.index("ring")] = out.ring
+        labels = None if frame.labels is None else out.labels.astype(frame.labels.dtype)
+        m = out.xyz.shape[0]
+        return replace(
+            frame,
+            sensor=self.target,
+            points=points,
+            labels=labels,
+            source_index=out.source_point,
+            outcome=np.full(m, Outcome.RESAMPLED, np.uint8),
+            lost_index=np.zeros(0, np.int64),
+            window=window,
+            source_scan=out.source_frame.astype(np.int16),
+            conditions=frame.conditions + (("source_sensor", frame.sensor),),
+        )
+
+
+def _check_columns(frame: Frame) -> None:
+    unknown = [c for c in frame.columns if c not in _KNOWN_COLUMNS]
+    if unknown or frame.columns[:4] != _KNOWN_COLUMNS[:4]:
+        raise InputDataError(
+            f"{frame.item.relpath}: the sensor stage writes the columns {_KNOWN_COLUMNS}, but "
+            f"this source has {frame.columns}; transfer a source of x, y, z, intensity "
+            "(and ring)."
+        )

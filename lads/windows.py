@@ -1,0 +1,144 @@
+"""A sensor transfer's window, read for the worker: neighbouring scans, their poses and their
+surfels (`lads.stages.sensor`, docs/transfer.md §2).
+
+The worker owns this I/O; the stage stays a pure function of the scans it is handed. Each
+worker process keeps the surfels of the scans it read last, so a build that walks a
+sequence prepares every scan about once, not once per window that holds it. Surfels are a
+deterministic function of a scan, so the cache never changes an output byte.
+"""
+
+from __future__ import annotations
+
+import functools
+from collections import OrderedDict
+from pathlib import Path
+from typing import Any, Protocol
+
+import numpy as np
+import numpy.typing as npt
+
+from lads.errors import InputDataError
+from lads.files import sha256_file
+from lads.frame import Frame, Item
+from lads.readers.base import Reader
+from lads.transfer.surfels import Surfels
+from lads.transfer.window import window_of
+
+F64 = npt.NDArray[np.float64]
+
+
+class WindowStage(Protocol):
+    """A stage that transfers a frame from its window (`lads.stages.sensor.SensorStage`)."""
+
+    name: str
+    neighbours: int
+
+    def prepare(self, frame: Frame) -> Surfels: ...
+
+    def call_window(self, frame: Frame, parts: list[Surfels], poses: list[F64], centre: int,
+                    window: tuple[str, ...], rng: np.random.Generator) -> Frame: ...  # fmt: skip
+
+
+class _Prepared:
+    """Surfels of the scans read last, by (stage identity, item id), oldest dropped first."""
+
+    def __init__(self) -> None:
+        self.entries: OrderedDict[tuple[str, str], Surfels] = OrderedDict()
+
+    def get(self, key: tuple[str, str], make: Any, size: int) -> Surfels:
+        if key in self.entries:
+            self.entries.move_to_end(key)
+            return self.entries[key]
+        value = make()
+        self.entries[key] = value
+        while len(self.entries) > size:
+            self.entries.popitem(last=False)
+        return value
+
+
+_PREPARED = _Prepared()
+
+
+@functools.lru_cache(maxsize=4)
+def _items(reader: Any) -> tuple[Item, ...]:
+    """Every item of the reader's tree (a window may reach beyond the items being built);
+    `reader` is a Reader, typed Any as an lru_cache key (a Protocol is not Hashable)."""
+    return tuple(reader.items())
+
+
+@functools.lru_cache(maxsize=64)
+def _sequence_poses(reader: Any, sequence: str) -> dict[str, F64]:
+    """Pose of every scan of one sequence of the tree, read once per worker."""
+    position = reader.scan_position
+    items = [it for it in _items(reader) if position(it)[0] == sequence]
+    return reader.sensor_poses(items)  # type: ignore[no-any-return]
+
+
+def run_window_stage(
+    stage: WindowStage,
+    stage_key: str,
+    reader: Reader,
+    item: Item,
+    frame: Frame,
+    rng: np.random.Generator,
+) -> Frame:
+    """`frame` (the item as read) through `stage` with its window of the reader's tree.
+
+    Raises:
+        InputDataError: the reader has no poses or scan order (the message says which
+            readers do), or a pose is missing (the reader's own error says where).
+    """
+    if stage.neighbours == 0:
+        return stage.call_window(frame, [_prepare(stage, stage_key, item, frame, 2)],
+                                 [np.eye(4)], 0, (item.relpath,), rng)  # fmt: skip
+    if not (hasattr(reader, "scan_position") and hasattr(reader, "sensor_poses")):
+        raise InputDataError(
+            f"{item.relpath}: the {stage.name} stage needs the sequence's poses, which "
+            f"source {type(reader).__name__} does not read; use a source with poses "
+            "(semantickitti, nuscenes-kitti) or neighbours: 0 (each frame alone)."
+        )
+    keyed: Any = reader  # readers are hashable objects; the Reader protocol does not say so
+    window, centre = window_of(_items(keyed), item, stage.neighbours, keyed.scan_position)
+    poses = _sequence_poses(keyed, keyed.scan_position(item)[0])
+    size = 2 * (stage.neighbours + 1)
+    parts = [
+        _prepare(stage, stage_key, it, frame if it == item else None, size, reader) for it in window
+    ]
+    return stage.call_window(frame, parts, [poses[it.relpath] for it in window], centre,
+                             tuple(it.relpath for it in window), rng)  # fmt: skip
+
+
+def _prepare(
+    stage: WindowStage, stage_key: str, item: Item, frame: Frame | None, size: int,
+    reader: Reader | None = None,
+) -> Surfels:  # fmt: skip
+    def make() -> Surfels:
+        read = frame if frame is not None else reader.read(item)  # type: ignore[union-attr]
+        return stage.prepare(read)
+
+    return _PREPARED.get((stage_key, item.item_id), make, size)
+
+
+def window_source_rows(reader: Reader, item: Item, window: tuple[str, ...]) -> list[dict[str, Any]]:
+    """{path, bytes, sha256} of every file of the window's scans other than `item`'s own,
+    for the manifest row (a changed neighbour changes the output: verify and resume see it)."""
+    if not window:
+        return []
+    keyed: Any = reader  # as in run_window_stage
+    by_path = {it.relpath: it for it in _items(keyed)}
+    rows = []
+    for rel in window:
+        if rel == item.relpath:
+            continue
+        for path in by_path[rel].source_relpaths():
+            full = Path(reader.root) / path
+            stat = full.stat()
+            digest = _digest(str(full), stat.st_size, stat.st_mtime_ns)
+            rows.append({"path": path, "bytes": stat.st_size, "sha256": digest})
+    return rows
+
+
+@functools.lru_cache(maxsize=512)
+def _digest(path: str, size: int, mtime_ns: int) -> str:
+    """sha256 of a file, once per (path, size, mtime) in a worker."""
+    return sha256_file(Path(path))

@@ -1,0 +1,179 @@
+"""`lads build --variant sensor-<profile>`: a sequence ray-cast again with another sensor,
+one output frame per source frame, in the source's format, with provenance to the source
+return behind every output point; the window, the variant names and bad input."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from lads import provenance
+from lads.config import parse_pipeline, pipeline_for, variants_for
+from lads.errors import ConfigError
+from lads.physics.result import Outcome
+from lads.readers import get_reader
+from lads.runner import run_build
+from lads.sensors.profile import load_profile
+from lads.synth.writer import write_synthetic_dataset
+from lads.transfer.cast import MIN_TOL_COS
+from lads.transfer.window import window_of
+from lads.verify import verify_tree
+from lads.worker import stages_for
+
+FRAMES = 4
+
+
+@pytest.fixture(scope="module")
+def street(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A 4-frame HDL-64E street in the SemanticKITTI layout, with poses.txt and calib.txt."""
+    root = tmp_path_factory.mktemp("street") / "src"
+    write_synthetic_dataset(root, frames=FRAMES)
+    return root
+
+
+@pytest.fixture(scope="module")
+def built(street: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("sensor") / "out"
+    report = run_build("semantickitti", street, out, pipeline_for("semantickitti", "sensor-hdl32e"),
+                       jobs=1, progress=False, figures=False)  # fmt: skip
+    assert report.complete, report.failed
+    return out
+
+
+def test_every_profile_but_the_sources_own_is_a_sensor_variant():
+    assert "sensor-hdl32e" in variants_for("semantickitti")
+    assert "sensor-hdl64e" not in variants_for("semantickitti")
+    assert "sensor-hdl64e" in variants_for("nuscenes-kitti")
+    assert not [v for v in variants_for("wads") if v.startswith("sensor")]  # no poses
+    pipeline = pipeline_for("nuscenes-kitti", "sensor-wads64")
+    assert pipeline.variant == "sensor-wads64" and pipeline.points == "resampled"
+    assert pipeline.stages[0].params["target"] == "wads64"
+    assert pipeline.output_sensor("hdl32e") == "wads64"
+
+
+def test_the_transferred_tree_verifies_and_regenerates(built: Path, street: Path):
+    check = verify_tree(built, street, regenerate=2, seed=0)
+    assert check.ok, [f"{p.kind} {p.path}: {p.message}" for p in check.problems]
+
+
+def test_output_is_the_targets_scan_in_the_sources_format(built: Path, street: Path):
+    target = load_profile("hdl32e")
+    reader = get_reader("semantickitti", built)
+    for item in reader.items():
+        frame = reader.read(item)
+        assert frame.labels is not None and len(frame.labels) == len(frame.points) > 1000
+        xyz = frame.xyz.astype(np.float64)
+        el = np.degrees(np.arctan2(xyz[:, 2], np.hypot(xyz[:, 0], xyz[:, 1])))
+        nearest = np.abs(el[:, None] - np.asarray(target.elevation_deg)[None]).min(axis=1)
+        assert np.median(nearest) < 0.05  # on the target's beams (range noise moves a few)
+        step = target.intensity.step
+        assert np.allclose(frame.intensity / step, np.rint(frame.intensity / step), atol=1e-3)
+
+
+def test_provenance_names_the_source_return_each_beam_hit(built: Path, street: Path):
+    """Every output point lies on the surfel of the source return its provenance names: that
+    return, moved into the output frame with the two scans' poses, is within a surfel's
+    reach, and its label is the output point's."""
+    reader = get_reader("semantickitti", street)
+    items = {it.relpath: it for it in reader.items()}
+    poses = reader.sensor_poses(list(items.values()))
+    stage = stages_for(pipeline_for("semantickitti", "sensor-hdl32e"))[0]
+    for rel in sorted(items)[:2]:
+        out = get_reader("semantickitti", built).read(items[rel])
+        source_index, outcome, attrs = provenance.read_item(built, rel)
+        window, scans = provenance.read_source_scan(built, rel)
+        assert (outcome == Outcome.RESAMPLED).all() and rel in window and len(window) == FRAMES
+        assert scans.size == len(out.points) and set(np.unique(scans)) <= set(range(len(window)))
+        assert (scans != window.index(rel)).any()  # the neighbours lend surfaces
+        for k, wrel in enumerate(window):
+            mine = scans == k
+            src = reader.read(items[wrel])
+            to_out = np.linalg.inv(poses[rel]) @ poses[wrel]
+            surfels = stage.prepare(src)
+            row = np.searchsorted(surfels.point, source_index[mine])
+            assert (surfels.point[row] == source_index[mine]).all()  # a return with a surfel
+            centre = surfels.centre[row] @ to_out[:3, :3].T + to_out[:3, 3]
+            normal = surfels.normal[row] @ to_out[:3, :3].T
+            xyz = out.xyz[mine].astype(np.float64)
+            range_m = np.linalg.norm(xyz, axis=1)
+            beam = xyz / range_m[:, None]
+            t_own = np.einsum("ij,ij->i", centre, normal) / np.einsum("ij,ij->i", beam, normal)
+            # The beam meets the named surfel inside its ellipse ...
+            gap = np.linalg.norm(beam * t_own[:, None] - centre, axis=1)
+            assert (gap <= surfels.radius_m[row] * (1 + 1e-6) + 1e-4).all()
+            # ... and the range is the blend of the hits within the cast's depth window
+            # behind the beam's nearest hit (lads.transfer.cast), widest at grazing incidence.
+            window_m = np.maximum(0.1, 0.01 * np.maximum(range_m, t_own)) / MIN_TOL_COS
+            assert (np.abs(range_m - t_own) <= window_m + 5 * 0.02).all()
+            assert np.median(np.abs(range_m - t_own)) < 0.03
+            assert (src.labels[source_index[mine]] == out.labels[mine]).all()
+
+
+def test_output_bytes_do_not_depend_on_the_job_count(built: Path, street: Path, tmp_path):
+    out = tmp_path / "two"
+    run_build("semantickitti", street, out, pipeline_for("semantickitti", "sensor-hdl32e"),
+              jobs=2, progress=False, figures=False)  # fmt: skip
+    for item in get_reader("semantickitti", street).items():
+        for rel in item.source_relpaths():
+            assert (out / rel).read_bytes() == (built / rel).read_bytes()
+
+
+def test_missing_poses_fail_each_frame_by_name_and_neighbours_0_needs_none(street, tmp_path):
+    src = tmp_path / "src"
+    shutil.copytree(street, src)
+    (src / "sequences" / "00" / "poses.txt").unlink()
+    pipeline = pipeline_for("semantickitti", "sensor-hdl32e")
+    report = run_build("semantickitti", src, tmp_path / "a", pipeline, jobs=1, progress=False,
+                       figures=False, limit=1)  # fmt: skip
+    assert len(report.failed) == 1 and "poses.txt" in report.failed[0][1]
+    alone = pipeline.with_overrides(neighbours=0)
+    report = run_build("semantickitti", src, tmp_path / "b", alone, jobs=1, progress=False,
+                       figures=False, limit=1)  # fmt: skip
+    assert report.complete
+    window, scans = provenance.read_source_scan(tmp_path / "b", "sequences/00/velodyne/000000.bin")
+    assert window == ["sequences/00/velodyne/000000.bin"] and not scans.any()
+
+
+@pytest.mark.parametrize(
+    ("stages", "points", "message"),
+    [
+        ([{"stage": "sensor", "target": "hdl32e"}], "physical", "resampled"),
+        ([{"stage": "snow", "rate_mm_h": 1.0}], "resampled", "only a sensor stage"),
+        ([{"stage": "sensor", "target": "hdl32e"}, {"stage": "snow", "rate_mm_h": 1.0}],
+         "resampled", "must come first"),
+        ([{"stage": "sensor", "target": "no-such-lidar"}], "resampled", "no-such-lidar"),
+        ([{"stage": "sensor", "target": "hdl32e", "neighbours": -1}], "resampled", "0..200"),
+    ],
+)  # fmt: skip
+def test_bad_sensor_pipelines_are_refused_by_name(stages, points, message):
+    data = {"schema_version": 1, "variant": "x", "stages": stages, "writer": {"points": points}}
+    with pytest.raises(ConfigError, match=message):
+        parse_pipeline(data, "test.yaml")
+
+
+def _position(item: tuple[str, int]) -> tuple[str, int]:
+    return item
+
+
+@pytest.mark.parametrize(
+    ("held", "centre", "neighbours", "want"),
+    [
+        (range(100), 50, 10, range(45, 56)),  # half before, half after
+        (range(100), 50, 3, range(49, 53)),  # the odd one after
+        (range(100), 0, 10, range(0, 11)),  # moved inside at the start ...
+        (range(100), 99, 10, range(89, 100)),  # ... and at the end
+        (range(5), 2, 10, range(0, 5)),  # a short sequence: all of it
+        ([0, 52, 88, 850], 52, 10, [52]),  # isolated frames: each alone
+        ([0, 3, 5, 9, 12], 5, 10, [0, 3, 5, 9]),  # gaps in the span are absent
+    ],
+)
+def test_the_window_spans_neighbours_around_the_frame_inside_the_sequence(
+    held, centre, neighbours, want
+):
+    items = [("00", n) for n in held] + [("01", n) for n in range(100)]
+    window, k = window_of(items, ("00", centre), neighbours, _position)
+    assert [n for _, n in window] == list(want) and window[k] == ("00", centre)
+    assert {s for s, _ in window} == {"00"}
