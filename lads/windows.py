@@ -21,7 +21,6 @@ from lads.errors import InputDataError
 from lads.files import sha256_file
 from lads.frame import Frame, Item
 from lads.readers.base import Reader
-from lads.transfer.surfels import Surfels
 from lads.transfer.window import window_of
 
 F64 = npt.NDArray[np.float64]
@@ -33,19 +32,19 @@ class WindowStage(Protocol):
     name: str
     neighbours: int
 
-    def prepare(self, frame: Frame) -> Surfels: ...
+    def prepare(self, frame: Frame) -> Any: ...
 
-    def call_window(self, frame: Frame, parts: list[Surfels], poses: list[F64], centre: int,
+    def call_window(self, frame: Frame, parts: list[Any], poses: list[F64], centre: int,
                     window: tuple[str, ...], rng: np.random.Generator) -> Frame: ...  # fmt: skip
 
 
 class _Prepared:
-    """Surfels of the scans read last, by (stage identity, item id), oldest dropped first."""
+    """`prepare` of the scans read last, by (stage identity, item id), oldest dropped first."""
 
     def __init__(self) -> None:
-        self.entries: OrderedDict[tuple[str, str], Surfels] = OrderedDict()
+        self.entries: OrderedDict[tuple[str, str], Any] = OrderedDict()
 
-    def get(self, key: tuple[str, str], make: Any, size: int) -> Surfels:
+    def get(self, key: tuple[str, str], make: Any, size: int) -> Any:
         if key in self.entries:
             self.entries.move_to_end(key)
             return self.entries[key]
@@ -111,8 +110,8 @@ def run_window_stage(
 def _prepare(
     stage: WindowStage, stage_key: str, item: Item, frame: Frame | None, size: int,
     reader: Reader | None = None,
-) -> Surfels:  # fmt: skip
-    def make() -> Surfels:
+) -> Any:  # fmt: skip
+    def make() -> Any:
         read = frame if frame is not None else reader.read(item)  # type: ignore[union-attr]
         return stage.prepare(read)
 

@@ -63,7 +63,7 @@ class WeatherResult:
         return int(np.count_nonzero(np.diff(self.source_index) == 0))
 
     def counts(self) -> dict[str, int]:
-        """Number of input beams per outcome, LOST included."""
+        """Number of input beams per weather outcome (KEPT ... LOST), LOST included."""
         found = np.bincount(self.outcome, minlength=len(Outcome))
         found[Outcome.LOST] = self.lost_index.size
-        return {o.name.lower(): int(found[o]) for o in Outcome}
+        return {o.name.lower(): int(found[o]) for o in Outcome if o <= Outcome.LOST}

@@ -30,9 +30,12 @@ from __future__ import annotations
 
 import io
 import zipfile
+from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from lads.errors import ConfigError, CorruptItemError, DatasetNotFoundError, ReaderError
 from lads.frame import Frame, Item
@@ -44,6 +47,7 @@ from lads.readers.base import (
     read_labels,
     read_records,
 )
+from lads.readers.poses import pose_from_text, pose_text, quaternion_pose
 
 TABLES = (
     "category",
@@ -188,22 +192,26 @@ class NuScenesReader:
             elif not self.include_sweeps:
                 continue
             extras = (("panoptic", panoptic[token]),) if token in panoptic else ()
-            items.append(
-                Item(
-                    self.name,
-                    filename,
-                    lidarseg.get(token),
-                    extras,
-                    (("sample_data_token", token),),
-                )
-            )
+            meta = (("sample_data_token", token), *_place(nusc, sd))
+            items.append(Item(self.name, filename, lidarseg.get(token), extras, meta))
         if not items:
             raise DatasetNotFoundError(
                 f"{table_root}: no {CHANNEL} sample_data with lidarseg labels"
                 f"{' or sweep files' if self.include_sweeps else ''}; expected lidarseg.json "
                 "records for the LIDAR_TOP keyframes. Unpack the lidarseg archive."
             )
-        return sorted(items, key=lambda it: it.relpath)
+        return sorted(_numbered(items), key=lambda it: it.relpath)
+
+    def scan_position(self, item: Item) -> tuple[str, int]:
+        """(scene token, scan number) of an item: its place in time among the scene's items,
+        for a sensor transfer's window (`lads.transfer.window`)."""
+        meta = dict(item.meta)
+        return meta["scene"], int(meta["scan_number"])
+
+    def sensor_poses(self, items: list[Item]) -> dict[str, npt.NDArray[np.float64]]:
+        """(4, 4) lidar -> global pose of each item: its sample_data's ego_pose times its
+        calibrated_sensor, read from the tables when the items were listed."""
+        return {it.relpath: pose_from_text(dict(it.meta)["pose"]) for it in items}
 
     def copied_files(self) -> list[str]:
         """Every file of `<version>/` (the JSON tables) and of `maps/`, recursively."""
@@ -280,3 +288,27 @@ class NuScenesReader:
             data = np.frombuffer(raw.payload, dtype=PANOPTIC_DTYPE.newbyteorder("<"))
             files.append(EncodedFile(rel, role, npz_bytes(data), n, 0))
         return files
+
+
+def _place(nusc: Any, sd: dict[str, Any]) -> tuple[tuple[str, str], ...]:
+    """Item meta of a sample_data: its scene, timestamp and lidar -> global pose."""
+    scene = nusc.get("sample", sd["sample_token"])["scene_token"]
+    ego = nusc.get("ego_pose", sd["ego_pose_token"])
+    calib = nusc.get("calibrated_sensor", sd["calibrated_sensor_token"])
+    pose = quaternion_pose(ego["translation"], ego["rotation"]) @ quaternion_pose(
+        calib["translation"], calib["rotation"]
+    )
+    return (("scene", scene), ("timestamp", str(int(sd["timestamp"]))), ("pose", pose_text(pose)))
+
+
+def _numbered(items: list[Item]) -> list[Item]:
+    """The items with a `scan_number` meta: their rank in time among their scene's items."""
+    by_scene: dict[str, list[Item]] = {}
+    for it in items:
+        by_scene.setdefault(dict(it.meta)["scene"], []).append(it)
+    out = []
+    for scene_items in by_scene.values():
+        ranked = sorted(scene_items, key=lambda it: (int(dict(it.meta)["timestamp"]), it.relpath))
+        out += [replace(it, meta=(*it.meta, ("scan_number", str(k))))
+                for k, it in enumerate(ranked)]  # fmt: skip
+    return out

@@ -6,7 +6,8 @@ a frame alone, the window is the frame's own scan. Every output point is a beam 
 target sensor (`Outcome.RESAMPLED`): its source index is the row of the return whose surface
 it hit, in the window scan its `source_scan` names. Labels follow the surface hit; the
 intensity is the surface's albedo seen by the target at its incidence, in the target's
-encoding; a nuScenes-style `ring` column gets the target's channel.
+encoding; a nuScenes-style `ring` column gets the target's channel; further per-point arrays
+(nuScenes panoptic) take the value of the return each beam hit.
 """
 
 from __future__ import annotations
@@ -29,7 +30,7 @@ from lads.transfer.surfels import Surfels
 from lads.transfer.window import DEFAULT_NEIGHBOURS
 
 # Bump when the stage's output bytes change for the same input.
-SENSOR_STAGE_VERSION = "1"
+SENSOR_STAGE_VERSION = "2"  # 2: nuScenes classes of things that move come from the frame only
 # Point columns the stage knows how to fill; any other column of a source format is refused.
 _KNOWN_COLUMNS = ("x", "y", "z", "intensity", "ring")
 
@@ -37,6 +38,15 @@ _KNOWN_COLUMNS = ("x", "y", "z", "intensity", "ring")
 @functools.lru_cache(maxsize=8)
 def _profile(name: str) -> SensorProfile:
     return load_profile(name)
+
+
+@dataclass(frozen=True, slots=True)
+class PreparedScan:
+    """What a window scan lends: its surfels (in its sensor frame) and its further per-point
+    arrays by role (e.g. nuScenes panoptic), which follow the return each beam hits."""
+
+    surfels: Surfels
+    extra_labels: dict[str, npt.NDArray[np.generic]]
 
 
 @dataclass(frozen=True, slots=True)
@@ -59,13 +69,16 @@ class SensorStage:
     def from_config(cls, config: StageConfig) -> SensorStage:
         return cls(name=config.stage, **config.params)
 
-    def prepare(self, frame: Frame) -> Surfels:
-        """The surfels of one scan of a window, in its sensor frame (deterministic: the
-        worker computes them once per scan and lends them to every window that holds it)."""
+    def prepare(self, frame: Frame) -> PreparedScan:
+        """The surfels of one scan of a window, in its sensor frame, and its per-point arrays
+        (deterministic: the worker computes them once per scan and lends them to every
+        window that holds it)."""
         _check_columns(frame)
         ring = frame.points[:, frame.columns.index("ring")] if "ring" in frame.columns else None
         scan = WindowScan(frame.xyz, frame.intensity, frame.labels, ring, np.eye(4))
-        return window_surfels(scan, 0, _profile(frame.sensor), label_set_for(frame.item.dataset))
+        label_set = label_set_for(frame.item.dataset)
+        surfels = window_surfels(scan, 0, _profile(frame.sensor), label_set)
+        return PreparedScan(surfels, dict(frame.extra_labels))
 
     def __call__(self, frame: Frame, rng: np.random.Generator) -> Frame:
         """The frame transferred from its own scan alone (a window of one)."""
@@ -75,7 +88,7 @@ class SensorStage:
     def call_window(
         self,
         frame: Frame,
-        parts: Sequence[Surfels],
+        parts: Sequence[PreparedScan],
         poses: Sequence[npt.NDArray[np.float64]],
         centre: int,
         window: tuple[str, ...],
@@ -92,12 +105,8 @@ class SensorStage:
             rng: randomness of the target's range noise.
         """
         _check_columns(frame)
-        if frame.extra_labels:
-            raise InputDataError(
-                f"{frame.item.relpath}: the sensor stage cannot carry the per-point files "
-                f"{sorted(frame.extra_labels)} to new beams; transfer a source without them."
-            )
-        numbered = [replace(p, frame=np.full(len(p), k, np.int32)) for k, p in enumerate(parts)]
+        numbered = [replace(p.surfels, frame=np.full(len(p.surfels), k, np.int32))
+                    for k, p in enumerate(parts)]  # fmt: skip
         out = transfer_surfels(numbered, poses, centre, _profile(frame.sensor),
                                _profile(self.target), rng,
                                label_set=label_set_for(frame.item.dataset))  # fmt: skip
@@ -113,6 +122,7 @@ class SensorStage:
             sensor=self.target,
             points=points,
             labels=labels,
+            extra_labels=_lent_extras(frame, parts, out.source_frame, out.source_point),
             source_index=out.source_point,
             outcome=np.full(m, Outcome.RESAMPLED, np.uint8),
             lost_index=np.zeros(0, np.int64),
@@ -120,6 +130,26 @@ class SensorStage:
             source_scan=out.source_frame.astype(np.int16),
             conditions=frame.conditions + (("source_sensor", frame.sensor),),
         )
+
+
+def _lent_extras(
+    frame: Frame,
+    parts: Sequence[PreparedScan],
+    scan: npt.NDArray[np.int32],
+    row: npt.NDArray[np.int64],
+) -> dict[str, npt.NDArray[np.generic]]:
+    """Each per-point array of the frame for the new beams: the value of the return each
+    beam hit, in the scan it came from (0 where that scan lacks the array)."""
+    out = {}
+    for role, values in frame.extra_labels.items():
+        lent = np.zeros(len(row), dtype=values.dtype)
+        for k, part in enumerate(parts):
+            theirs = part.extra_labels.get(role)
+            mine = scan == k
+            if theirs is not None and mine.any():
+                lent[mine] = theirs[row[mine]]
+        out[role] = lent
+    return out
 
 
 def _check_columns(frame: Frame) -> None:

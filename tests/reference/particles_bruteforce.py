@@ -40,7 +40,9 @@ import numpy as np
 from lads.physics.beams import Beams
 from lads.physics.result import Outcome
 
-KEPT, ATTENUATED, PARTICLE, LOST = (int(o) for o in Outcome)
+KEPT, ATTENUATED, PARTICLE, LOST = (
+    int(Outcome[n]) for n in ("KEPT", "ATTENUATED", "PARTICLE", "LOST")
+)
 
 
 @dataclass(frozen=True)

@@ -68,9 +68,11 @@ def test_every_source_offers_every_shipped_variant():
     # The matrix users build; tests/realdata/test_matrix_real.py builds it on real frames.
     expected = ["fog", "intensity-kitti", "intensity-nuscenes", "rain", "snow"]
     # A sensor transfer needs poses and scan order: every profile but the source's own.
+    to_64 = ["sensor-hdl64e", "sensor-voxelscape64", "sensor-wads64"]
     sensors = {
         "semantickitti": ["sensor-hdl32e", "sensor-voxelscape64", "sensor-wads64"],
-        "nuscenes-kitti": ["sensor-hdl64e", "sensor-voxelscape64", "sensor-wads64"],
+        "nuscenes": to_64,
+        "nuscenes-kitti": to_64,
     }
     for source in READERS:
         # A wet road needs labels to find the road: every source but RADIATE has them.
