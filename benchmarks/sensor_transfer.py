@@ -1,4 +1,4 @@
-"""Sensor transfer proven on ground truth (docs/transfer.md §4).
+"""Sensor transfer proven on ground truth (docs/transfer.md §5).
 
 `lads.synth` renders one street with two sensors from the same poses. The HDL-64E render is
 transferred to the HDL-32E (and back: 32 -> 64) with a 10-scan window, and compared with the

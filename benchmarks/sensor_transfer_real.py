@@ -1,4 +1,4 @@
-"""Sensor transfer on real scans (docs/transfer.md §4): SemanticKITTI (HDL-64E) frames with
+"""Sensor transfer on real scans (docs/transfer.md §5): SemanticKITTI (HDL-64E) frames with
 KITTI ground-truth poses to the HDL-32E, and the labelled nuScenes scene-0002 keyframes
 (HDL-32E, KITTI-style export with poses) to the HDL-64E. No real scene was recorded by both
 sensors, so the transfers are compared with real scans of the target sensor from other places,

@@ -46,7 +46,7 @@ _OPTIONAL_KINDS = {"return_mode", "optional_text", "device", "severity", "settin
 # `sensor-P` is that pipeline with the target P (`pipeline_for`).
 SENSOR_PIPELINE = "sensor"
 # Stages that may follow a sensor transfer: they keep its points (a weather stage would mix
-# the transfer's provenance with its own; build the weather from the transferred tree).
+# the transfer's provenance with its own).
 _AFTER_SENSOR = ("intensity",)
 # Stages whose physical strength a `severity` preset can give (lads.physics.severity).
 _SEVERITY_STAGES = ("rain", "snow", "fog", "wet_ground")
@@ -129,7 +129,7 @@ class PipelineConfig:
         if names[0] != "sensor" or later:
             raise ConfigError(
                 f"stages {names}: a sensor stage must come first, followed only by "
-                f"{', '.join(_AFTER_SENSOR)}; build weather from the transferred tree instead."
+                f"{', '.join(_AFTER_SENSOR)} (weather on a transferred scan is not offered yet)."
             )
         if self.points != "resampled":
             raise ConfigError(

@@ -1,5 +1,5 @@
 """A sensor transfer's window, read for the worker: neighbouring scans, their poses and their
-surfels (`lads.stages.sensor`, docs/transfer.md §2).
+surfels (`lads.stages.sensor`, docs/transfer.md §3).
 
 The worker owns this I/O; the stage stays a pure function of the scans it is handed. Each
 worker process keeps the surfels of the scans it read last, so a build that walks a
@@ -42,9 +42,9 @@ class _Prepared:
     """`prepare` of the scans read last, by (stage identity, item id), oldest dropped first."""
 
     def __init__(self) -> None:
-        self.entries: OrderedDict[tuple[str, str], Any] = OrderedDict()
+        self.entries: OrderedDict[tuple[Any, ...], Any] = OrderedDict()
 
-    def get(self, key: tuple[str, str], make: Any, size: int) -> Any:
+    def get(self, key: tuple[Any, ...], make: Any, size: int) -> Any:
         if key in self.entries:
             self.entries.move_to_end(key)
             return self.entries[key]
@@ -59,17 +59,18 @@ _PREPARED = _Prepared()
 
 
 @functools.lru_cache(maxsize=4)
-def _items(reader: Any) -> tuple[Item, ...]:
+def _items(reader: Any, stamp: tuple[str, int]) -> tuple[Item, ...]:
     """Every item of the reader's tree (a window may reach beyond the items being built);
-    `reader` is a Reader, typed Any as an lru_cache key (a Protocol is not Hashable)."""
+    `reader` is a Reader, typed Any as an lru_cache key (a Protocol is not Hashable);
+    `stamp` (`_stamp`) makes a worker reused by a later build list a changed tree again."""
     return tuple(reader.items())
 
 
 @functools.lru_cache(maxsize=64)
-def _sequence_poses(reader: Any, sequence: str) -> dict[str, F64]:
+def _sequence_poses(reader: Any, sequence: str, stamp: tuple[str, int]) -> dict[str, F64]:
     """Pose of every scan of one sequence of the tree, read once per worker."""
     position = reader.scan_position
-    items = [it for it in _items(reader) if position(it)[0] == sequence]
+    items = [it for it in _items(reader, stamp) if position(it)[0] == sequence]
     return reader.sensor_poses(items)  # type: ignore[no-any-return]
 
 
@@ -88,8 +89,8 @@ def run_window_stage(
             readers do), or a pose is missing (the reader's own error says where).
     """
     if stage.neighbours == 0:
-        return stage.call_window(frame, [_prepare(stage, stage_key, item, frame, 2)],
-                                 [np.eye(4)], 0, (item.relpath,), rng)  # fmt: skip
+        return stage.call_window(frame, [stage.prepare(frame)], [np.eye(4)], 0,
+                                 (item.relpath,), rng)  # fmt: skip
     if not (hasattr(reader, "scan_position") and hasattr(reader, "sensor_poses")):
         raise InputDataError(
             f"{item.relpath}: the {stage.name} stage needs the sequence's poses, which "
@@ -97,25 +98,37 @@ def run_window_stage(
             "(semantickitti, nuscenes-kitti) or neighbours: 0 (each frame alone)."
         )
     keyed: Any = reader  # readers are hashable objects; the Reader protocol does not say so
-    window, centre = window_of(_items(keyed), item, stage.neighbours, keyed.scan_position)
-    poses = _sequence_poses(keyed, keyed.scan_position(item)[0])
+    stamp = _stamp(reader, item)
+    window, centre = window_of(_items(keyed, stamp), item, stage.neighbours, keyed.scan_position)
+    poses = _sequence_poses(keyed, keyed.scan_position(item)[0], stamp)
     size = 2 * (stage.neighbours + 1)
     parts = [
-        _prepare(stage, stage_key, it, frame if it == item else None, size, reader) for it in window
+        _prepare(stage, (stage_key, *stamp), it, frame if it == item else None, size, reader)
+        for it in window
     ]
     return stage.call_window(frame, parts, [poses[it.relpath] for it in window], centre,
                              tuple(it.relpath for it in window), rng)  # fmt: skip
 
 
+def _stamp(reader: Reader, item: Item) -> tuple[str, int]:
+    """(tree root, modification time of the folder of the item's scan): a worker's caches of
+    the tree's items, poses and surfels hold for one state of that folder (a scan added or
+    replaced between two builds changes it)."""
+    folder = (Path(reader.root) / item.relpath).parent
+    try:
+        return str(Path(reader.root).resolve()), folder.stat().st_mtime_ns
+    except OSError:
+        return str(reader.root), -1
+
+
 def _prepare(
-    stage: WindowStage, stage_key: str, item: Item, frame: Frame | None, size: int,
-    reader: Reader | None = None,
+    stage: WindowStage, key: tuple[Any, ...], item: Item, frame: Frame | None, size: int,
+    reader: Reader,
 ) -> Any:  # fmt: skip
     def make() -> Any:
-        read = frame if frame is not None else reader.read(item)  # type: ignore[union-attr]
-        return stage.prepare(read)
+        return stage.prepare(frame if frame is not None else reader.read(item))
 
-    return _PREPARED.get((stage_key, item.item_id), make, size)
+    return _PREPARED.get((*key, item.item_id), make, size)
 
 
 def window_source_rows(reader: Reader, item: Item, window: tuple[str, ...]) -> list[dict[str, Any]]:
@@ -124,7 +137,7 @@ def window_source_rows(reader: Reader, item: Item, window: tuple[str, ...]) -> l
     if not window:
         return []
     keyed: Any = reader  # as in run_window_stage
-    by_path = {it.relpath: it for it in _items(keyed)}
+    by_path = {it.relpath: it for it in _items(keyed, _stamp(reader, item))}
     rows = []
     for rel in window:
         if rel == item.relpath:

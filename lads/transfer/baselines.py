@@ -1,4 +1,4 @@
-"""What users do today to fake another sensor, for comparison (docs/transfer.md §4).
+"""What users do today to fake another sensor, for comparison (docs/transfer.md §5).
 
 - Ring dropping (Robo3D "cross-sensor", MultiCorrupt "beams reducing", LiDAR Distillation's
   pseudo low-beam data): keep the source rings nearest the target's elevations. It can only

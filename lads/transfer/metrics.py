@@ -1,5 +1,5 @@
 """How close a transferred scan is to the target sensor's own scan of the scene
-(docs/transfer.md §4).
+(docs/transfer.md §5).
 
 Both scans are binned on the target's beam grid (ring, azimuth column). Per-ring counts are
 compared on the rings the source's field of view covers (the others cannot be made from the

@@ -1,4 +1,4 @@
-"""Which scans of a sequence make one frame's window (docs/transfer.md §2).
+"""Which scans of a sequence make one frame's window (docs/transfer.md §3).
 
 A frame's window is the span of `neighbours + 1` consecutive scan numbers around it (half
 before, half after; the extra one after when `neighbours` is odd), moved inside the

@@ -223,3 +223,13 @@ def test_a_nuscenes_dataroot_transfers_with_its_ego_poses(tmp_path):
         raw = np.fromfile(out / sd["filename"], dtype="<f4").reshape(-1, 5)
         labels = np.fromfile(out / nusc.get("lidarseg", sd["token"])["filename"], dtype=np.uint8)
         assert labels.size == len(raw) > 60_000 and np.isin(raw[:, 4], np.arange(64)).all()
+
+
+def test_a_learned_intensity_may_follow_the_transfer():
+    stages = [{"stage": "sensor", "target": "hdl32e"},
+              {"stage": "intensity", "model": "synth-to-nuscenes"}]  # fmt: skip
+    data = {"schema_version": 1, "variant": "x", "stages": stages,
+            "writer": {"points": "resampled"}}  # fmt: skip
+    pipeline = parse_pipeline(data, "test.yaml")
+    assert [s.stage for s in pipeline.stages] == ["sensor", "intensity"]
+    assert pipeline.output_sensor("hdl64e") == "hdl32e"
