@@ -11,6 +11,7 @@ the target's own.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -84,24 +85,86 @@ def cast_beams(
     Returns:
         BeamHits.
     """
+    n = len(surfels.centre) if isinstance(surfels, Surfels) else len(surfels["centre"])
+    return cast_parts([surfels], [np.arange(n)], [np.eye(4)], elevation_rad, columns,
+                      azimuth_offset_rad=azimuth_offset_rad, max_range_m=max_range_m,
+                      depth_tol_m=depth_tol_m, depth_tol_share=depth_tol_share)  # fmt: skip
+
+
+def cast_parts(
+    parts: Sequence[Surfels | dict[str, npt.NDArray[np.generic]]],
+    kept: Sequence[npt.NDArray[np.int64]],
+    to_target: Sequence[F64],
+    elevation_rad: npt.ArrayLike,
+    columns: int,
+    *,
+    azimuth_offset_rad: float = 0.0,
+    max_range_m: float = np.inf,
+    depth_tol_m: float = 0.1,
+    depth_tol_share: float = 0.01,
+) -> BeamHits:
+    """`cast_beams` of the `kept` surfels of several parts, each moved into the target frame
+    by its (4, 4) pose `to_target`: the compiled pass moves each surfel as it reads it, so
+    the window is never copied into one array. A hit's surfel (BeamHits.owner) is its index
+    among the kept surfels of all parts, in order."""
     el = np.asarray(elevation_rad, dtype=np.float64)
     step = 2.0 * math.pi / int(columns)
     az = azimuth_offset_rad + (np.arange(int(columns)) + 0.5) * step
-    g: dict[str, Any] = (
-        surfels if isinstance(surfels, dict) else {f: getattr(surfels, f) for f in GEOMETRY}
-    )
-    best, best_cos, pix, hit_t, hit_cos, hit_w, hit_i = _record_hits(
-        g["centre"], g["normal"], g["axis_a"], g["axis_b"], g["radius_m"], el,
-        float(azimuth_offset_rad), int(columns), float(max_range_m),
+    best = np.full((len(el), int(columns)), np.inf)
+    best_cos = np.ones((len(el), int(columns)))
+    total = sum(len(k) for k in kept)
+    buffers = _HitBuffers.empty(2 * total + 1024)
+    offset = 0
+    for part, idx, pose in zip(parts, kept, to_target, strict=True):
+        g = _fields(part, GEOMETRY[:5])
+        turn = np.ascontiguousarray(np.asarray(pose, np.float64)[:3, :3])
+        shift = np.ascontiguousarray(np.asarray(pose, np.float64)[:3, 3])
+        # numba's Dispatcher stub takes fewer arguments than the compiled functions do.
+        buffers = buffers.with_hits(*_record_hits(  # type: ignore[call-arg]
+            g["centre"], g["normal"], g["axis_a"], g["axis_b"], g["radius_m"],
+            np.asarray(idx, np.int64), turn, shift, offset, el, float(azimuth_offset_rad),
+            int(columns), float(max_range_m), best, best_cos, *buffers.arrays(), buffers.n,
+        ))  # fmt: skip
+        offset += len(idx)
+    scalars = {f: np.concatenate([np.asarray(_fields(p, (f,))[f])[k]
+                                  for p, k in zip(parts, kept, strict=True)])
+               for f in ("albedo", "weight", "retro")}  # fmt: skip
+    t, owner, refl, cos = _blend(  # type: ignore[call-arg]
+        best, best_cos, *buffers.trimmed(), scalars["albedo"], scalars["weight"],
+        scalars["retro"], depth_tol_m, depth_tol_share,
     )  # fmt: skip
-    t, owner, refl = _blend(best, best_cos, pix, hit_t, hit_cos, hit_w, hit_i, g["albedo"],
-                            g["weight"], g["retro"], depth_tol_m, depth_tol_share)  # fmt: skip
-    hit = owner >= 0
-    cos = np.zeros(t.shape)
-    if hit.any():
-        d = BeamHits(t, owner, cos, refl, el, az).directions()[hit]
-        cos[hit] = np.abs(np.einsum("ij,ij->i", d, g["normal"][owner[hit]]))
     return BeamHits(t, owner, cos, refl, el, az)
+
+
+def _fields(part: Any, names: Sequence[str]) -> dict[str, Any]:
+    return {f: part[f] if isinstance(part, dict) else getattr(part, f) for f in names}
+
+
+@dataclass(frozen=True, slots=True)
+class _HitBuffers:
+    """The hit records of `_record_hits` (beam, distance, |cos|, weight, surfel) and their
+    count `n`; the arrays grow inside the compiled pass and come back from it."""
+
+    pix: npt.NDArray[np.int64]
+    t: F64
+    cos: F64
+    w: F64
+    i: npt.NDArray[np.int64]
+    n: int
+
+    @staticmethod
+    def empty(cap: int) -> _HitBuffers:
+        return _HitBuffers(np.empty(cap, np.int64), np.empty(cap), np.empty(cap), np.empty(cap),
+                           np.empty(cap, np.int64), 0)  # fmt: skip
+
+    def arrays(self) -> tuple[Any, ...]:
+        return self.pix, self.t, self.cos, self.w, self.i
+
+    def with_hits(self, *values: Any) -> _HitBuffers:
+        return _HitBuffers(*values)
+
+    def trimmed(self) -> tuple[Any, ...]:
+        return tuple(a[: self.n] for a in self.arrays())
 
 
 @numba.njit(cache=True, nogil=True)
@@ -111,35 +174,41 @@ def _record_hits(
     axis_a: F64,
     axis_b: F64,
     radius: F64,
+    idx: npt.NDArray[np.int64],
+    turn: F64,
+    shift: F64,
+    offset: int,
     el: F64,
     az0: float,
     columns: int,
     max_range: float,
-) -> tuple[F64, F64, npt.NDArray[np.int64], F64, F64, F64, npt.NDArray[np.int64]]:
-    """Pass 1 of the cast: every surfel's hits, and each beam's nearest one.
+    best: F64,
+    best_cos: F64,
+    hit_pix: npt.NDArray[np.int64],
+    hit_t: F64,
+    hit_cos: F64,
+    hit_w: F64,
+    hit_i: npt.NDArray[np.int64],
+    n: int,
+) -> tuple[npt.NDArray[np.int64], F64, F64, F64, npt.NDArray[np.int64], int]:
+    """Pass 1 of the cast, for one part: the hits of its surfels `idx`, moved by (turn,
+    shift) into the target frame, updating each beam's nearest hit (best, best_cos).
 
     A beam meets a surfel where it crosses the surfel's plane at (alpha, beta) in the basis
-    of its semi-axes with alpha^2 + beta^2 <= 1. Returns (H, W) nearest hit distance t0 (inf:
-    none) and |cos| of incidence there, then one record per hit: beam (k * W + j), distance,
-    |cos|, weight 1 - alpha^2 - beta^2 and surfel. Scalars only inside the loops: a numba
-    helper taking arrays costs far more than its work here."""
-    rows = el.shape[0]
+    of its semi-axes with alpha^2 + beta^2 <= 1. Each hit appends a record: beam (k * W + j),
+    distance, |cos|, weight 1 - alpha^2 - beta^2 and surfel (offset + its place in idx).
+    Returns the record arrays (grown when full) and their count. Scalars only inside the
+    loops: a numba helper taking arrays costs far more than its work here."""
     step = 2.0 * math.pi / columns
     cos_el, sin_el = np.cos(el), np.sin(el)
     az = az0 + (np.arange(columns) + 0.5) * step
     cos_az, sin_az = np.cos(az), np.sin(az)
-    best = np.full((rows, columns), np.inf)
-    best_cos = np.ones((rows, columns))
-    cap = 2 * centre.shape[0] + 1024
-    hit_pix = np.empty(cap, dtype=np.int64)
-    hit_t = np.empty(cap)
-    hit_cos = np.empty(cap)
-    hit_w = np.empty(cap)
-    hit_i = np.empty(cap, dtype=np.int64)
-    n = 0
-    for i in range(centre.shape[0]):
-        cx, cy, cz = centre[i, 0], centre[i, 1], centre[i, 2]
-        nx, ny, nz = normal[i, 0], normal[i, 1], normal[i, 2]
+    cap = hit_pix.shape[0]
+    for ii in range(idx.shape[0]):
+        i = idx[ii]
+        cx, cy, cz = _turned(turn, centre[i, 0], centre[i, 1], centre[i, 2])
+        cx, cy, cz = cx + shift[0], cy + shift[1], cz + shift[2]
+        nx, ny, nz = _turned(turn, normal[i, 0], normal[i, 1], normal[i, 2])
         rad = radius[i]
         r = math.sqrt(cx * cx + cy * cy + cz * cz)
         if r <= rad or r - rad > max_range:
@@ -160,8 +229,8 @@ def _record_hits(
             count = int(math.floor((a_i + w - az0) / step - 0.5)) - j0 + 1
             count = min(max(count, 0), columns)
         c_dot_n = cx * nx + cy * ny + cz * nz
-        ax, ay, az_ = axis_a[i, 0], axis_a[i, 1], axis_a[i, 2]
-        bx, by, bz = axis_b[i, 0], axis_b[i, 1], axis_b[i, 2]
+        ax, ay, az_ = _turned(turn, axis_a[i, 0], axis_a[i, 1], axis_a[i, 2])
+        bx, by, bz = _turned(turn, axis_b[i, 0], axis_b[i, 1], axis_b[i, 2])
         gaa = ax * ax + ay * ay + az_ * az_
         gbb = bx * bx + by * by + bz * bz
         gab = ax * bx + ay * by + az_ * bz
@@ -202,9 +271,16 @@ def _record_hits(
                 hit_t[n] = t
                 hit_cos[n] = abs(denom)
                 hit_w[n] = 1.0 - d2 + 1e-6
-                hit_i[n] = i
+                hit_i[n] = offset + ii
                 n += 1
-    return best, best_cos, hit_pix[:n], hit_t[:n], hit_cos[:n], hit_w[:n], hit_i[:n]
+    return hit_pix, hit_t, hit_cos, hit_w, hit_i, n
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _turned(m: F64, x: float, y: float, z: float) -> tuple[float, float, float]:
+    """(m @ (x, y, z)) of a 3 x 3 matrix, as three scalars."""
+    return (m[0, 0] * x + m[0, 1] * y + m[0, 2] * z, m[1, 0] * x + m[1, 1] * y + m[1, 2] * z,
+            m[2, 0] * x + m[2, 1] * y + m[2, 2] * z)  # fmt: skip
 
 
 @numba.njit(cache=True, nogil=True)
@@ -221,8 +297,9 @@ def _blend(
     retro: npt.NDArray[np.bool_],
     depth_tol_m: float,
     depth_tol_share: float,
-) -> tuple[F64, npt.NDArray[np.int64], F64]:
-    """Pass 2: (H, W) blended distance (inf: none), owner (-1: none), reflectivity (0: none).
+) -> tuple[F64, npt.NDArray[np.int64], F64, F64]:
+    """Pass 2: (H, W) blended distance (inf: none), owner (-1: none), reflectivity (0: none)
+    and the |cos| of incidence on the owner (0: none).
 
     Every hit within max(depth_tol_m, depth_tol_share t0) / max(cos, MIN_TOL_COS) behind the
     beam's nearest (cos: the incidence there) votes with its weight: the surfels of one
@@ -231,6 +308,7 @@ def _blend(
     surfel's centre."""
     rows, columns = best.shape
     owner = np.full((rows, columns), -1, dtype=np.int64)
+    owner_cos = np.zeros((rows, columns))
     sum_w = np.zeros((rows, columns))
     sum_wt = np.zeros((rows, columns))
     sum_wn = np.zeros((rows, columns))
@@ -255,6 +333,7 @@ def _blend(
         if wt > best_w[k, j] or (wt == best_w[k, j] and i < owner[k, j]):
             best_w[k, j] = wt
             owner[k, j] = i
+            owner_cos[k, j] = hit_cos[h]
     out = np.full((rows, columns), np.inf)
     blended = np.zeros((rows, columns))
     for k in range(rows):
@@ -263,7 +342,7 @@ def _blend(
                 out[k, j] = sum_wt[k, j] / sum_w[k, j]
                 if sum_wd[k, j] > 0.0:
                     blended[k, j] = sum_wn[k, j] / sum_wd[k, j]
-    return out, owner, blended
+    return out, owner, blended, owner_cos
 
 
 @numba.njit(cache=True, nogil=True)

@@ -2,7 +2,7 @@
 
 A window of source scans with their poses becomes a surfel scene (`surfels.scan_surfels`);
 moving things come from the centre scan alone. The target sensor is ray-cast against it from
-the centre scan's pose (`cast.cast_beams`); a beam returns where it meets a disk inside the
+the centre scan's pose (`cast.cast_parts`); a beam returns where it meets a disk inside the
 target's range limits and the return is strong enough for its detector. Range noise, labels,
 intensity in the target's encoding and the source return behind every output point follow.
 """
@@ -18,7 +18,7 @@ import numpy.typing as npt
 from lads.errors import InputDataError
 from lads.physics.materials import MAX_CLASS_ID, class_ids, class_roles, has_instance_bits
 from lads.sensors.profile import SensorProfile
-from lads.transfer.cast import GEOMETRY, BeamHits, cast_beams
+from lads.transfer.cast import BeamHits, cast_parts
 from lads.transfer.surfels import (
     ALBEDO_MIN_COS,
     DEFAULT_SHAPE,
@@ -178,9 +178,9 @@ def transfer_surfels(
     kept = [np.flatnonzero(m) for m in _static(parts, poses64, centre, label_set, bits)]
     mount = np.eye(4) if target_from_source is None else np.asarray(target_from_source, float)
     to_target = np.linalg.inv(poses64[centre] @ mount)
-    geometry = Surfels.gather(parts, kept, [to_target @ pose for pose in poses64], GEOMETRY)
-    hits = cast_beams(geometry, np.radians(np.asarray(target.elevation_deg)),
-                      target.range_image_width, azimuth_offset_rad=azimuth_offset_rad,
+    hits = cast_parts(parts, kept, [to_target @ pose for pose in poses64],
+                      np.radians(np.asarray(target.elevation_deg)), target.range_image_width,
+                      azimuth_offset_rad=azimuth_offset_rad,
                       max_range_m=target.max_range_m)  # fmt: skip
     return _returns(hits, _Lookup(parts, kept), source, target, rng,
                     detector or profile_detector(target))  # fmt: skip

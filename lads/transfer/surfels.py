@@ -14,7 +14,6 @@ ray-cast against (`lads.transfer.cast`).
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -36,7 +35,6 @@ MIN_COS = 0.1
 # Floor of the cos an albedo is divided by (against division by zero only).
 ALBEDO_MIN_COS = 0.02
 F64 = npt.NDArray[np.float64]
-_VECTORS = ("normal", "axis_a", "axis_b")  # fields that turn (but do not shift) with a pose
 
 
 @dataclass(frozen=True, slots=True)
@@ -88,32 +86,6 @@ class Surfels:
     def take(self, keep: npt.NDArray[np.bool_] | npt.NDArray[np.int64]) -> Surfels:
         """The surfels selected by a mask or index array."""
         return Surfels(*(getattr(self, f)[keep] for f in self.__slots__))  # type: ignore[arg-type]
-
-    @staticmethod
-    def gather(
-        parts: Sequence[Surfels],
-        kept: Sequence[npt.NDArray[np.int64]],
-        poses: Sequence[F64],
-        fields: Sequence[str] | None = None,
-    ) -> dict[str, npt.NDArray[np.generic]]:
-        """The `kept` surfels of every part, each part moved by its pose (4, 4), as one array
-        per field (`fields`: default all)."""
-
-        def field(name: str) -> npt.NDArray[np.generic]:
-            out = []
-            for p, idx, pose in zip(parts, kept, poses, strict=True):
-                v = getattr(p, name)
-                v = v if len(idx) == len(v) else v[idx]  # kept is sorted: all or a subset
-                # A contiguous rotation: numpy's matmul with a transposed view took 10x longer.
-                turn = np.ascontiguousarray(pose[:3, :3].T)
-                if name == "centre":
-                    v = v @ turn + pose[:3, 3]
-                elif name in _VECTORS:
-                    v = v @ turn
-                out.append(v)
-            return np.concatenate(out)
-
-        return {f: field(f) for f in (fields or Surfels.__slots__)}
 
 
 def scan_surfels(
