@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import math
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -17,42 +16,18 @@ from typing import Any
 import yaml
 
 from lads.correspondence import POINT_MODES
-from lads.errors import ConfigError, LadsError
-from lads.physics.detection import resolve_detection
-from lads.physics.severity import PRESETS, SEVERITIES, with_severity
+from lads.errors import ConfigError
 from lads.readers import READERS
 from lads.resources import pipelines_dir
-from lads.transfer.window import check_neighbours
+from lads.stage_params import SEVERITY_STAGES, STAGE_PARAMS, STRENGTHS, check_stage, resolved
 
 SCHEMA_VERSION = 1
-RETURN_MODES = ("strongest", "last", "dual")
-
-# Parameters each stage accepts, with a validator per parameter.
-_WEATHER_PARAMS = {
-    "mode": "return_mode", "severity": "severity", "settings": "settings",
-    "detection": "detection",
-}  # fmt: skip
-_STAGE_PARAMS: dict[str, dict[str, str]] = {
-    "rain": {"rate_mm_h": "nonneg", **_WEATHER_PARAMS},
-    "snow": {"rate_mm_h": "nonneg", **_WEATHER_PARAMS},
-    "fog": {"visibility_m": "visibility", **_WEATHER_PARAMS},
-    "wet_ground": {"water_film_mm": "film", "severity": "severity", "detection": "detection"},
-    "intensity": {"model": "text", "target": "optional_text", "device": "device"},
-    "sensor": {"target": "profile", "neighbours": "neighbours"},
-}
-_OPTIONAL_KINDS = {"return_mode", "optional_text", "device", "severity", "settings", "detection",
-                   "neighbours"}  # fmt: skip
 # pipelines/sensor.yaml holds the settings of every `sensor-<profile>` variant: the variant
 # `sensor-P` is that pipeline with the target P (`pipeline_for`).
 SENSOR_PIPELINE = "sensor"
 # Stages that may follow a sensor transfer: they keep its points (a weather stage would mix
 # the transfer's provenance with its own).
 _AFTER_SENSOR = ("intensity",)
-# Stages whose physical strength a `severity` preset can give (lads.physics.severity).
-_SEVERITY_STAGES = ("rain", "snow", "fog", "wet_ground")
-# The physical strengths a severity preset names (rate, visibility, water film).
-_STRENGTHS = tuple(sorted({key for key, _ in PRESETS.values()}))
-DEVICES = ("cpu", "cuda")
 # `--intensity physics` removes the learned intensity stage (physics intensity is kept).
 PHYSICS_INTENSITY = "physics"
 
@@ -201,7 +176,7 @@ class PipelineConfig:
                     "--intensity physics leaves no stage: this pipeline only changes intensity."
                 )
         for key, value in given.items():
-            hit = [i for i, s in enumerate(stages) if key in _STAGE_PARAMS.get(s.stage, {})]
+            hit = [i for i, s in enumerate(stages) if key in STAGE_PARAMS.get(s.stage, {})]
             if not hit:
                 names = ", ".join(s.stage for s in stages)
                 raise ConfigError(
@@ -210,9 +185,9 @@ class PipelineConfig:
             for i in hit:
                 stage = stages[i]
                 params = {**stage.params, key: value}
-                if key in _STRENGTHS and severity is None:
+                if key in STRENGTHS and severity is None:
                     params.pop("severity", None)  # the explicit value replaces the preset
-                _check_stage(stage.stage, params, f"override {key}")
+                check_stage(stage.stage, params, f"override {key}")
                 stages[i] = StageConfig(stage.stage, params)
         if severity is not None:
             stages = _with_severity_override(stages, severity, given)
@@ -224,16 +199,16 @@ def _with_severity_override(
 ) -> list[StageConfig]:
     """`--severity`: every weather stage takes the preset, replacing the strength of the
     pipeline file (but not one given on the command line: that must agree)."""
-    hit = [i for i, s in enumerate(stages) if s.stage in _SEVERITY_STAGES]
+    hit = [i for i, s in enumerate(stages) if s.stage in SEVERITY_STAGES]
     if not hit:
         names = ", ".join(s.stage for s in stages)
         raise ConfigError(f"--severity does not apply to this pipeline (stages: {names}).")
     for i in hit:
         stage = stages[i]
         params = {k: v for k, v in stage.params.items()
-                  if k not in _STRENGTHS or k in given}  # fmt: skip
-        params = _resolved(stage.stage, {**params, "severity": severity}, "override severity")
-        _check_stage(stage.stage, params, "override severity")
+                  if k not in STRENGTHS or k in given}  # fmt: skip
+        params = resolved(stage.stage, {**params, "severity": severity}, "override severity")
+        check_stage(stage.stage, params, "override severity")
         stages[i] = StageConfig(stage.stage, params)
     return stages
 
@@ -241,87 +216,6 @@ def _with_severity_override(
 def _hash(obj: Any) -> str:
     text = json.dumps(obj, sort_keys=True, separators=(",", ":"), allow_nan=True)
     return hashlib.sha256(text.encode()).hexdigest()
-
-
-def _check_value(kind: str, value: Any, where: str) -> None:
-    if kind in ("text", "optional_text"):
-        if (value is None and kind == "optional_text") or (isinstance(value, str) and value):
-            return
-        raise ConfigError(f"{where}: expected a non-empty string, got {value!r}.")
-    if kind == "device":
-        if value not in DEVICES:
-            raise ConfigError(f"{where}: device {value!r}; expected one of {DEVICES}.")
-        return
-    if kind == "settings":
-        if not (isinstance(value, str) and value):
-            raise ConfigError(f"{where}: expected the name of weather settings, got {value!r}.")
-        return
-    if kind == "detection":
-        try:
-            resolve_detection(value, 1.0, 1.0, 1.0)
-        except ConfigError as exc:
-            raise ConfigError(f"{where}: {exc}") from None
-        return
-    if kind == "neighbours":
-        check_neighbours(value, where)
-        return
-    if kind == "profile":
-        from lads.sensors.profile import load_profile
-
-        try:
-            load_profile(value)
-        except LadsError as exc:
-            raise ConfigError(f"{where}: {exc}") from None
-        return
-    if kind == "severity":
-        if value not in SEVERITIES:
-            raise ConfigError(f"{where}: severity {value!r}; expected one of {SEVERITIES}.")
-        return
-    if kind == "return_mode":
-        if value not in RETURN_MODES:
-            raise ConfigError(f"{where}: mode is {value!r}; expected one of {RETURN_MODES}.")
-        return
-    if isinstance(value, bool) or not isinstance(value, int | float) or math.isnan(value):
-        raise ConfigError(f"{where}: expected a number, got {value!r}.")
-    if kind == "nonneg" and not (0 <= value < math.inf):
-        raise ConfigError(f"{where}: rate must be a finite number >= 0 mm/h, got {value}.")
-    if kind == "film" and not (0 <= value < math.inf):
-        raise ConfigError(f"{where}: water film must be a finite thickness >= 0 mm, got {value}.")
-    if kind == "visibility" and not value > 0:
-        raise ConfigError(f"{where}: visibility must be > 0 m (inf = clear air), got {value}.")
-
-
-def _resolved(name: str, params: dict[str, Any], where: str) -> dict[str, Any]:
-    """A weather stage's parameters with a `severity` preset's value filled in."""
-    if name not in _SEVERITY_STAGES or "severity" not in params:
-        return params
-    return with_severity(name, params, where)
-
-
-def _check_stage(name: str, params: dict[str, Any], where: str) -> None:
-    accepted = _STAGE_PARAMS.get(name)
-    if accepted is None:
-        raise ConfigError(
-            f"{where}: unknown stage {name!r}; expected one of {sorted(_STAGE_PARAMS)}."
-        )
-    unknown = sorted(set(params) - set(accepted))
-    if unknown:
-        raise ConfigError(
-            f"{where}: stage {name!r} has unknown parameters {unknown}; "
-            f"it accepts {sorted(accepted)}."
-        )
-    missing = [k for k, kind in accepted.items() if kind not in _OPTIONAL_KINDS and k not in params]
-    if missing:
-        raise ConfigError(f"{where}: stage {name!r} needs {missing}.")
-    for key, value in params.items():
-        _check_value(accepted[key], value, f"{where}: {key}")
-    if "settings" in params:
-        from lads.physics.weather import settings_for
-
-        try:
-            settings_for(name, params["settings"])
-        except ConfigError as exc:
-            raise ConfigError(f"{where}: {exc}") from None
 
 
 def _reject_unknown(mapping: dict[str, Any], allowed: set[str], where: str) -> None:
@@ -350,8 +244,8 @@ def parse_pipeline(data: Any, where: str) -> PipelineConfig:
         if not isinstance(raw, dict) or "stage" not in raw:
             raise ConfigError(f"{where}: stages[{i}] must be a mapping with a 'stage' key.")
         params = {k: v for k, v in raw.items() if k != "stage"}
-        params = _resolved(str(raw["stage"]), params, f"{where}: stages[{i}]")
-        _check_stage(str(raw["stage"]), params, f"{where}: stages[{i}]")
+        params = resolved(str(raw["stage"]), params, f"{where}: stages[{i}]")
+        check_stage(str(raw["stage"]), params, f"{where}: stages[{i}]")
         stages.append(StageConfig(str(raw["stage"]), params))
     writer = data.get("writer") or {}
     if not isinstance(writer, dict):

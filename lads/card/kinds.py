@@ -5,7 +5,8 @@ from __future__ import annotations
 
 from typing import Any
 
-WEATHER_STAGES = ("rain", "snow", "fog", "wet_ground")
+# The weather stages are the ones a severity preset scales.
+from lads.stage_params import SEVERITY_STAGES as WEATHER_STAGES
 
 _TEXT: dict[str, dict[str, str]] = {
     "weather": {

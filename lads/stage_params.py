@@ -1,0 +1,119 @@
+"""The parameters each pipeline stage accepts, and their checks (`lads.config` reads them).
+
+`STAGE_PARAMS` is the one table of stage parameters: per stage, each parameter's kind, which
+`check_stage` validates; unknown or missing parameters are errors naming the stage.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from lads.errors import ConfigError, LadsError
+from lads.physics.detection import resolve_detection
+from lads.physics.severity import PRESETS, SEVERITIES, with_severity
+from lads.transfer.window import check_neighbours
+
+RETURN_MODES = ("strongest", "last", "dual")
+
+# Parameters each stage accepts, with a validator per parameter.
+_WEATHER_PARAMS = {
+    "mode": "return_mode", "severity": "severity", "settings": "settings",
+    "detection": "detection",
+}  # fmt: skip
+STAGE_PARAMS: dict[str, dict[str, str]] = {
+    "rain": {"rate_mm_h": "nonneg", **_WEATHER_PARAMS},
+    "snow": {"rate_mm_h": "nonneg", **_WEATHER_PARAMS},
+    "fog": {"visibility_m": "visibility", **_WEATHER_PARAMS},
+    "wet_ground": {"water_film_mm": "film", "severity": "severity", "detection": "detection"},
+    "intensity": {"model": "text", "target": "optional_text", "device": "device"},
+    "sensor": {"target": "profile", "neighbours": "neighbours"},
+}
+_OPTIONAL_KINDS = {"return_mode", "optional_text", "device", "severity", "settings", "detection",
+                   "neighbours"}  # fmt: skip
+# Stages whose physical strength a `severity` preset can give (lads.physics.severity).
+SEVERITY_STAGES = ("rain", "snow", "fog", "wet_ground")
+# The physical strengths a severity preset names (rate, visibility, water film).
+STRENGTHS = tuple(sorted({key for key, _ in PRESETS.values()}))
+DEVICES = ("cpu", "cuda")
+
+
+def _check_value(kind: str, value: Any, where: str) -> None:
+    if kind in ("text", "optional_text"):
+        if (value is None and kind == "optional_text") or (isinstance(value, str) and value):
+            return
+        raise ConfigError(f"{where}: expected a non-empty string, got {value!r}.")
+    if kind == "device":
+        if value not in DEVICES:
+            raise ConfigError(f"{where}: device {value!r}; expected one of {DEVICES}.")
+        return
+    if kind == "settings":
+        if not (isinstance(value, str) and value):
+            raise ConfigError(f"{where}: expected the name of weather settings, got {value!r}.")
+        return
+    if kind == "detection":
+        try:
+            resolve_detection(value, 1.0, 1.0, 1.0)
+        except ConfigError as exc:
+            raise ConfigError(f"{where}: {exc}") from None
+        return
+    if kind == "neighbours":
+        check_neighbours(value, where)
+        return
+    if kind == "profile":
+        from lads.sensors.profile import load_profile
+
+        try:
+            load_profile(value)
+        except LadsError as exc:
+            raise ConfigError(f"{where}: {exc}") from None
+        return
+    if kind == "severity":
+        if value not in SEVERITIES:
+            raise ConfigError(f"{where}: severity {value!r}; expected one of {SEVERITIES}.")
+        return
+    if kind == "return_mode":
+        if value not in RETURN_MODES:
+            raise ConfigError(f"{where}: mode is {value!r}; expected one of {RETURN_MODES}.")
+        return
+    if isinstance(value, bool) or not isinstance(value, int | float) or math.isnan(value):
+        raise ConfigError(f"{where}: expected a number, got {value!r}.")
+    if kind == "nonneg" and not (0 <= value < math.inf):
+        raise ConfigError(f"{where}: rate must be a finite number >= 0 mm/h, got {value}.")
+    if kind == "film" and not (0 <= value < math.inf):
+        raise ConfigError(f"{where}: water film must be a finite thickness >= 0 mm, got {value}.")
+    if kind == "visibility" and not value > 0:
+        raise ConfigError(f"{where}: visibility must be > 0 m (inf = clear air), got {value}.")
+
+
+def resolved(name: str, params: dict[str, Any], where: str) -> dict[str, Any]:
+    """A weather stage's parameters with a `severity` preset's value filled in."""
+    if name not in SEVERITY_STAGES or "severity" not in params:
+        return params
+    return with_severity(name, params, where)
+
+
+def check_stage(name: str, params: dict[str, Any], where: str) -> None:
+    accepted = STAGE_PARAMS.get(name)
+    if accepted is None:
+        raise ConfigError(
+            f"{where}: unknown stage {name!r}; expected one of {sorted(STAGE_PARAMS)}."
+        )
+    unknown = sorted(set(params) - set(accepted))
+    if unknown:
+        raise ConfigError(
+            f"{where}: stage {name!r} has unknown parameters {unknown}; "
+            f"it accepts {sorted(accepted)}."
+        )
+    missing = [k for k, kind in accepted.items() if kind not in _OPTIONAL_KINDS and k not in params]
+    if missing:
+        raise ConfigError(f"{where}: stage {name!r} needs {missing}.")
+    for key, value in params.items():
+        _check_value(accepted[key], value, f"{where}: {key}")
+    if "settings" in params:
+        from lads.physics.weather import settings_for
+
+        try:
+            settings_for(name, params["settings"])
+        except ConfigError as exc:
+            raise ConfigError(f"{where}: {exc}") from None
