@@ -60,37 +60,6 @@ class BeamHits:
         return np.stack(np.broadcast_arrays(ce * ca, ce * sa, se), axis=-1)
 
 
-def cast_beams(
-    surfels: Surfels | dict[str, npt.NDArray[np.generic]],
-    elevation_rad: npt.ArrayLike,
-    columns: int,
-    *,
-    azimuth_offset_rad: float = 0.0,
-    max_range_m: float = np.inf,
-    depth_tol_m: float = 0.1,
-    depth_tol_share: float = 0.01,
-) -> BeamHits:
-    """The nearest surfel hit of each beam of a (len(elevation_rad), columns) grid.
-
-    Args:
-        surfels: surfels in the target sensor's frame (sensor at the origin), or their
-            geometry fields (centre, normal, axis_a, axis_b, radius_m, albedo, weight,
-            retro) by name.
-        elevation_rad: (H,) ascending beam elevations, radians.
-        columns: W azimuth samples per revolution (>= 4).
-        azimuth_offset_rad: azimuth of the grid's start; column j looks along
-            azimuth_offset_rad + (j + 0.5) 2 pi / W.
-        max_range_m: disks whose nearest point lies beyond this are skipped.
-
-    Returns:
-        BeamHits.
-    """
-    n = len(surfels.centre) if isinstance(surfels, Surfels) else len(surfels["centre"])
-    return cast_parts([surfels], [np.arange(n)], [np.eye(4)], elevation_rad, columns,
-                      azimuth_offset_rad=azimuth_offset_rad, max_range_m=max_range_m,
-                      depth_tol_m=depth_tol_m, depth_tol_share=depth_tol_share)  # fmt: skip
-
-
 def cast_parts(
     parts: Sequence[Surfels | dict[str, npt.NDArray[np.generic]]],
     kept: Sequence[npt.NDArray[np.int64]],
@@ -103,10 +72,27 @@ def cast_parts(
     depth_tol_m: float = 0.1,
     depth_tol_share: float = 0.01,
 ) -> BeamHits:
-    """`cast_beams` of the `kept` surfels of several parts, each moved into the target frame
-    by its (4, 4) pose `to_target`: the compiled pass moves each surfel as it reads it, so
-    the window is never copied into one array. A hit's surfel (BeamHits.owner) is its index
-    among the kept surfels of all parts, in order."""
+    """The nearest surfel hit of each beam of a (len(elevation_rad), columns) grid, against
+    the `kept` surfels of several parts (the scans of a window).
+
+    Args:
+        parts: surfels, or their geometry fields (centre, normal, axis_a, axis_b, radius_m,
+            albedo, weight, retro) by name, each in its own scan's frame.
+        kept: (K_p,) int64 increasing rows of each part to cast against.
+        to_target: (4, 4) pose of each part in the target sensor's frame (the sensor at the
+            origin); the compiled pass moves each surfel as it reads it, so the window is
+            never copied into one array.
+        elevation_rad: (H,) ascending beam elevations, radians.
+        columns: W azimuth samples per revolution (>= 4).
+        azimuth_offset_rad: azimuth of the grid's start; column j looks along
+            azimuth_offset_rad + (j + 0.5) 2 pi / W.
+        max_range_m: disks whose nearest point lies beyond this are skipped.
+        depth_tol_m, depth_tol_share: the depth window of the blend (`_blend`).
+
+    Returns:
+        BeamHits; a beam's surfel (owner) is its index among the kept surfels of all parts,
+        in order.
+    """
     el = np.asarray(elevation_rad, dtype=np.float64)
     step = 2.0 * math.pi / int(columns)
     az = azimuth_offset_rad + (np.arange(int(columns)) + 0.5) * step
