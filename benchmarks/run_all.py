@@ -13,6 +13,9 @@ intensity_speed.json  intensity generator ms per 64-beam frame on one core
 intensity_eval.json   held-out evaluation of the shipped generators against the baselines
 diagnose_real.json    lads diagnose: a simple rho cos/R^2 simulator vs real KITTI and nuScenes
 faults.json           fault injection: kills, races, damage, bad frames, full/read-only disks
+sensor_transfer.json  sensor transfer vs the target's direct render (ground truth), speed
+sensor_transfer_real.json  sensor transfer of real scans, ring statistics vs real target scans
+sensor_build_speed.json    lads build --variant sensor-hdl32e: frames/s, memory, Dask bytes
 """
 
 from __future__ import annotations
@@ -42,6 +45,9 @@ BENCHMARKS = (
     "intensity_eval",
     "diagnose_real",
     "faults",
+    "sensor_transfer",
+    "sensor_transfer_real",
+    "sensor_build_speed",
 )
 
 
