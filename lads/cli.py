@@ -214,6 +214,11 @@ def variants() -> None:
     "scene folders of nuscenes-kitti).",
 )
 @click.option("--version", "nuscenes_version", help="nuScenes table version, e.g. v1.0-trainval.")
+@click.option(
+    "--sensor", "source_sensor",
+    help="Sensor profile of the source's scans when it is not the dataset's own: a tree "
+    "`--variant sensor-<profile>` built (its run.json names the profile).",
+)  # fmt: skip
 @click.option("--include-sweeps", is_flag=True, help="nuScenes: transform sweeps too.")
 @click.option("--jobs", type=int, default=1, show_default=True, help="Worker processes (loky).")
 @click.option(
@@ -239,7 +244,7 @@ def build(
     seed: int, rate_mm_h: float | None, visibility_m: float | None,
     water_film_mm: float | None, severity: str | None,
     weather_settings: str | None, detection: str | float | None, mode: str | None,
-    neighbours: int | None,
+    neighbours: int | None, source_sensor: str | None,
     points: str | None,
     particle_label: int | None, intensity_model: str | None,
     device: str | None, sequences: str | None, nuscenes_version: str | None,
@@ -269,6 +274,8 @@ def build(
         options["version"] = nuscenes_version
     if include_sweeps:
         options["include_sweeps"] = True
+    if source_sensor:
+        options["sensor"] = source_sensor
     report = run_build(
         source, source_root, out_root, pipeline, seed=seed, reader_options=options, jobs=jobs,
         backend=backend, scheduler=scheduler, fail_fast=fail_fast, progress=None, limit=limit,

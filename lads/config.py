@@ -104,7 +104,8 @@ class PipelineConfig:
         if names[0] != "sensor" or later:
             raise ConfigError(
                 f"stages {names}: a sensor stage must come first, followed only by "
-                f"{', '.join(_AFTER_SENSOR)} (weather on a transferred scan is not offered yet)."
+                f"{', '.join(_AFTER_SENSOR)}; for weather, build it from the transferred tree "
+                "with --sensor (docs/transfer.md §3)."
             )
         if self.points != "resampled":
             raise ConfigError(

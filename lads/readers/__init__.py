@@ -12,7 +12,7 @@ from collections.abc import Iterable
 from pathlib import Path
 from typing import Any, cast
 
-from lads.errors import ConfigError, InputDataError
+from lads.errors import ConfigError, InputDataError, LadsError
 from lads.frame import Frame
 from lads.physics.materials import LABEL_SETS
 from lads.readers.base import EncodedFile, Reader
@@ -60,10 +60,27 @@ def reader_class(name: str) -> type[Reader]:
 def get_reader(name: str, root: str | Path, **options: Any) -> Reader:
     """Build the reader `name` for the tree at `root` with its keyword `options`.
 
+    Every reader also takes `sensor`: the profile of the tree's scans when it is not the
+    dataset's own (a tree lads transferred to another sensor, whose run.json names it).
+
     Raises:
-        ConfigError: unknown reader name (the message lists the valid ones) or an option the
-            reader does not take (the message lists the ones it does).
+        ConfigError: unknown reader name (the message lists the valid ones), an option the
+            reader does not take (the message lists the ones it does), or an unknown sensor.
     """
+    sensor = options.pop("sensor", None)
+    reader = _build(name, root, options)
+    if sensor is not None:
+        from lads.sensors.profile import load_profile
+
+        try:
+            load_profile(sensor)
+        except LadsError as exc:
+            raise ConfigError(f"reader {name!r}: sensor {sensor!r}: {exc}") from None
+        reader.sensor = str(sensor)  # the instance's profile shadows the dataset's
+    return reader
+
+
+def _build(name: str, root: str | Path, options: dict[str, Any]) -> Reader:
     try:
         cls = READERS[name]
     except KeyError:

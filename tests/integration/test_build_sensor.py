@@ -233,3 +233,21 @@ def test_a_learned_intensity_may_follow_the_transfer():
     pipeline = parse_pipeline(data, "test.yaml")
     assert [s.stage for s in pipeline.stages] == ["sensor", "intensity"]
     assert pipeline.output_sensor("hdl64e") == "hdl32e"
+
+
+def test_weather_on_a_transferred_tree_uses_the_target_sensor(built: Path, tmp_path):
+    """A second build whose source is the transferred tree, told its sensor (`--sensor`)."""
+    import json
+
+    pipeline = pipeline_for("semantickitti", "snow").with_overrides(intensity="physics")
+    out = tmp_path / "snow"
+    report = run_build("semantickitti", built, out, pipeline, reader_options={"sensor": "hdl32e"},
+                       jobs=1, progress=False, figures=False, limit=2)  # fmt: skip
+    assert report.complete, report.failed
+    assert json.loads((out / "run.json").read_text())["sensor"] == "hdl32e"
+    frame = get_reader("semantickitti", built, sensor="hdl32e").read(
+        get_reader("semantickitti", built).items()[0]
+    )
+    assert frame.sensor == "hdl32e"
+    with pytest.raises(ConfigError, match="no-such-lidar"):
+        get_reader("semantickitti", built, sensor="no-such-lidar")
