@@ -95,7 +95,7 @@ def run_window_stage(
         raise InputDataError(
             f"{item.relpath}: the {stage.name} stage needs the sequence's poses, which "
             f"source {type(reader).__name__} does not read; use a source with poses "
-            "(semantickitti, nuscenes-kitti) or neighbours: 0 (each frame alone)."
+            "(semantickitti, nuscenes, nuscenes-kitti) or neighbours: 0 (each frame alone)."
         )
     keyed: Any = reader  # readers are hashable objects; the Reader protocol does not say so
     stamp = _stamp(reader, item)
