@@ -24,6 +24,8 @@ from lads.readers.base import Reader
 from lads.transfer.window import window_of
 
 F64 = npt.NDArray[np.float64]
+# Scans a worker keeps beyond one window's (each 10-20 MB of surfels for an HDL-64E scan).
+WINDOW_SPARE = 4
 
 
 class WindowStage(Protocol):
@@ -101,7 +103,9 @@ def run_window_stage(
     stamp = _stamp(reader, item)
     window, centre = window_of(_items(keyed, stamp), item, stage.neighbours, keyed.scan_position)
     poses = _sequence_poses(keyed, keyed.scan_position(item)[0], stamp)
-    size = 2 * (stage.neighbours + 1)
+    # One window and a few more: a worker handed every k-th frame (k jobs) needs k new scans
+    # per frame, and the window holds most of the next frame's.
+    size = stage.neighbours + 1 + WINDOW_SPARE
     parts = [
         _prepare(stage, (stage_key, *stamp), it, frame if it == item else None, size, reader)
         for it in window
