@@ -109,27 +109,8 @@ def variant_figure(
     as_refl = variant_sensor not in (None, sensor)
     what = "reflectivity" if as_refl else "stored intensity"
     bins = np.linspace(0.0, float(max(_shown(src, sensor, as_refl).max(), 1e-3)), 60)
-    for r, (name, pts, outcome, tree_sensor) in enumerate(trees):
-        bev = fig.add_subplot(grid[r, 0])
-        box = (-extent_m, extent_m, -extent_m, extent_m)
-        bev.imshow(_bev_raster(pts[:, :2], outcome, extent_m), origin="lower", extent=box,
-                   interpolation="nearest")  # fmt: skip
-        bev.set(xlim=(-extent_m, extent_m), ylim=(-extent_m, extent_m), aspect="equal")
-        counts = np.bincount(outcome, minlength=len(Outcome))
-        bev.set_title(f"{name}\n{pts.shape[0]:,} pts · particle {counts[2]:,}", fontsize=9)
-        bev.tick_params(labelsize=7)
-        keep = outcome != Outcome.LOST
-        img = fig.add_subplot(grid[r, 1])
-        shown = img.imshow(
-            _range_image(pts[keep, :3], _shown(pts[keep], tree_sensor, as_refl), tree_sensor),
-            aspect="auto", cmap="viridis",
-            interpolation="nearest", vmin=0.0, vmax=bins[-1],
-        )  # fmt: skip
-        img.set_title(f"{name}: {what} range image (rows = channels)", fontsize=9)
-        img.tick_params(labelsize=7)
-        fig.colorbar(shown, ax=img, fraction=0.02)
-        hist_ax.hist(_shown(pts[keep], tree_sensor, as_refl), bins=bins, histtype="step",
-                     density=True, label=name)  # fmt: skip
+    for r, tree in enumerate(trees):
+        _tree_row(fig, grid, r, tree, hist_ax, bins, as_refl, extent_m)
     hist_ax.set_yscale("log")
     hist_ax.set_xlabel(what)
     hist_ax.set_title(f"{what} histograms", fontsize=9)
@@ -144,6 +125,34 @@ def variant_figure(
                         wspace=0.18, hspace=0.45)  # fmt: skip
     _save(fig, path)
     return path
+
+
+def _tree_row(
+    fig: Any, grid: Any, r: int, tree: tuple[str, Any, Any, str], hist_ax: Any,
+    bins: npt.NDArray[np.float64], as_refl: bool, extent_m: float,
+) -> None:  # fmt: skip
+    """Row `r` of `variant_figure`: the tree's BEV and range image, and its histogram."""
+    name, pts, outcome, tree_sensor = tree
+    what = "reflectivity" if as_refl else "stored intensity"
+    bev = fig.add_subplot(grid[r, 0])
+    box = (-extent_m, extent_m, -extent_m, extent_m)
+    bev.imshow(_bev_raster(pts[:, :2], outcome, extent_m), origin="lower", extent=box,
+               interpolation="nearest")  # fmt: skip
+    bev.set(xlim=(-extent_m, extent_m), ylim=(-extent_m, extent_m), aspect="equal")
+    counts = np.bincount(outcome, minlength=len(Outcome))
+    bev.set_title(f"{name}\n{pts.shape[0]:,} pts · particle {counts[2]:,}", fontsize=9)
+    bev.tick_params(labelsize=7)
+    keep = outcome != Outcome.LOST
+    img = fig.add_subplot(grid[r, 1])
+    shown = img.imshow(
+        _range_image(pts[keep, :3], _shown(pts[keep], tree_sensor, as_refl), tree_sensor),
+        aspect="auto", cmap="viridis", interpolation="nearest", vmin=0.0, vmax=bins[-1],
+    )  # fmt: skip
+    img.set_title(f"{name}: {what} range image (rows = channels)", fontsize=9)
+    img.tick_params(labelsize=7)
+    fig.colorbar(shown, ax=img, fraction=0.02)
+    hist_ax.hist(_shown(pts[keep], tree_sensor, as_refl), bins=bins, histtype="step",
+                 density=True, label=name)  # fmt: skip
 
 
 def correspondence_figure(path: Path) -> Path:
