@@ -35,10 +35,12 @@ from lads.transfer.baselines import ring_drop, row_resample
 from lads.transfer.metrics import GridScan, compare_scans, covered_rings, grid_column
 from lads.transfer.scan import WindowScan, transfer_surfels, window_surfels
 from lads.transfer.surfels import DEFAULT_SHAPE, SurfelShape
+from lads.transfer.window import DEFAULT_NEIGHBOURS
 
 VALIDATION_SEEDS = (0, 1, 2, 3, 4)
 TEST_SEEDS = (10, 11, 12, 13, 14)
-FRAMES, CENTRE = 11, 5  # a 10-scan window around the centre scan
+# The shipped window: the centre scan and its neighbours, half before and half after.
+FRAMES, CENTRE = DEFAULT_NEIGHBOURS + 1, DEFAULT_NEIGHBOURS // 2
 DIRECTIONS = (("hdl64e", "hdl32e"), ("hdl32e", "hdl64e"))
 # Shares of at least 1 / sqrt(2) only: an ellipse of conjugate semi-axes s A and s B covers its
 # cell's corners (A / 2 + B / 2) only then, so one scan tiles a surface by itself, as it must

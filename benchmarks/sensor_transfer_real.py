@@ -28,9 +28,9 @@ from lads.readers import get_reader
 from lads.sensors.profile import SensorProfile, load_profile
 from lads.transfer.metrics import covered_rings
 from lads.transfer.scan import WindowScan, transfer_surfels, window_surfels
+from lads.transfer.window import DEFAULT_NEIGHBOURS, window_of
 from tests.trees import _link
 
-HALF_WINDOW = 5  # scans each side of the one transferred (a 10-scan window)
 # Beyond this range a return is not the recording vehicle's body (nuScenes: every return
 # within 1.1 m is labelled vehicle.ego; KITTI's roof-mounted sensor sees no body).
 BODY_M = 2.5
@@ -53,11 +53,11 @@ def kitti_tree(root: Path) -> Path:
 
 
 def transfer_tree(reader: Any, source: SensorProfile, target: SensorProfile) -> list[Any]:
-    """Every scan of the tree transferred with the scans within HALF_WINDOW of its number."""
+    """Every scan of the tree transferred with its window, as a build chooses it
+    (`lads.transfer.window`)."""
     items = reader.items()
     poses = reader.sensor_poses(items)
     frames = {it.relpath: reader.read(it) for it in items}
-    number = {it.relpath: int(Path(it.relpath).stem) for it in items}
     surfels = {}
     for k, it in enumerate(items):
         f = frames[it.relpath]
@@ -66,11 +66,11 @@ def transfer_tree(reader: Any, source: SensorProfile, target: SensorProfile) -> 
         surfels[it.relpath] = window_surfels(scan, k, source, reader.label_set)
     out = []
     for it in items:
-        near = [o.relpath for o in items if abs(number[o.relpath] - number[it.relpath])
-                <= HALF_WINDOW]  # fmt: skip
-        moved = transfer_surfels([surfels[r] for r in near], [poses[r] for r in near],
-                                 near.index(it.relpath), source, target,
-                                 np.random.default_rng(0), label_set=reader.label_set)  # fmt: skip
+        window, centre = window_of(items, it, DEFAULT_NEIGHBOURS, reader.scan_position)
+        near = [o.relpath for o in window]
+        moved = transfer_surfels([surfels[r] for r in near], [poses[r] for r in near], centre,
+                                 source, target, np.random.default_rng(0),
+                                 label_set=reader.label_set)  # fmt: skip
         out.append((len(near), moved))
     return out
 

@@ -137,36 +137,35 @@ def read_item(
     out_root: Path, relpath: str
 ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.uint8], dict]:
     """(source_index (M,) int64, outcome (M,) uint8, attrs) of one item."""
-    import zarr  # here, not at module level: a build only writes (`write_item`)
-
-    path = out_root / STORE_NAME / node_name(relpath)
-    try:
-        group = zarr.open_group(path, mode="r", zarr_format=3)
-        # Both are arrays written by `write_item`, never subgroups; zarr reads them as numpy.
-        source = cast(npt.NDArray[np.int64], cast(zarr.Array, group["source_index"])[:])
-        outcome = cast(npt.NDArray[np.uint8], cast(zarr.Array, group["outcome"])[:])
-        return source, outcome, dict(group.attrs)
-    except (FileNotFoundError, KeyError, zarr.errors.NodeNotFoundError) as exc:  # type: ignore[attr-defined]
-        raise ManifestError(
-            f"{path}: no provenance for {relpath}; the build is incomplete. Run the same "
-            "`lads build` again to finish it."
-        ) from exc
+    source, outcome, attrs = _read_arrays(out_root, relpath, ("source_index", "outcome"))
+    return source, outcome, attrs
 
 
 def read_source_scan(out_root: Path, relpath: str) -> tuple[list[str], npt.NDArray[np.int16]]:
     """(window relpaths, (M,) int16 scan of each point) of a sensor transfer's item; for
     any other item ([relpath], zeros): every point is a row of the item's own scan."""
-    import zarr
-
-    source, _, attrs = read_item(out_root, relpath)
+    attrs = _read_arrays(out_root, relpath, ())[-1]
     window = attrs.get("window")
     if not window:
-        return [relpath], np.zeros(source.size, np.int16)
+        return [relpath], np.zeros(int(attrs["n_output"]), np.int16)
+    scans, _ = _read_arrays(out_root, relpath, ("source_scan",))
+    return list(window), scans
+
+
+def _read_arrays(out_root: Path, relpath: str, names: tuple[str, ...]) -> tuple[Any, ...]:
+    """The arrays `names` of one item's group (numpy), then its attributes.
+
+    Raises:
+        ManifestError: the group or an array is missing (an incomplete build).
+    """
+    import zarr  # here, not at module level: a build only writes (`write_item`)
+
     path = out_root / STORE_NAME / node_name(relpath)
     try:
         group = zarr.open_group(path, mode="r", zarr_format=3)
-        scans = cast(npt.NDArray[np.int16], cast(zarr.Array, group["source_scan"])[:])
-        return list(window), scans
+        # Arrays written by `write_item`, never subgroups; zarr reads them as numpy.
+        arrays = tuple(cast(zarr.Array, group[name])[:] for name in names)
+        return (*arrays, dict(group.attrs))
     except (FileNotFoundError, KeyError, zarr.errors.NodeNotFoundError) as exc:  # type: ignore[attr-defined]
         raise ManifestError(
             f"{path}: no provenance for {relpath}; the build is incomplete. Run the same "

@@ -34,6 +34,8 @@ class WindowStage(Protocol):
     name: str
     neighbours: int
 
+    def __call__(self, frame: Frame, rng: np.random.Generator) -> Frame: ...
+
     def prepare(self, frame: Frame) -> Any: ...
 
     def call_window(self, frame: Frame, parts: list[Any], poses: list[F64], centre: int,
@@ -91,8 +93,7 @@ def run_window_stage(
             readers do), or a pose is missing (the reader's own error says where).
     """
     if stage.neighbours == 0:
-        return stage.call_window(frame, [stage.prepare(frame)], [np.eye(4)], 0,
-                                 (item.relpath,), rng)  # fmt: skip
+        return stage(frame, rng)  # a window of the frame's own scan
     if not (hasattr(reader, "scan_position") and hasattr(reader, "sensor_poses")):
         raise InputDataError(
             f"{item.relpath}: the {stage.name} stage needs the sequence's poses, which "

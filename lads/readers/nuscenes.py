@@ -32,7 +32,6 @@ import io
 import zipfile
 from dataclasses import replace
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -47,7 +46,6 @@ from lads.readers.base import (
     read_labels,
     read_records,
 )
-from lads.readers.poses import pose_from_text, pose_text, quaternion_pose
 
 TABLES = (
     "category",
@@ -116,6 +114,11 @@ class NuScenesReader:
         self.root = Path(root)
         self.version = version
         self.include_sweeps = bool(include_sweeps)
+        # The poses of the items `items()` listed, kept compact (a row of ego_pose translation,
+        # rotation, then calibrated_sensor translation, rotation per item, by relpath) and
+        # turned into matrices only when a sensor transfer asks (`sensor_poses`).
+        self._pose_rows: dict[str, int] = {}
+        self._pose_table = np.zeros((0, 14))
 
     def __repr__(self) -> str:
         return (
@@ -180,6 +183,7 @@ class NuScenesReader:
         lidarseg = {r["sample_data_token"]: r["filename"] for r in getattr(nusc, "lidarseg", [])}
         panoptic = {r["sample_data_token"]: r["filename"] for r in getattr(nusc, "panoptic", [])}
         items = []
+        rows: dict[str, tuple[float, ...]] = {}
         for sd in nusc.sample_data:
             if sd["channel"] != CHANNEL:
                 continue
@@ -192,14 +196,22 @@ class NuScenesReader:
             elif not self.include_sweeps:
                 continue
             extras = (("panoptic", panoptic[token]),) if token in panoptic else ()
-            meta = (("sample_data_token", token), *_place(nusc, sd))
+            scene = nusc.get("sample", sd["sample_token"])["scene_token"]
+            meta = (("sample_data_token", token), ("scene", scene),
+                    ("timestamp", str(int(sd["timestamp"]))))  # fmt: skip
             items.append(Item(self.name, filename, lidarseg.get(token), extras, meta))
+            ego = nusc.get("ego_pose", sd["ego_pose_token"])
+            calib = nusc.get("calibrated_sensor", sd["calibrated_sensor_token"])
+            rows[filename] = (*ego["translation"], *ego["rotation"], *calib["translation"],
+                              *calib["rotation"])  # fmt: skip
         if not items:
             raise DatasetNotFoundError(
                 f"{table_root}: no {CHANNEL} sample_data with lidarseg labels"
                 f"{' or sweep files' if self.include_sweeps else ''}; expected lidarseg.json "
                 "records for the LIDAR_TOP keyframes. Unpack the lidarseg archive."
             )
+        self._pose_rows = {rel: k for k, rel in enumerate(rows)}
+        self._pose_table = np.array(list(rows.values()), dtype=np.float64).reshape(-1, 14)
         return sorted(_numbered(items), key=lambda it: it.relpath)
 
     def scan_position(self, item: Item) -> tuple[str, int]:
@@ -210,8 +222,20 @@ class NuScenesReader:
 
     def sensor_poses(self, items: list[Item]) -> dict[str, npt.NDArray[np.float64]]:
         """(4, 4) lidar -> global pose of each item: its sample_data's ego_pose times its
-        calibrated_sensor, read from the tables when the items were listed."""
-        return {it.relpath: pose_from_text(dict(it.meta)["pose"]) for it in items}
+        calibrated_sensor (lists the items first when this reader has not)."""
+        from pyquaternion import Quaternion  # nuscenes-devkit's own quaternion library
+
+        if any(it.relpath not in self._pose_rows for it in items):
+            self.items()
+        out = {}
+        for it in items:
+            row = self._pose_table[self._pose_rows[it.relpath]]
+            ego = Quaternion(row[3:7]).transformation_matrix
+            ego[:3, 3] = row[0:3]
+            calib = Quaternion(row[10:14]).transformation_matrix
+            calib[:3, 3] = row[7:10]
+            out[it.relpath] = ego @ calib
+        return out
 
     def copied_files(self) -> list[str]:
         """Every file of `<version>/` (the JSON tables) and of `maps/`, recursively."""
@@ -288,17 +312,6 @@ class NuScenesReader:
             data = np.frombuffer(raw.payload, dtype=PANOPTIC_DTYPE.newbyteorder("<"))
             files.append(EncodedFile(rel, role, npz_bytes(data), n, 0))
         return files
-
-
-def _place(nusc: Any, sd: dict[str, Any]) -> tuple[tuple[str, str], ...]:
-    """Item meta of a sample_data: its scene, timestamp and lidar -> global pose."""
-    scene = nusc.get("sample", sd["sample_token"])["scene_token"]
-    ego = nusc.get("ego_pose", sd["ego_pose_token"])
-    calib = nusc.get("calibrated_sensor", sd["calibrated_sensor_token"])
-    pose = quaternion_pose(ego["translation"], ego["rotation"]) @ quaternion_pose(
-        calib["translation"], calib["rotation"]
-    )
-    return (("scene", scene), ("timestamp", str(int(sd["timestamp"]))), ("pose", pose_text(pose)))
 
 
 def _numbered(items: list[Item]) -> list[Item]:

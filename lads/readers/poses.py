@@ -76,29 +76,3 @@ def kitti_velodyne_to_camera(calib: Path) -> F64:
         f"{calib}: no 'Tr:' line of 12 numbers; some KITTI downloads ship a calib.txt without "
         "it: take calib.txt from the KITTI odometry calibration archive."
     )
-
-
-def quaternion_pose(translation: list[float], rotation_wxyz: list[float]) -> F64:
-    """(4, 4) pose of a translation (m) and a unit quaternion (w, x, y, z), as nuScenes'
-    ego_pose and calibrated_sensor tables store them (normalised here)."""
-    w, x, y, z = np.asarray(rotation_wxyz, dtype=np.float64) / np.linalg.norm(rotation_wxyz)
-    out = np.eye(4)
-    out[:3, :3] = [
-        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-    ]
-    out[:3, 3] = translation
-    return out
-
-
-def pose_text(pose: F64) -> str:
-    """The top 3 x 4 of a pose as 12 numbers that read back exactly (`pose_from_text`)."""
-    return " ".join(repr(float(v)) for v in np.asarray(pose, dtype=np.float64)[:3].ravel())
-
-
-def pose_from_text(text: str) -> F64:
-    """(4, 4) pose of `pose_text`'s 12 numbers."""
-    out = np.eye(4)
-    out[:3, :] = np.array(text.split(), dtype=np.float64).reshape(3, 4)
-    return out

@@ -12,7 +12,6 @@ encoding; a nuScenes-style `ring` column gets the target's channel; further per-
 
 from __future__ import annotations
 
-import functools
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
@@ -24,7 +23,7 @@ from lads.errors import InputDataError
 from lads.frame import Frame
 from lads.physics.result import Outcome
 from lads.readers import label_set_for
-from lads.sensors.profile import SensorProfile, load_profile
+from lads.sensors.profile import load_profile
 from lads.transfer.scan import WindowScan, transfer_surfels, window_surfels
 from lads.transfer.surfels import Surfels
 from lads.transfer.window import DEFAULT_NEIGHBOURS
@@ -33,11 +32,6 @@ from lads.transfer.window import DEFAULT_NEIGHBOURS
 SENSOR_STAGE_VERSION = "2"  # 2: nuScenes classes of things that move come from the frame only
 # Point columns the stage knows how to fill; any other column of a source format is refused.
 _KNOWN_COLUMNS = ("x", "y", "z", "intensity", "ring")
-
-
-@functools.lru_cache(maxsize=8)
-def _profile(name: str) -> SensorProfile:
-    return load_profile(name)
 
 
 @dataclass(frozen=True, slots=True)
@@ -77,7 +71,7 @@ class SensorStage:
         ring = frame.points[:, frame.columns.index("ring")] if "ring" in frame.columns else None
         scan = WindowScan(frame.xyz, frame.intensity, frame.labels, ring, np.eye(4))
         label_set = label_set_for(frame.item.dataset)
-        surfels = window_surfels(scan, 0, _profile(frame.sensor), label_set)
+        surfels = window_surfels(scan, 0, load_profile(frame.sensor), label_set)
         return PreparedScan(surfels, dict(frame.extra_labels))
 
     def __call__(self, frame: Frame, rng: np.random.Generator) -> Frame:
@@ -107,8 +101,8 @@ class SensorStage:
         _check_columns(frame)
         numbered = [replace(p.surfels, frame=np.full(len(p.surfels), k, np.int32))
                     for k, p in enumerate(parts)]  # fmt: skip
-        out = transfer_surfels(numbered, poses, centre, _profile(frame.sensor),
-                               _profile(self.target), rng,
+        out = transfer_surfels(numbered, poses, centre, load_profile(frame.sensor),
+                               load_profile(self.target), rng,
                                label_set=label_set_for(frame.item.dataset))  # fmt: skip
         points = np.zeros((out.xyz.shape[0], len(frame.columns)), np.float32)
         points[:, :3] = out.xyz

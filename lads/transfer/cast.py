@@ -22,8 +22,10 @@ import numpy.typing as npt
 from lads.transfer.surfels import Surfels
 
 F64 = npt.NDArray[np.float64]
-# The surfel fields the cast reads.
-GEOMETRY = ("centre", "normal", "axis_a", "axis_b", "radius_m", "albedo", "weight", "retro")
+# The surfel fields the cast reads: its shape (moved into the target frame as it is read) and
+# what each hit votes with in the blend.
+SHAPE_FIELDS = ("centre", "normal", "axis_a", "axis_b", "radius_m")
+VOTE_FIELDS = ("albedo", "weight", "retro")
 # The depth window of a grazing beam widens as 1 / cos(incidence), down to this cosine: the
 # disks of one surface spread along such a beam by their normal errors over cos.
 MIN_TOL_COS = 0.1
@@ -76,8 +78,8 @@ def cast_parts(
     the `kept` surfels of several parts (the scans of a window).
 
     Args:
-        parts: surfels, or their geometry fields (centre, normal, axis_a, axis_b, radius_m,
-            albedo, weight, retro) by name, each in its own scan's frame.
+        parts: surfels, or their fields SHAPE_FIELDS and VOTE_FIELDS by name, each in its
+            own scan's frame.
         kept: (K_p,) int64 increasing rows of each part to cast against.
         to_target: (4, 4) pose of each part in the target sensor's frame (the sensor at the
             origin); the compiled pass moves each surfel as it reads it, so the window is
@@ -102,11 +104,11 @@ def cast_parts(
     buffers = _HitBuffers.empty(2 * total + 1024)
     offset = 0
     for part, idx, pose in zip(parts, kept, to_target, strict=True):
-        g = _fields(part, GEOMETRY[:5])
+        g = _fields(part, SHAPE_FIELDS)
         turn = np.ascontiguousarray(np.asarray(pose, np.float64)[:3, :3])
         shift = np.ascontiguousarray(np.asarray(pose, np.float64)[:3, 3])
         # numba's Dispatcher stub takes fewer arguments than the compiled functions do.
-        buffers = buffers.with_hits(*_record_hits(  # type: ignore[call-arg]
+        buffers = _HitBuffers(*_record_hits(  # type: ignore[call-arg]
             g["centre"], g["normal"], g["axis_a"], g["axis_b"], g["radius_m"],
             np.asarray(idx, np.int64), turn, shift, offset, el, float(azimuth_offset_rad),
             int(columns), float(max_range_m), best, best_cos, *buffers.arrays(), buffers.n,
@@ -114,7 +116,7 @@ def cast_parts(
         offset += len(idx)
     scalars = {f: np.concatenate([np.asarray(_fields(p, (f,))[f])[k]
                                   for p, k in zip(parts, kept, strict=True)])
-               for f in ("albedo", "weight", "retro")}  # fmt: skip
+               for f in VOTE_FIELDS}  # fmt: skip
     t, owner, refl, cos = _blend(  # type: ignore[call-arg]
         best, best_cos, *buffers.trimmed(), scalars["albedo"], scalars["weight"],
         scalars["retro"], depth_tol_m, depth_tol_share,
@@ -145,9 +147,6 @@ class _HitBuffers:
 
     def arrays(self) -> tuple[Any, ...]:
         return self.pix, self.t, self.cos, self.w, self.i
-
-    def with_hits(self, *values: Any) -> _HitBuffers:
-        return _HitBuffers(*values)
 
     def trimmed(self) -> tuple[Any, ...]:
         return tuple(a[: self.n] for a in self.arrays())
