@@ -32,13 +32,15 @@ def rain_rows() -> list[dict[str, float]]:
     for rate in RAIN_RATES_MM_H:
         alpha = extinction_per_m(marshall_palmer(rate), "water", 905.0)
         ulbrich_atlas = 1.45 * rate**0.64 * DB_PER_KM
-        rows.append({
-            "rate_mm_h": rate,
-            "alpha_per_m": float(f"{alpha:.4g}"),
-            "ulbrich_atlas_per_m": float(f"{ulbrich_atlas:.4g}"),
-            "ratio_to_ulbrich_atlas": round(alpha / ulbrich_atlas, 4),
-            "two_way_transmission_100_m": round(math.exp(-2 * alpha * 100.0), 4),
-        })  # fmt: skip
+        rows.append(
+            {
+                "rate_mm_h": rate,
+                "alpha_per_m": float(f"{alpha:.4g}"),
+                "ulbrich_atlas_per_m": float(f"{ulbrich_atlas:.4g}"),
+                "ratio_to_ulbrich_atlas": round(alpha / ulbrich_atlas, 4),
+                "two_way_transmission_100_m": round(math.exp(-2 * alpha * 100.0), 4),
+            }
+        )
     return rows
 
 
@@ -77,7 +79,7 @@ def main(out_dir: Path | None = None) -> dict[str, Any]:
             for x, q in zip(
                 sizes, extinction_efficiency("water", sizes * 905e-6 / math.pi, 905.0), strict=True
             )
-        },  # fmt: skip
+        },
         "modalities": modalities_row(),
         "machine": machine_info(),
     }

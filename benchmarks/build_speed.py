@@ -104,8 +104,9 @@ def pipeline_of(variant: str, reader: str = "semantickitti") -> PipelineConfig:
     return pipeline_for(reader, name).with_overrides(**VARIANTS[variant])
 
 
-def timed_build(source: Path, out: Path, pipeline: PipelineConfig, reader: str = "semantickitti",
-                **kwargs: Any) -> dict[str, Any]:  # fmt: skip
+def timed_build(
+    source: Path, out: Path, pipeline: PipelineConfig, reader: str = "semantickitti", **kwargs: Any
+) -> dict[str, Any]:
     start = time.perf_counter()
     report = run_build(reader, source, out, pipeline, seed=0, progress=False, **kwargs)
     seconds = time.perf_counter() - start
@@ -129,15 +130,20 @@ def throughput(tmp: Path, source: Path) -> dict[str, Any]:
     """Every variant with 1 and 2 jobs, interleaved, best of REPEATS."""
     for v, variant in enumerate(VARIANTS):  # warm-up: numba caches, loky workers, models
         for jobs in (1, 2):
-            timed_build(make_tree(tmp / f"warm_{v}_{jobs}", 6), tmp / f"warm_out_{v}_{jobs}",
-                        pipeline_of(variant), jobs=jobs)  # fmt: skip
+            timed_build(
+                make_tree(tmp / f"warm_{v}_{jobs}", 6),
+                tmp / f"warm_out_{v}_{jobs}",
+                pipeline_of(variant),
+                jobs=jobs,
+            )
     trials: dict[str, dict[int, list[dict[str, Any]]]] = {v: {1: [], 2: []} for v in VARIANTS}
     for k in range(REPEATS):
         for variant in VARIANTS:
             for jobs in (1, 2):
                 out = tmp / f"out_{k}_{jobs}"
-                trials[variant][jobs].append(timed_build(source, out, pipeline_of(variant),
-                                                         jobs=jobs))  # fmt: skip
+                trials[variant][jobs].append(
+                    timed_build(source, out, pipeline_of(variant), jobs=jobs)
+                )
                 shutil.rmtree(out)  # later runs must not pay for this one's disk writeback
     result = {}
     for variant, by_jobs in trials.items():
@@ -147,7 +153,7 @@ def throughput(tmp: Path, source: Path) -> dict[str, Any]:
             "jobs_2": best[2],
             "all_trials_frames_per_s": {
                 f"jobs_{j}": [r["frames_per_s"] for r in t] for j, t in by_jobs.items()
-            },  # fmt: skip
+            },
             "scaling_1_to_2": round(best[2]["frames_per_s"] / best[1]["frames_per_s"], 3),
             "step_ms_per_frame_one_core": best[1]["step_ms_per_item"],
         }
@@ -157,23 +163,53 @@ def throughput(tmp: Path, source: Path) -> dict[str, Any]:
 def command_wall(tmp: Path, source: Path, variant: str, jobs: int) -> dict[str, Any]:
     """The `lads build` command end to end: process and worker start, build, figures."""
     out = tmp / "cli_out"
-    args = [sys.executable, "-m", "lads.cli", "build", "--source", "semantickitti",
-            "--variant", *variant.split(), "--in", str(source), "--out", str(out),
-            "--jobs", str(jobs)]  # fmt: skip
+    args = [
+        sys.executable,
+        "-m",
+        "lads.cli",
+        "build",
+        "--source",
+        "semantickitti",
+        "--variant",
+        *variant.split(),
+        "--in",
+        str(source),
+        "--out",
+        str(out),
+        "--jobs",
+        str(jobs),
+    ]
     start = time.perf_counter()
     subprocess.run(args, check=True, capture_output=True)
     seconds = time.perf_counter() - start
     shutil.rmtree(out)
-    return {"variant": variant, "jobs": jobs, "frames": FRAMES, "seconds": round(seconds, 2),
-            "frames_per_s": round(FRAMES / seconds, 2)}  # fmt: skip
+    return {
+        "variant": variant,
+        "jobs": jobs,
+        "frames": FRAMES,
+        "seconds": round(seconds, 2),
+        "frames_per_s": round(FRAMES / seconds, 2),
+    }
 
 
 def first_frame_seconds(tmp: Path, source: Path, variant: str) -> float:
     """Seconds from starting `lads build` to the first item's journal record (its files
     and provenance are written before it); the process is then stopped."""
     out = tmp / "ttf_out"
-    args = [sys.executable, "-m", "lads.cli", "build", "--source", "semantickitti",
-            "--variant", *variant.split(), "--in", str(source), "--out", str(out)]  # fmt: skip
+    args = [
+        sys.executable,
+        "-m",
+        "lads.cli",
+        "build",
+        "--source",
+        "semantickitti",
+        "--variant",
+        *variant.split(),
+        "--in",
+        str(source),
+        "--out",
+        str(out),
+    ]
     journal = out / ".lads-state" / "items"
     start = time.perf_counter()
     proc = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
@@ -197,11 +233,16 @@ def dask_runs(tmp: Path, source: Path, reference: str) -> dict[str, Any]:
         return {"skipped": "dask.distributed is not installed (pip install 'lads[dask]')"}
     rows = {}
     for workers in (1, 2):
-        with distributed.LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                                      dashboard_address=None) as cluster:  # fmt: skip
+        with distributed.LocalCluster(
+            n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None
+        ) as cluster:
             kwargs = {"backend": "dask", "scheduler": cluster.scheduler_address}
-            timed_build(make_tree(tmp / f"dwarm{workers}", 4), tmp / f"dwarm_out{workers}",
-                        pipeline_of("snow"), **kwargs)  # fmt: skip
+            timed_build(
+                make_tree(tmp / f"dwarm{workers}", 4),
+                tmp / f"dwarm_out{workers}",
+                pipeline_of("snow"),
+                **kwargs,
+            )
             out = tmp / f"dask_out{workers}"
             row = timed_build(source, out, pipeline_of("snow"), **kwargs)
             row["jobs"] = None
@@ -212,8 +253,13 @@ def dask_runs(tmp: Path, source: Path, reference: str) -> dict[str, Any]:
     return rows
 
 
-def projection(fps_kitti: float, fps_nusc: float, dask: dict[str, Any], bytes_per_frame: float,
-               storage_mb_s: float = 500.0) -> dict[str, Any]:  # fmt: skip
+def projection(
+    fps_kitti: float,
+    fps_nusc: float,
+    dask: dict[str, Any],
+    bytes_per_frame: float,
+    storage_mb_s: float = 500.0,
+) -> dict[str, Any]:
     """Hours per variant on this machine, and a model for N such machines with Dask."""
     eff = 1.0
     if "workers_2" in dask:
@@ -251,23 +297,35 @@ def main() -> dict[str, Any]:
         in_bytes = sum(p.stat().st_size for p in (tmp / "src").rglob("*") if p.is_file())
         shutil.rmtree(reference_out)
         walls = [command_wall(tmp, source, "snow", 2)]
-        first = {v: sorted(first_frame_seconds(tmp, source, v) for _ in range(3))
-                 for v in ("rain", "snow")}  # fmt: skip
+        first = {
+            v: sorted(first_frame_seconds(tmp, source, v) for _ in range(3))
+            for v in ("rain", "snow")
+        }
         dask = dask_runs(tmp, source, reference)
         nusc = make_nuscenes_tree(tmp / "nusc", FRAMES)
-        timed_build(make_nuscenes_tree(tmp / "nusc_warm", 6), tmp / "nw", pipeline_of("snow",
-                    "nuscenes"), "nuscenes", jobs=2)  # fmt: skip
+        timed_build(
+            make_nuscenes_tree(tmp / "nusc_warm", 6),
+            tmp / "nw",
+            pipeline_of("snow", "nuscenes"),
+            "nuscenes",
+            jobs=2,
+        )
         nusc_runs = []
         for k in range(REPEATS):
             out = tmp / f"nusc_out{k}"
-            nusc_runs.append(timed_build(nusc, out, pipeline_of("snow", "nuscenes"), "nuscenes",
-                                         jobs=2))  # fmt: skip
+            nusc_runs.append(
+                timed_build(nusc, out, pipeline_of("snow", "nuscenes"), "nuscenes", jobs=2)
+            )
             shutil.rmtree(out)
     learned = variants["snow"]
-    physics = max(variants["snow --intensity physics"]["jobs_2"]["frames_per_s"],
-                  variants["rain"]["jobs_2"]["frames_per_s"])  # fmt: skip
-    physics_min = min(variants["snow --intensity physics"]["jobs_2"]["frames_per_s"],
-                      variants["rain"]["jobs_2"]["frames_per_s"])  # fmt: skip
+    physics = max(
+        variants["snow --intensity physics"]["jobs_2"]["frames_per_s"],
+        variants["rain"]["jobs_2"]["frames_per_s"],
+    )
+    physics_min = min(
+        variants["snow --intensity physics"]["jobs_2"]["frames_per_s"],
+        variants["rain"]["jobs_2"]["frames_per_s"],
+    )
     nusc_best = max(nusc_runs, key=lambda r: r["frames_per_s"])
     measured = {
         "learned_frames_per_s_jobs_2": learned["jobs_2"]["frames_per_s"],
@@ -277,9 +335,14 @@ def main() -> dict[str, Any]:
         "scaling_1_to_2": learned["scaling_1_to_2"],
         "peak_worker_rss_mb": max(v["jobs_2"]["peak_worker_rss_mb"] for v in variants.values()),
     }
-    met = {k: (measured[k] <= t if k in ("first_frame_s_physics", "intensity_stage_ms",
-                                           "peak_worker_rss_mb") else measured[k] >= t)
-           for k, t in TARGETS.items()}  # fmt: skip
+    met = {
+        k: (
+            measured[k] <= t
+            if k in ("first_frame_s_physics", "intensity_stage_ms", "peak_worker_rss_mb")
+            else measured[k] >= t
+        )
+        for k, t in TARGETS.items()
+    }
     result = {
         "what": "lads build on real SemanticKITTI frames (3 real scans linked as 120 frames), "
         "end to end; snow = the default pipeline with the learned intensity stage",
@@ -301,7 +364,7 @@ def main() -> dict[str, Any]:
             nusc_best["frames_per_s"],
             dask,
             (in_bytes + out_bytes) / FRAMES,
-        ),  # fmt: skip
+        ),
         "note": "page cache warm (the source files are symlinks to three real KITTI frames "
         "and one real nuScenes keyframe); a cold disk adds read time",
     }

@@ -75,8 +75,13 @@ def figure(scan: Scan, fit: DetectionFit, path: Path) -> None:
     rho = np.maximum(intensity / 100.0, 0.005)
     keep = (r >= 5.0) & (rho <= 1.0)
     fig, ax = plt.subplots(figsize=(7, 4.5))
-    ax.hist2d(r[keep], rho[keep], bins=[np.arange(5, 106, 1.0), np.logspace(-2.4, 0, 60)],
-              cmap="Greys", norm=matplotlib.colors.LogNorm())  # fmt: skip
+    ax.hist2d(
+        r[keep],
+        rho[keep],
+        bins=[np.arange(5, 106, 1.0), np.logspace(-2.4, 0, 60)],
+        cmap="Greys",
+        norm=matplotlib.colors.LogNorm(),
+    )
     ax.set_yscale("log")
     grid = np.linspace(FIT_MIN_RANGE_M, 105, 100)
     for z, style in ((0.0, "r-"), (-1.2816, "r:"), (1.2816, "r:")):
@@ -84,8 +89,12 @@ def figure(scan: Scan, fit: DetectionFit, path: Path) -> None:
         ax.plot(grid, rho_at, style, lw=1.2)
     ax.plot([], [], "r-", label=f"fit: 50 % detected (P_lim = {fit.limit_power:.2g} / m^2)")
     ax.plot([], [], "r:", label=f"10 % and 90 % detected (s = {fit.spread_ln:.2f})")
-    ax.set(xlabel="range, m", ylabel="reported reflectivity", ylim=(0.004, 1.0),
-           title="nuScenes HDL-32E, scene-0002: returns and the fitted limit")  # fmt: skip
+    ax.set(
+        xlabel="range, m",
+        ylabel="reported reflectivity",
+        ylim=(0.004, 1.0),
+        title="nuScenes HDL-32E, scene-0002: returns and the fitted limit",
+    )
     ax.legend(loc="lower right", fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=110)

@@ -268,8 +268,12 @@ def parse(argv: list[str] | None) -> argparse.Namespace:
     which.add_argument("--untouched", action="store_true", help=untouched)
     p.add_argument("--cases", help="comma-separated case ids to keep, e.g. K1,K2")
     p.add_argument("--seeds", type=int, help="seeds per case (ci: 1, full: 20)")
-    p.add_argument("--first-seed", type=int, default=0,
-                   help="first seed (seeds run first-seed .. first-seed + seeds - 1)")  # fmt: skip
+    p.add_argument(
+        "--first-seed",
+        type=int,
+        default=0,
+        help="first seed (seeds run first-seed .. first-seed + seeds - 1)",
+    )
     p.add_argument("--bases", help="comma-separated bases (semantickitti,nuscenes)")
     p.add_argument("--mode", choices=["M1", "M2", "both"], default="M2")
     p.add_argument(
@@ -283,9 +287,13 @@ def parse(argv: list[str] | None) -> argparse.Namespace:
         help="scans per real frame, the original included (default: the generator's)",
     )
     p.add_argument("--timeout", type=float, default=TOOL_TIMEOUT_S, help="seconds per tool run")
-    p.add_argument("--workers", type=int, default=2,
-                   help="runs at a time; each tool run gets cores // workers processes (its "
-                        "report does not depend on that)")  # fmt: skip
+    p.add_argument(
+        "--workers",
+        type=int,
+        default=2,
+        help="runs at a time; each tool run gets cores // workers processes (its "
+        "report does not depend on that)",
+    )
     p.add_argument("--keep", type=Path, help="keep generated trees and reports under this folder")
     p.add_argument("--name", help="results file stem (ci: diagnose_ci, full: diagnose)")
     p.add_argument("--results", type=Path, default=RESULTS, help="results folder")
@@ -313,8 +321,17 @@ def main(argv: list[str] | None = None) -> int:
         case, base, seed, mode = run
         tmp = Path(tempfile.mkdtemp(prefix=f"diag_{case}_{base[:4]}_{mode}_{seed}_"))
         try:
-            score = run_one(case, base, seed, mode, tmp, max_points=max_points,
-                            timeout=args.timeout, jobs=jobs, copies=args.copies)  # fmt: skip
+            score = run_one(
+                case,
+                base,
+                seed,
+                mode,
+                tmp,
+                max_points=max_points,
+                timeout=args.timeout,
+                jobs=jobs,
+                copies=args.copies,
+            )
             if args.keep:
                 dest = args.keep / f"{case}_{base}_{mode}_s{seed}"
                 if dest.exists():
@@ -329,8 +346,14 @@ def main(argv: list[str] | None = None) -> int:
     # put back in plan order.
     order = sorted(range(len(runs)), key=lambda i: expected_cost(*runs[i]), reverse=True)
     with ThreadPoolExecutor(max_workers=workers) as pool:
-        done = list(tqdm(pool.map(one, [runs[i] for i in order]), total=len(runs),
-                         desc="diagnose cases", unit="case"))  # fmt: skip
+        done = list(
+            tqdm(
+                pool.map(one, [runs[i] for i in order]),
+                total=len(runs),
+                desc="diagnose cases",
+                unit="case",
+            )
+        )
     scores = [done[order.index(i)] for i in range(len(runs))]
     summary = summarise(scores)
     payload = {

@@ -91,15 +91,23 @@ def build_sim(base: str, sim_root: Path) -> dict[str, Any]:
             xyz = pts[:, :3].astype(np.float64)
             ring = rings_from_scan_order(xyz, profile.channels)
             rho = reflectance_for_labels(labels, "semantickitti").astype(np.float64)
-            scans.append({"rel": rel, "label_rel": lab_rel, "pts": pts, "xyz": xyz,
-                          "ring": ring, "rho": rho})  # fmt: skip
+            scans.append(
+                {"rel": rel, "label_rel": lab_rel, "pts": pts, "xyz": xyz, "ring": ring, "rho": rho}
+            )
     else:
         for path in sorted((real_root / "samples" / "LIDAR_TOP").glob("*.pcd.bin")):
             pts = np.fromfile(path, dtype="<f4").reshape(-1, 5)
             xyz = pts[:, :3].astype(np.float64)
-            scans.append({"rel": path.relative_to(real_root).as_posix(), "label_rel": None,
-                          "pts": pts, "xyz": xyz, "ring": pts[:, 4].astype(np.int64),
-                          "rho": np.full(len(pts), UNLABELLED_RHO)})  # fmt: skip
+            scans.append(
+                {
+                    "rel": path.relative_to(real_root).as_posix(),
+                    "label_rel": None,
+                    "pts": pts,
+                    "xyz": xyz,
+                    "ring": pts[:, 4].astype(np.int64),
+                    "rho": np.full(len(pts), UNLABELLED_RHO),
+                }
+            )
     if not scans:
         raise FileNotFoundError(f"no {base} scans under {real_root}")
     raw = [simple_intensity(s["xyz"], s["rho"], s["ring"], profile) for s in scans]
@@ -146,10 +154,27 @@ def build_sim(base: str, sim_root: Path) -> dict[str, Any]:
 
 def run_tool(base: str, sim_root: Path, out: Path, resamples: int, bootstrap: int) -> float:
     """Run `lads diagnose` on (sim_root, the real tree); returns its wall time in s."""
-    cmd = [sys.executable, "-m", "lads.cli", "diagnose", "--sim", str(sim_root),
-           "--real", str(REAL_ROOTS[base]), "--source", base, "--paired", "--out", str(out),
-           "--seed", str(SEED), "--resamples", str(resamples),
-           "--bootstrap", str(bootstrap)]  # fmt: skip
+    cmd = [
+        sys.executable,
+        "-m",
+        "lads.cli",
+        "diagnose",
+        "--sim",
+        str(sim_root),
+        "--real",
+        str(REAL_ROOTS[base]),
+        "--source",
+        base,
+        "--paired",
+        "--out",
+        str(out),
+        "--seed",
+        str(SEED),
+        "--resamples",
+        str(resamples),
+        "--bootstrap",
+        str(bootstrap),
+    ]
     start = time.perf_counter()
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=TOOL_TIMEOUT_S)
     wall = time.perf_counter() - start
@@ -178,7 +203,7 @@ def summarise(report: dict[str, Any]) -> dict[str, Any]:
             }
             | ({"classes": e["classes"]} if "classes" in e else {})
             for e in report["effects"]
-        ],  # fmt: skip
+        ],
         "possible_effects": report["possible_effects"],
         "alternatives": report["alternatives"],
         "ambiguity_sets": report["ambiguity_sets"],
@@ -233,7 +258,7 @@ def main(argv: list[str] | None = None) -> int:
             "seed": SEED,
             "resamples": args.resamples,
             "bootstrap": args.bootstrap,
-        },  # fmt: skip
+        },
         "wall_s": round(time.perf_counter() - start, 1),
         "machine": machine_info(),
         "bases": results,

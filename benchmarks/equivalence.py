@@ -98,10 +98,19 @@ def power_check(frames: list[np.ndarray], fast: Sample) -> dict[str, Any]:
     rho_p = RAIN_DEFAULTS.particle_reflectivity
     for i, points in enumerate(frames):
         xyz, intensity = fine_frame(points[:, :3], points[:, 3])
-        run_brute(xyz, intensity, *case, 99 + i, wrong, fine_kitti_profile(),
-                  particle_reflectivity=2 * rho_p)  # fmt: skip
-    return {"case": " ".join(map(str, case)) + ", brute force with particle_reflectivity x 2",
-            **_rounded(compare(fast, wrong))}  # fmt: skip
+        run_brute(
+            xyz,
+            intensity,
+            *case,
+            99 + i,
+            wrong,
+            fine_kitti_profile(),
+            particle_reflectivity=2 * rho_p,
+        )
+    return {
+        "case": " ".join(map(str, case)) + ", brute force with particle_reflectivity x 2",
+        **_rounded(compare(fast, wrong)),
+    }
 
 
 def fog_case(points: np.ndarray) -> dict[str, Any]:
@@ -120,13 +129,25 @@ def fog_case(points: np.ndarray) -> dict[str, Any]:
     brute_s_per_beam = (time.perf_counter() - start) / FOG_BEAMS
     # Beam by beam needs a deterministic rule: the frame-calibrated hard threshold.
     hard = replace(FOG_DEFAULTS, detection_threshold="frame")
-    fog(xyz, intensity, visibility_m=FOG_VISIBILITY_M, sensor=profile, params=hard,
-        rng=np.random.default_rng(0))  # fmt: skip
+    fog(
+        xyz,
+        intensity,
+        visibility_m=FOG_VISIBILITY_M,
+        sensor=profile,
+        params=hard,
+        rng=np.random.default_rng(0),
+    )
     times = []
     for seed in range(FAST_SEEDS):
         start = time.perf_counter()
-        result = fog(xyz, intensity, visibility_m=FOG_VISIBILITY_M, sensor=profile,
-                     params=hard, rng=np.random.default_rng(seed))  # fmt: skip
+        result = fog(
+            xyz,
+            intensity,
+            visibility_m=FOG_VISIBILITY_M,
+            sensor=profile,
+            params=hard,
+            rng=np.random.default_rng(seed),
+        )
         times.append(time.perf_counter() - start)
     fast = np.full(len(xyz), Outcome.LOST, dtype=np.uint8)
     fast[result.source_index] = result.outcome

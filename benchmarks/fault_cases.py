@@ -41,8 +41,13 @@ class Result:
     detail: str = ""
 
     def to_json(self) -> dict[str, Any]:
-        return {"fault": self.fault, "class": self.cls, "caught": self.caught,
-                "survived": self.survived, "detail": self.detail[:400]}  # fmt: skip
+        return {
+            "fault": self.fault,
+            "class": self.cls,
+            "caught": self.caught,
+            "survived": self.survived,
+            "detail": self.detail[:400],
+        }
 
 
 @dataclass
@@ -101,8 +106,10 @@ class Bench:
 
 def listed_items(bench: Bench) -> list[str]:
     """Item ids of the reference build."""
-    return [json.loads(line)["item_id"] for line in
-            (bench.reference / "manifest.jsonl").read_text().splitlines()]  # fmt: skip
+    return [
+        json.loads(line)["item_id"]
+        for line in (bench.reference / "manifest.jsonl").read_text().splitlines()
+    ]
 
 
 def _comparable(sums: Path, other_source: bool) -> list[str]:
@@ -201,8 +208,9 @@ def _flip(path: Path, offset: int = 100) -> None:
 
 def _provenance_chunk(out: Path) -> Path:
     group = out / "provenance.zarr" / SCAN.replace("/", "%2F")
-    return sorted(p for p in (group / "source_index").rglob("*") if p.is_file()
-                  and p.name != "zarr.json")[0]  # fmt: skip
+    return sorted(
+        p for p in (group / "source_index").rglob("*") if p.is_file() and p.name != "zarr.json"
+    )[0]
 
 
 def _swap(a: Path, b: Path) -> None:
@@ -224,13 +232,14 @@ DAMAGE: dict[str, Callable[[Path], None]] = {
     "sums_byte_flipped": lambda o: _flip(o / "SHA256SUMS", 10),
     "card_deleted": lambda o: (o / "README.md").unlink(),
     "provenance_group_deleted": lambda o: shutil.rmtree(
-        o / "provenance.zarr" / SCAN.replace("/", "%2F")),
+        o / "provenance.zarr" / SCAN.replace("/", "%2F")
+    ),
     "provenance_chunk_flipped": lambda o: _flip(_provenance_chunk(o), 5),
     "provenance_root_deleted": lambda o: (o / "provenance.zarr" / "zarr.json").unlink(),
     "copied_file_changed": lambda o: (o / "sequences/00/calib.txt").write_text("P0: 0\n"),
     "stray_temp_file": lambda o: (o / f"{SCAN}.123-abcd.lads-tmp").write_bytes(b"x"),
     "stale_journal": lambda o: _stale_journal(o),
-}  # fmt: skip
+}
 
 
 def _stale_journal(out: Path) -> None:
@@ -313,10 +322,26 @@ def run_json(bench: Bench, kind: str) -> Result:
 
 
 def call_lads(args: list[str], cwd: Path, **kw: Any) -> subprocess.Popen[bytes]:
-    return subprocess.Popen([sys.executable, "-m", "lads.cli", *args], cwd=cwd,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, **kw)  # fmt: skip
+    return subprocess.Popen(
+        [sys.executable, "-m", "lads.cli", *args],
+        cwd=cwd,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        **kw,
+    )
 
 
 def build_args(bench: Bench, out: Path, *extra: str) -> list[str]:
-    return ["build", "--source", "semantickitti", "--variant", bench.variant, "--in",
-            str(bench.source), "--out", str(out), "--no-figures", *extra]  # fmt: skip
+    return [
+        "build",
+        "--source",
+        "semantickitti",
+        "--variant",
+        bench.variant,
+        "--in",
+        str(bench.source),
+        "--out",
+        str(out),
+        "--no-figures",
+        *extra,
+    ]

@@ -52,10 +52,13 @@ def _wait_for(out: Path, trigger: float | str, proc: subprocess.Popen[bytes]) ->
         time.sleep(float(trigger))
         return
     journal = out / ".lads-state" / "items"
-    marks = {"finalise": lambda: (out / "manifest.jsonl").exists(),
-             "finalise:card": lambda: (out / "README.md").exists(),
-             "finalise:journal": lambda: (out / "manifest.jsonl").exists()
-             and not (out / ".lads-state").exists()}  # fmt: skip
+    marks = {
+        "finalise": lambda: (out / "manifest.jsonl").exists(),
+        "finalise:card": lambda: (out / "README.md").exists(),
+        "finalise:journal": lambda: (
+            (out / "manifest.jsonl").exists() and not (out / ".lads-state").exists()
+        ),
+    }
     while proc.poll() is None:
         if trigger in marks and marks[trigger]():
             return
@@ -66,9 +69,12 @@ def _wait_for(out: Path, trigger: float | str, proc: subprocess.Popen[bytes]) ->
 
 
 def kill(
-    bench: Bench, trigger: float | str, sig: int = signal.SIGKILL, twice: bool = False,
+    bench: Bench,
+    trigger: float | str,
+    sig: int = signal.SIGKILL,
+    twice: bool = False,
     delay_s: float = 0.0,
-) -> Result:  # fmt: skip
+) -> Result:
     """Kill a build at `trigger` (seconds after start, "finalise" or "item:K"; plus
     `delay_s`), twice if asked (again during the resume), then run it to the end; the tree
     must equal the uninterrupted one."""
@@ -115,8 +121,9 @@ def tmpfs(path: Path, size_bytes: int, readonly: bool = False) -> Iterator[bool]
     """Mount a tmpfs of `size_bytes` at `path`; yields False when mounting is not allowed."""
     path.mkdir(parents=True, exist_ok=True)
     opts = f"size={max(size_bytes, 65536)}" + (",ro" if readonly else "")
-    done = subprocess.run(["mount", "-t", "tmpfs", "-o", opts, "tmpfs", str(path)],
-                          capture_output=True)  # fmt: skip
+    done = subprocess.run(
+        ["mount", "-t", "tmpfs", "-o", opts, "tmpfs", str(path)], capture_output=True
+    )
     try:
         yield done.returncode == 0
     finally:

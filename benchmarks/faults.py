@@ -46,8 +46,9 @@ def real_source(root: Path) -> Path:
                 link.parent.mkdir(parents=True, exist_ok=True)
                 link.symlink_to(src / sub / f"{stem}.{ext}")
     for name in ("calib.txt", "times.txt"):
-        (root / "sequences" / "00" / name).symlink_to(SHARED_DATA / "semantickitti" /
-                                                      "sequences" / "00" / name)  # fmt: skip
+        (root / "sequences" / "00" / name).symlink_to(
+            SHARED_DATA / "semantickitti" / "sequences" / "00" / name
+        )
     return root
 
 
@@ -109,14 +110,19 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         shutil.rmtree(work, ignore_errors=True)
     payload = {
         "command": "python -m benchmarks.faults " + " ".join(argv or sys.argv[1:]),
-        "source": args.source, "variant": args.variant, "classes": summarise(results),
-        "faults": [r.to_json() for r in results], "seconds": round(time.perf_counter() - start, 1),
+        "source": args.source,
+        "variant": args.variant,
+        "classes": summarise(results),
+        "faults": [r.to_json() for r in results],
+        "seconds": round(time.perf_counter() - start, 1),
         "machine": machine_info(),
-    }  # fmt: skip
+    }
     path = write_result("faults.json", payload)
     for cls, row in payload["classes"].items():
-        sys.stdout.write(f"{cls:11s} tried {row['tried']:3d}  caught {row['caught']:3d}  "
-                         f"survived {row['survived']:3d}  lost {row['lost']:3d}\n")  # fmt: skip
+        sys.stdout.write(
+            f"{cls:11s} tried {row['tried']:3d}  caught {row['caught']:3d}  "
+            f"survived {row['survived']:3d}  lost {row['lost']:3d}\n"
+        )
     sys.stdout.write(f"faults -> {path}\n")
     return payload
 

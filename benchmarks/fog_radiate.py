@@ -62,21 +62,28 @@ def radiate_like_fog(frames: list[R.RadiateFrame]) -> dict[str, Any]:
             "visibility_m": mor,
             "simulated": curve[mor].as_dict(),
             "held_out": {
-                name: {"returns_per_fired_beam_error": round(curve[mor].share - p.share, 4),
-                       "range_profile_distance": round(S.profile_distance(curve[mor], p), 4)}
-                for name, p in real.items() if name != FIT_FRAME
+                name: {
+                    "returns_per_fired_beam_error": round(curve[mor].share - p.share, 4),
+                    "range_profile_distance": round(S.profile_distance(curve[mor], p), 4),
+                }
+                for name, p in real.items()
+                if name != FIT_FRAME
             },
-        }  # fmt: skip
+        }
     return {
         "near_ground": _near_ground(frames, clear, labels, fits, sensor),
-        "clear_frames": {"folder": "nuscenes-kittifmt", "frames": len(clear),
-                         "stride": NUSCENES_STRIDE, "firings_per_sweep": NUSCENES_FIRINGS},
+        "clear_frames": {
+            "folder": "nuscenes-kittifmt",
+            "frames": len(clear),
+            "stride": NUSCENES_STRIDE,
+            "firings_per_sweep": NUSCENES_FIRINGS,
+        },
         "range_bins_m": [str(b) for b in S.RANGE_BINS_M],
         "real_clean_half": {name: p.as_dict() for name, p in real.items()},
         "simulated_per_visibility_m": {f"{mor:g}": p.as_dict() for mor, p in curve.items()},
         "fit_frame": FIT_FRAME,
         "fits": fits,
-    }  # fmt: skip
+    }
 
 
 def _near_ground(
@@ -99,8 +106,9 @@ def _near_ground(
         for k, ((xyz, intensity), lab) in enumerate(zip(clear, labels, strict=True)):
             rng = np.random.default_rng([k, int(mor), int(wet)])
             if wet:
-                road = wet_ground(xyz, intensity, lab, label_set, sensor=sensor, rng=rng,
-                                  params=film)  # fmt: skip
+                road = wet_ground(
+                    xyz, intensity, lab, label_set, sensor=sensor, rng=rng, params=film
+                )
                 xyz, intensity = road.xyz, road.intensity
             out = wx.fog(xyz, intensity, visibility_m=mor, sensor=sensor, rng=rng)
             shares.append(S.near_ground_share(out.xyz, full, sensor))
@@ -110,12 +118,15 @@ def _near_ground(
     return {
         "elevation_window_deg": list(S.NEAR_GROUND_ELEVATION_DEG),
         "radiate_clean_half": [round(S.near_ground_share(x, half, sensor), 4) for x in clean],
-        "nuscenes_clear": round(float(np.mean([S.near_ground_share(x, full, sensor)
-                                                for x, _ in clear])), 4),
-        **{f"nuscenes_fog_mor_{fit['visibility_m']:g}_m": simulated(fit["visibility_m"], False)
-           for fit in fits.values()},
+        "nuscenes_clear": round(
+            float(np.mean([S.near_ground_share(x, full, sensor) for x, _ in clear])), 4
+        ),
+        **{
+            f"nuscenes_fog_mor_{fit['visibility_m']:g}_m": simulated(fit["visibility_m"], False)
+            for fit in fits.values()
+        },
         f"nuscenes_fog_mor_{mor_profile:g}_m_wet_road_{film_mm:g}_mm": simulated(mor_profile, True),
-    }  # fmt: skip
+    }
 
 
 def _like_finding(like: dict[str, Any]) -> str:
@@ -156,16 +167,25 @@ def figure(result: dict[str, Any], path: Any) -> None:
     sim = result["simulated_per_visibility_m"]
     mors = [float(m) for m in sim]
     fig, axes = plt.subplots(1, 2, figsize=(11, 4))
-    axes[0].semilogx(mors, [sim[m]["returns_per_fired_beam"] for m in sim], "o-",
-                     label="fog on real nuScenes frames (HDL-32E)")  # fmt: skip
+    axes[0].semilogx(
+        mors,
+        [sim[m]["returns_per_fired_beam"] for m in sim],
+        "o-",
+        label="fog on real nuScenes frames (HDL-32E)",
+    )
     for p in result["real_clean_half"].values():
         axes[0].axhline(p["returns_per_fired_beam"], color="k", lw=0.8, ls=":")
     axes[0].axhline(float("nan"), color="k", lw=0.8, ls=":", label="RADIATE fog_6_0 (3 frames)")
-    axes[0].set(xlabel="visibility (MOR), m", ylim=(0, 1),
-                ylabel=f"returns per fired beam (beyond {S.BODY_M} m)")  # fmt: skip
+    axes[0].set(
+        xlabel="visibility (MOR), m",
+        ylim=(0, 1),
+        ylabel=f"returns per fired beam (beyond {S.BODY_M} m)",
+    )
     axes[0].legend(fontsize=8)
-    labels = [f"{a}-{b}" for a, b in zip(result["range_bins_m"][:-1], result["range_bins_m"][1:],
-                                          strict=True)]  # fmt: skip
+    labels = [
+        f"{a}-{b}"
+        for a, b in zip(result["range_bins_m"][:-1], result["range_bins_m"][1:], strict=True)
+    ]
     x = range(len(labels))
     real = result["real_clean_half"][result["fit_frame"]]["share_per_range_bin"]
     axes[1].plot(x, real, "ks-", label=f"RADIATE {result['fit_frame']}")
@@ -188,30 +208,38 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     bounds = []
     for r2 in OVERLAP_FULL_M:
         for model in ("mie", "hahner"):
-            params = FogParams(overlap_start_m=min(0.9, r2), overlap_full_m=r2,
-                               backscatter_model=model)  # fmt: skip
+            params = FogParams(
+                overlap_start_m=min(0.9, r2), overlap_full_m=r2, backscatter_model=model
+            )
             per_frame = [R.visibility_bound(f, params=params) for f in frames]
-            bounds.append({
-                "overlap_full_m": r2, "backscatter_model": model,
-                "min_visibility_consistent_m": [b["min_visibility_consistent_m"]
-                                                for b in per_frame],
-                "curve_frame_000018": per_frame[0]["curve"],
-            })  # fmt: skip
+            bounds.append(
+                {
+                    "overlap_full_m": r2,
+                    "backscatter_model": model,
+                    "min_visibility_consistent_m": [
+                        b["min_visibility_consistent_m"] for b in per_frame
+                    ],
+                    "curve_frame_000018": per_frame[0]["curve"],
+                }
+            )
     shipped = [R.visibility_bound(f, params=FOG_DEFAULTS) for f in frames]
     like = radiate_like_fog(frames)
-    bounds.append({
-        "overlap_full_m": FOG_DEFAULTS.overlap_full_m, "backscatter_model": "mie",
-        "shipped_defaults": True,
-        "min_visibility_consistent_m": [b["min_visibility_consistent_m"] for b in shipped],
-        "curve_frame_000018": shipped[0]["curve"],
-    })  # fmt: skip
+    bounds.append(
+        {
+            "overlap_full_m": FOG_DEFAULTS.overlap_full_m,
+            "backscatter_model": "mie",
+            "shipped_defaults": True,
+            "min_visibility_consistent_m": [b["min_visibility_consistent_m"] for b in shipped],
+            "curve_frame_000018": shipped[0]["curve"],
+        }
+    )
     payload = {
         "description": __doc__.strip().splitlines()[0],
         "data": {
             "folder": str(FOLDER.relative_to(SHARED_DATA.parent)),
             "frames": FRAMES,
             "meta": "fog_6_0 (RADIATE test set); no visibility recorded",
-        },  # fmt: skip
+        },
         "real": {f.name: R.frame_stats(f) for f in frames},
         "detection_threshold_per_frame": {f.name: R.frame_threshold(f) for f in frames},
         "visibility_bounds": bounds,

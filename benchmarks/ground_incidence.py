@@ -61,19 +61,28 @@ def main() -> None:
         for lo, hi in BANDS_M:
             m = ground & (r[sub] >= lo) & (r[sub] < hi)
             mp = m & ok
-            rows.append({
-                "frame": scan.relative_to(ROOT).as_posix(), "band_m": [lo, hi],
-                "ground_points": int(m.sum()), "plane_share": float(mp.sum() / max(m.sum(), 1)),
-                "image_angle_err_deg": _median_abs(_angle_deg(image[m]) - _angle_deg(ref[m])),
-                "plane_angle_err_deg": _median_abs(_angle_deg(plane[mp]) - _angle_deg(ref[mp])),
-                "image_ln_cos_err": _median_abs(_ln(image[m]) - _ln(ref[m])),
-                "plane_ln_cos_err": _median_abs(_ln(plane[mp]) - _ln(ref[mp])),
-            })  # fmt: skip
-    path = write_result("ground_incidence.json", {
-        "benchmark": "ground incidence on thinned scans: image normals vs local ground planes",
-        "command": ".venv/bin/python -m benchmarks.ground_incidence",
-        "thin_points": THIN_POINTS, "rows": rows, "machine": machine_info(),
-    })  # fmt: skip
+            rows.append(
+                {
+                    "frame": scan.relative_to(ROOT).as_posix(),
+                    "band_m": [lo, hi],
+                    "ground_points": int(m.sum()),
+                    "plane_share": float(mp.sum() / max(m.sum(), 1)),
+                    "image_angle_err_deg": _median_abs(_angle_deg(image[m]) - _angle_deg(ref[m])),
+                    "plane_angle_err_deg": _median_abs(_angle_deg(plane[mp]) - _angle_deg(ref[mp])),
+                    "image_ln_cos_err": _median_abs(_ln(image[m]) - _ln(ref[m])),
+                    "plane_ln_cos_err": _median_abs(_ln(plane[mp]) - _ln(ref[mp])),
+                }
+            )
+    path = write_result(
+        "ground_incidence.json",
+        {
+            "benchmark": "ground incidence on thinned scans: image normals vs local ground planes",
+            "command": ".venv/bin/python -m benchmarks.ground_incidence",
+            "thin_points": THIN_POINTS,
+            "rows": rows,
+            "machine": machine_info(),
+        },
+    )
     for row in rows:
         print(
             row["frame"],

@@ -68,16 +68,18 @@ def _network(model: Any, fi: Any) -> Any:
 
 def _incidence_only(xyz: np.ndarray, profile: Any) -> None:
     xyz64, r = checked_xyz(xyz)
-    image = organise(xyz64, r, channels_of(xyz64, profile, None), profile.channels,
-                     profile.range_image_width)  # fmt: skip
+    image = organise(
+        xyz64, r, channels_of(xyz64, profile, None), profile.channels, profile.range_image_width
+    )
     _incidence(xyz64, r, image, DEFAULT_MAX_DEPTH_JUMP)
 
 
 def _fallback_points(xyz: np.ndarray, profile: Any) -> tuple[np.ndarray, np.ndarray]:
     """(N, 3) float64 points and the indices of those the neighbour fallback answers."""
     xyz64, r = checked_xyz(xyz)
-    image = organise(xyz64, r, channels_of(xyz64, profile, None), profile.channels,
-                     profile.range_image_width)  # fmt: skip
+    image = organise(
+        xyz64, r, channels_of(xyz64, profile, None), profile.channels, profile.range_image_width
+    )
     source = _incidence(xyz64, r, image, DEFAULT_MAX_DEPTH_JUMP).source
     return xyz64, np.flatnonzero(source != IncidenceSource.IMAGE)
 
@@ -97,8 +99,13 @@ def _measure() -> dict[str, Any]:
     rows = []
     for item in reader.items():
         frame = reader.read(item)
-        fi = frame_image(frame.xyz, profile, labels=frame.labels, label_set="semantickitti",
-                         range_exponent=model.meta.range_exponent)  # fmt: skip
+        fi = frame_image(
+            frame.xyz,
+            profile,
+            labels=frame.labels,
+            label_set="semantickitti",
+            range_exponent=model.meta.range_exponent,
+        )
         xyz64, rest = _fallback_points(frame.xyz, profile)
         rows.append(
             {
@@ -109,7 +116,7 @@ def _measure() -> dict[str, Any]:
                 "features_ms": _median_ms(
                     lambda f=frame: frame_image(
                         f.xyz, profile, labels=f.labels, label_set="semantickitti"
-                    )  # fmt: skip
+                    )
                 ),
                 "incidence_ms": _median_ms(lambda f=frame: _incidence_only(f.xyz, profile)),
                 "fallback_points": int(rest.size),
@@ -117,7 +124,7 @@ def _measure() -> dict[str, Any]:
                 "frame_ms": _median_ms(
                     lambda f=frame: predict_points(
                         model, f.xyz, profile, labels=f.labels, label_set="semantickitti"
-                    )  # fmt: skip
+                    )
                 ),
             }
         )

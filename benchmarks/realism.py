@@ -132,8 +132,9 @@ def _simulate(
     src_range, lost, out_range, particle, ratios, materials, src_material = ([] for _ in range(7))
     for k, (points, labels) in enumerate(frames):
         rng = np.random.default_rng([k, list(PRESETS).index(weather), SEVERITIES.index(severity)])
-        result = SIMULATE[weather](points[:, :3], points[:, 3], sensor=profile, rng=rng,
-                                   params=params, **{key: value})  # fmt: skip
+        result = SIMULATE[weather](
+            points[:, :3], points[:, 3], sensor=profile, rng=rng, params=params, **{key: value}
+        )
         r_in = np.linalg.norm(points[:, :3].astype(np.float64), axis=1)
         is_lost = np.zeros(len(points), dtype=bool)
         is_lost[result.lost_index] = True
@@ -167,8 +168,9 @@ def _lost_per_material(
     names = material_names()
     return {
         names[m]: round(float(is_lost[material == m].mean()), 5)
-        for m in np.unique(material) if (material == m).sum() >= MIN_CLASS_POINTS
-    }  # fmt: skip
+        for m in np.unique(material)
+        if (material == m).sum() >= MIN_CLASS_POINTS
+    }
 
 
 def _attenuated_ratios(
@@ -191,8 +193,9 @@ def _median_per_material(
     names = material_names()
     return {
         names[m]: round(float(np.median(ratio[material == m])), 4)
-        for m in np.unique(material) if (material == m).sum() >= MIN_CLASS_POINTS
-    }  # fmt: skip
+        for m in np.unique(material)
+        if (material == m).sum() >= MIN_CLASS_POINTS
+    }
 
 
 def _wet_ground(severity: str, frames: list[Any]) -> dict[str, Any]:
@@ -203,8 +206,15 @@ def _wet_ground(severity: str, frames: list[Any]) -> dict[str, Any]:
     ground, lost, src_range, ratios, materials = [], [], [], [], []
     for k, (points, labels) in enumerate(frames):
         rng = np.random.default_rng([k, len(WEATHERS), SEVERITIES.index(severity)])
-        res = wet_ground(points[:, :3], points[:, 3], labels, "semantickitti", sensor=profile,
-                         rng=rng, params=WetGroundParams(film))  # fmt: skip
+        res = wet_ground(
+            points[:, :3],
+            points[:, 3],
+            labels,
+            "semantickitti",
+            sensor=profile,
+            rng=rng,
+            params=WetGroundParams(film),
+        )
         is_lost = np.zeros(len(points), dtype=bool)
         is_lost[res.lost_index] = True
         ground.append(wet_surface_for_labels(labels, "semantickitti")[0])
@@ -244,8 +254,9 @@ def _model_facts(frames: list[Any]) -> dict[str, Any]:
             _, power, _ = soft_return_peak(np.array([100.0]), alpha, beta, params)
             echo[name][f"mor_{mor:g}_m"] = round(float(power[0] / profile.detection.power), 3)
     degrees = (0.0, 60.0, 78.0, 87.0)
-    ratio = wet_ratio(np.cos(np.radians(degrees)), np.full(4, 0.10), np.full(4, 1.0),
-                      WetGroundParams(1.2))  # fmt: skip
+    ratio = wet_ratio(
+        np.cos(np.radians(degrees)), np.full(4, 0.10), np.full(4, 1.0), WetGroundParams(1.2)
+    )
     return {
         "kitti_zero_remission_share_per_range_bin": _share_per_bin(r, zero),
         "fog_echo_over_detection_limit": echo,
@@ -290,14 +301,18 @@ def _nuscenes_fog() -> dict[str, Any]:
     reader = get_reader("nuscenes-kitti", folder)
     frames = [reader.read(item).points[:, :4].copy() for item in reader.items()[::NUSCENES_STRIDE]]
     profile = load_profile("hdl32e")
-    out: dict[str, Any] = {"frames": len(frames), "firings_per_sweep": NUSCENES_FIRINGS,
-                           "returns_counted_beyond_m": BODY_M}  # fmt: skip
+    out: dict[str, Any] = {
+        "frames": len(frames),
+        "firings_per_sweep": NUSCENES_FIRINGS,
+        "returns_counted_beyond_m": BODY_M,
+    }
     for visibility in NUSCENES_FOG_MOR_M:
         returned, echoes, ranges = [], [], []
         for k, points in enumerate(frames):
             rng = np.random.default_rng([k, int(visibility)])
-            res = wx.fog(points[:, :3], points[:, 3], visibility_m=visibility, sensor=profile,
-                         rng=rng)  # fmt: skip
+            res = wx.fog(
+                points[:, :3], points[:, 3], visibility_m=visibility, sensor=profile, rng=rng
+            )
             r = np.linalg.norm(res.xyz.astype(np.float64), axis=1)
             scene = r >= BODY_M
             returned.append(int(scene.sum()) / NUSCENES_FIRINGS)
@@ -309,7 +324,7 @@ def _nuscenes_fog() -> dict[str, Any]:
             "returns_per_fired_beam": round(float(np.mean(returned)), 4),
             "fog_echo_share_of_returns": round(float(np.mean(echoes)), 4),
             "share_of_returns_per_range_bin": [round(float(c / r.size), 5) for c in counts],
-        }  # fmt: skip
+        }
     clear_r = [np.linalg.norm(p[:, :3].astype(np.float64), axis=1) for p in frames]
     clear_r = [r[r >= BODY_M] for r in clear_r]
     out["clear_returns_per_fired_beam"] = round(
@@ -370,8 +385,13 @@ def _figure(result: dict[str, Any], path: Path) -> None:
         ax.set_ylim(bottom=0.0)
         ax.legend(fontsize=7)
     fog_ref = result["references"]["radiate_fog"]["returns_per_fired_beam"]
-    axes[2].text(0.02, 0.02, f"RADIATE real fog: {min(fog_ref):.2f}-{max(fog_ref):.2f} of fired "
-                 "beams return", transform=axes[2].transAxes, fontsize=8)  # fmt: skip
+    axes[2].text(
+        0.02,
+        0.02,
+        f"RADIATE real fog: {min(fog_ref):.2f}-{max(fog_ref):.2f} of fired beams return",
+        transform=axes[2].transAxes,
+        fontsize=8,
+    )
     fig.tight_layout()
     atomic_write_figure(fig, path, dpi=110)
     plt.close(fig)
@@ -388,11 +408,13 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     sensitivity = {
         w: {
             "frame_threshold": _simulate(w, "heavy", frames, detection="frame")["lost_share"],
-            **{f"sensor_spread_ln_{s:g}": _simulate(w, "heavy", frames, spread_ln=s)["lost_share"]
-               for s in SPREADS_LN},
+            **{
+                f"sensor_spread_ln_{s:g}": _simulate(w, "heavy", frames, spread_ln=s)["lost_share"]
+                for s in SPREADS_LN
+            },
         }
         for w in WEATHERS
-    }  # fmt: skip
+    }
     result = {
         "what": "rain, snow and fog at each severity preset on labelled real SemanticKITTI "
         "frames (physics only, strongest return), beside WADS real snow and RADIATE real fog",

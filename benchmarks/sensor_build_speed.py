@@ -49,7 +49,7 @@ def _trials(source: Path, tmp: Path) -> dict[str, Any]:
         "jobs_2": best[2],
         "all_trials_frames_per_s": {
             f"jobs_{j}": [r["frames_per_s"] for r in t] for j, t in runs.items()
-        },  # fmt: skip
+        },
         "reference_sha256sums": reference,
     }
 
@@ -62,8 +62,9 @@ def _dask(source: Path, tmp: Path, reference: str) -> dict[str, Any]:
     pipeline = pipeline_for("semantickitti", VARIANT)
     rows = {}
     for workers in (1, 2):
-        with distributed.LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                                      dashboard_address=None) as cluster:  # fmt: skip
+        with distributed.LocalCluster(
+            n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None
+        ) as cluster:
             kwargs = {"backend": "dask", "scheduler": cluster.scheduler_address}
             out = tmp / f"dask_{workers}"
             row = timed_build(source, out, pipeline, figures=False, **kwargs)
@@ -88,8 +89,10 @@ def markdown(result: dict[str, Any]) -> str:
     ]
     for name, row in result["dask_local_cluster"].items():
         if isinstance(row, dict):
-            lines.append(f"- Dask {name}: {row['frames_per_s']:.2f} frames/s, same bytes: "
-                         f"{row['same_bytes_as_jobs_1']}")  # fmt: skip
+            lines.append(
+                f"- Dask {name}: {row['frames_per_s']:.2f} frames/s, same bytes: "
+                f"{row['same_bytes_as_jobs_1']}"
+            )
     return "\n".join(lines) + "\n"
 
 

@@ -66,8 +66,13 @@ def _grid(frame: Any, target: SensorProfile, offset: float, ring: Any = None) ->
     column = getattr(frame, "column", None)
     if column is None:
         column = grid_column(frame.xyz, target.range_image_width, offset)
-    return GridScan(frame.xyz, np.asarray(frame.ring if ring is None else ring, np.int64),
-                    np.asarray(column, np.int64), frame.labels, frame.intensity)  # fmt: skip
+    return GridScan(
+        frame.xyz,
+        np.asarray(frame.ring if ring is None else ring, np.int64),
+        np.asarray(column, np.int64),
+        frame.labels,
+        frame.intensity,
+    )
 
 
 def run_case(
@@ -87,16 +92,25 @@ def run_case(
     if motion == "stopped":
         window = [window[CENTRE]] * len(window)
     out: dict[str, Any] = {
-        "seed": seed, "source": pair[0], "target": pair[1], "motion": motion,
+        "seed": seed,
+        "source": pair[0],
+        "target": pair[1],
+        "motion": motion,
         "rings_not_covered": [int(k) for k in np.flatnonzero(~covered)],
-    }  # fmt: skip
+    }
     for shape in shapes:
         parts = [window_surfels(w, k, source, "semantickitti", shape) for k, w in enumerate(window)]
         moved = transfer_surfels(
-            parts, [w.pose for w in window], CENTRE, source, target,
-            np.random.default_rng([seed, 30]), label_set="semantickitti",
-            azimuth_offset_rad=offset, detector=_synth_detector(target),
-        )  # fmt: skip
+            parts,
+            [w.pose for w in window],
+            CENTRE,
+            source,
+            target,
+            np.random.default_rng([seed, 30]),
+            label_set="semantickitti",
+            azimuth_offset_rad=offset,
+            detector=_synth_detector(target),
+        )
         out[f"transfer {shape.radius_share} {shape.min_cos}"] = compare_scans(
             _grid(moved, target, offset), reference, *grid
         )
@@ -130,16 +144,32 @@ def speed(shape: SurfelShape) -> dict[str, Any]:
         for k in range(centre - half, centre + half + 1):
             if k not in cache:
                 f = frames[k]
-                cache[k] = window_surfels(WindowScan(f.xyz, f.intensity, f.labels, f.ring, f.pose),
-                                          k, source, "semantickitti", shape)  # fmt: skip
+                cache[k] = window_surfels(
+                    WindowScan(f.xyz, f.intensity, f.labels, f.ring, f.pose),
+                    k,
+                    source,
+                    "semantickitti",
+                    shape,
+                )
         ks = list(range(centre - half, centre + half + 1))
-        transfer_surfels([cache[k] for k in ks], [frames[k].pose for k in ks], half, source,
-                         target, np.random.default_rng(0), label_set="semantickitti")  # fmt: skip
+        transfer_surfels(
+            [cache[k] for k in ks],
+            [frames[k].pose for k in ks],
+            half,
+            source,
+            target,
+            np.random.default_rng(0),
+            label_set="semantickitti",
+        )
         times.append(time.perf_counter() - start)
         cache.pop(centre - half, None)
     steady = times[1:]  # the first window makes all its scans' surfels (and compiles)
-    return {"frames": len(steady), "median_s": float(np.median(steady)),
-            "frames_per_s": float(1.0 / np.median(steady)), "first_window_s": times[0]}  # fmt: skip
+    return {
+        "frames": len(steady),
+        "median_s": float(np.median(steady)),
+        "frames_per_s": float(1.0 / np.median(steady)),
+        "first_window_s": times[0],
+    }
 
 
 def summarise(cases: list[dict[str, Any]], shape: SurfelShape) -> dict[str, Any]:
@@ -147,8 +177,9 @@ def summarise(cases: list[dict[str, Any]], shape: SurfelShape) -> dict[str, Any]
     table: dict[str, Any] = {}
     for pair in DIRECTIONS:
         for motion in MOTIONS:
-            mine = [c for c in cases
-                    if (c["source"], c["target"]) == pair and c["motion"] == motion]  # fmt: skip
+            mine = [
+                c for c in cases if (c["source"], c["target"]) == pair and c["motion"] == motion
+            ]
             rows = {}
             for method in METHODS:
                 name = key if method == "transfer" else method
@@ -169,18 +200,28 @@ def markdown(result: dict[str, Any]) -> str:
         "range_error_p90_m", "chamfer_m", "label_accuracy", "intensity_mae", "pixel_recall",
     )  # fmt: skip
     streets = len(result["test_seeds"])
-    lines = [f"# Sensor transfer on ground truth ({streets} test streets, means)", "",
-             f"Surfel shape chosen on validation streets: {result['shape']}.", ""]  # fmt: skip
+    lines = [
+        f"# Sensor transfer on ground truth ({streets} test streets, means)",
+        "",
+        f"Surfel shape chosen on validation streets: {result['shape']}.",
+        "",
+    ]
     for direction, rows in result["test"].items():
-        lines += [f"## {direction}", "", "| method | " + " | ".join(cols) + " |",
-                  "|---" * (len(cols) + 1) + "|"]  # fmt: skip
+        lines += [
+            f"## {direction}",
+            "",
+            "| method | " + " | ".join(cols) + " |",
+            "|---" * (len(cols) + 1) + "|",
+        ]
         for method, m in rows.items():
             cells = ["—" if m[c] is None else f"{m[c]:.4g}" for c in cols]
             lines.append(f"| {method} | " + " | ".join(cells) + " |")
         lines.append("")
     sp = result["speed"]
-    lines.append(f"Speed 64 -> 32, 10-scan window, one core: {sp['frames_per_s']:.2f} frames/s "
-                 f"(median {sp['median_s']:.3f} s over {sp['frames']} scans).")  # fmt: skip
+    lines.append(
+        f"Speed 64 -> 32, 10-scan window, one core: {sp['frames_per_s']:.2f} frames/s "
+        f"(median {sp['median_s']:.3f} s over {sp['frames']} scans)."
+    )
     return "\n".join(lines) + "\n"
 
 
@@ -213,27 +254,33 @@ def main(argv: list[str] | None = None) -> None:
     shapes = SHAPES
     if args.quick:
         val_seeds, test_seeds, shapes = VALIDATION_SEEDS[:1], TEST_SEEDS[:1], (DEFAULT_SHAPE,)
-    validation = [run_case(s, pair, shapes, m) for s in val_seeds for pair in DIRECTIONS
-                  for m in MOTIONS]  # fmt: skip
+    validation = [
+        run_case(s, pair, shapes, m) for s in val_seeds for pair in DIRECTIONS for m in MOTIONS
+    ]
     shape = DEFAULT_SHAPE if args.quick else choose_shape(validation)
-    test = [run_case(s, pair, (shape,), m) for s in test_seeds for pair in DIRECTIONS
-            for m in MOTIONS]  # fmt: skip
+    test = [
+        run_case(s, pair, (shape,), m) for s in test_seeds for pair in DIRECTIONS for m in MOTIONS
+    ]
     result = {
         "machine": machine_info(),
-        "validation_seeds": list(val_seeds), "test_seeds": list(test_seeds),
+        "validation_seeds": list(val_seeds),
+        "test_seeds": list(test_seeds),
         "shape": {"radius_share": shape.radius_share, "min_cos": shape.min_cos},
-        "default_shape": {"radius_share": DEFAULT_SHAPE.radius_share,
-                          "min_cos": DEFAULT_SHAPE.min_cos},
+        "default_shape": {
+            "radius_share": DEFAULT_SHAPE.radius_share,
+            "min_cos": DEFAULT_SHAPE.min_cos,
+        },
         "validation": summarise(validation, shape) if not args.quick else None,
         "validation_chamfer_by_shape": {
             f"{s.radius_share} {s.min_cos}": _mean(
-                [c[f"transfer {s.radius_share} {s.min_cos}"]["chamfer_m"] for c in validation])
+                [c[f"transfer {s.radius_share} {s.min_cos}"]["chamfer_m"] for c in validation]
+            )
             for s in shapes
         },
         "test": summarise(test, shape),
         "test_cases": test,
         "speed": speed(shape),
-    }  # fmt: skip
+    }
     name = "sensor_transfer_quick" if args.quick else "sensor_transfer"
     write_result(f"{name}.json", result, args.results)
     (args.results / f"{name}.md").write_text(markdown(result))

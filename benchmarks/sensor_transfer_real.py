@@ -68,9 +68,15 @@ def transfer_tree(reader: Any, source: SensorProfile, target: SensorProfile) -> 
     for it in items:
         window, centre = window_of(items, it, DEFAULT_NEIGHBOURS, reader.scan_position)
         near = [o.relpath for o in window]
-        moved = transfer_surfels([surfels[r] for r in near], [poses[r] for r in near], centre,
-                                 source, target, np.random.default_rng(0),
-                                 label_set=reader.label_set)  # fmt: skip
+        moved = transfer_surfels(
+            [surfels[r] for r in near],
+            [poses[r] for r in near],
+            centre,
+            source,
+            target,
+            np.random.default_rng(0),
+            label_set=reader.label_set,
+        )
         out.append((len(near), moved))
     return out
 
@@ -83,8 +89,10 @@ def ring_stats(xyz: Any, ring: Any, channels: int, beams_per_ring: float) -> dic
     ok = r > max(BODY_M, MIN_RANGE_M)
     ring = np.asarray(ring, np.int64)
     share = np.bincount(ring[ok], minlength=channels) / beams_per_ring
-    med = [float(np.median(r[ok & (ring == k)])) if (ok & (ring == k)).any() else None
-           for k in range(channels)]  # fmt: skip
+    med = [
+        float(np.median(r[ok & (ring == k)])) if (ok & (ring == k)).any() else None
+        for k in range(channels)
+    ]
     return {"share": share.tolist(), "median_range_m": med}
 
 
@@ -94,8 +102,10 @@ def _mean_stats(stats: list[dict[str, Any]]) -> dict[str, Any]:
     with np.errstate(all="ignore"), warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # a ring no scan returned on
         med = np.nanmedian(meds, axis=0)
-    return {"share": share.tolist(),
-            "median_range_m": [None if np.isnan(v) else float(v) for v in med]}  # fmt: skip
+    return {
+        "share": share.tolist(),
+        "median_range_m": [None if np.isnan(v) else float(v) for v in med],
+    }
 
 
 def real_hdl32e() -> dict[str, Any]:
@@ -114,8 +124,11 @@ def real_hdl64e(reader: Any) -> dict[str, Any]:
     stats = []
     for it in reader.items():
         f = reader.read(it)
-        stats.append(ring_stats(f.xyz, profile.channel_of(f.xyz.astype(np.float64)), 64,
-                                BEAMS_PER_RING["hdl64e"]))  # fmt: skip
+        stats.append(
+            ring_stats(
+                f.xyz, profile.channel_of(f.xyz.astype(np.float64)), 64, BEAMS_PER_RING["hdl64e"]
+            )
+        )
     return _mean_stats(stats)
 
 
@@ -126,47 +139,71 @@ BEAMS_PER_RING = {"hdl32e": 1085.0, "hdl64e": 2000.0}
 COLUMNS = ("share_transfer", "share_real", "median_range_transfer_m", "median_range_real_m")
 
 
-def direction(name: str, transfers: list[Any], target: SensorProfile, source: SensorProfile,
-              real: dict[str, Any]) -> dict[str, Any]:  # fmt: skip
-    stats = [ring_stats(m.xyz, m.ring, target.channels, float(target.range_image_width))
-             for _, m in transfers]  # fmt: skip
+def direction(
+    name: str,
+    transfers: list[Any],
+    target: SensorProfile,
+    source: SensorProfile,
+    real: dict[str, Any],
+) -> dict[str, Any]:
+    stats = [
+        ring_stats(m.xyz, m.ring, target.channels, float(target.range_image_width))
+        for _, m in transfers
+    ]
     mine = _mean_stats(stats)
     covered = covered_rings(source.elevation_deg, target.elevation_deg)
     rows = []
     for k in range(target.channels):
-        rows.append({"ring": k, "elevation_deg": target.elevation_deg[k],
-                     "covered": bool(covered[k]),
-                     "share_transfer": mine["share"][k], "share_real": real["share"][k],
-                     "median_range_transfer_m": mine["median_range_m"][k],
-                     "median_range_real_m": real["median_range_m"][k]})  # fmt: skip
+        rows.append(
+            {
+                "ring": k,
+                "elevation_deg": target.elevation_deg[k],
+                "covered": bool(covered[k]),
+                "share_transfer": mine["share"][k],
+                "share_real": real["share"][k],
+                "median_range_transfer_m": mine["median_range_m"][k],
+                "median_range_real_m": real["median_range_m"][k],
+            }
+        )
     cov = [r for r in rows if r["covered"]]
     share_gap = [abs(r["share_transfer"] - r["share_real"]) for r in cov]
-    return {"direction": name, "scans": len(transfers),
-            "window_sizes": [n for n, _ in transfers], "rings": rows,
-            "mean_abs_share_gap_covered": float(np.mean(share_gap)),
-            "share_transfer_covered": float(np.mean([r["share_transfer"] for r in cov])),
-            "share_real_covered": float(np.mean([r["share_real"] for r in cov]))}  # fmt: skip
+    return {
+        "direction": name,
+        "scans": len(transfers),
+        "window_sizes": [n for n, _ in transfers],
+        "rings": rows,
+        "mean_abs_share_gap_covered": float(np.mean(share_gap)),
+        "share_transfer_covered": float(np.mean([r["share_transfer"] for r in cov])),
+        "share_real_covered": float(np.mean([r["share_real"] for r in cov])),
+    }
 
 
 def markdown(result: dict[str, Any]) -> str:
     lines = ["# Sensor transfer on real scans (ring statistics against real target scans)", ""]
     for d in result["directions"]:
-        lines += [f"## {d['direction']} ({d['scans']} scans)", "",
-                  f"Returned share of beams on covered rings: transfer "
-                  f"{d['share_transfer_covered']:.3f}, real target scans "
-                  f"{d['share_real_covered']:.3f}; mean |gap| per ring "
-                  f"{d['mean_abs_share_gap_covered']:.3f}.", "",
-                  "| ring | elevation | covered | share transfer | share real | "
-                  "median range transfer (m) | median range real (m) |",
-                  "|---|---|---|---|---|---|---|"]  # fmt: skip
+        lines += [
+            f"## {d['direction']} ({d['scans']} scans)",
+            "",
+            f"Returned share of beams on covered rings: transfer "
+            f"{d['share_transfer_covered']:.3f}, real target scans "
+            f"{d['share_real_covered']:.3f}; mean |gap| per ring "
+            f"{d['mean_abs_share_gap_covered']:.3f}.",
+            "",
+            "| ring | elevation | covered | share transfer | share real | "
+            "median range transfer (m) | median range real (m) |",
+            "|---|---|---|---|---|---|---|",
+        ]
         for r in d["rings"]:
 
             def f(v: Any) -> str:
                 return "—" if v is None else f"{v:.2f}"
 
             cells = [f(r[c]) for c in COLUMNS]
-            lines.append(f"| {r['ring']} | {r['elevation_deg']:.2f} | {r['covered']} | "
-                         + " | ".join(cells) + " |")  # fmt: skip
+            lines.append(
+                f"| {r['ring']} | {r['elevation_deg']:.2f} | {r['covered']} | "
+                + " | ".join(cells)
+                + " |"
+            )
         lines.append("")
     return "\n".join(lines)
 

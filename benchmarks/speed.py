@@ -44,10 +44,13 @@ SETTINGS: tuple[tuple[str, str, float], ...] = (
 # The other return modes at the targets' strengths (every mode must meet them).
 MODE_SETTINGS: tuple[tuple[str, str, float, str], ...] = tuple(
     (name, key, value, mode)
-    for name, key, value in (("rain", "rate_mm_h", 25.0), ("snow", "rate_mm_h", 10.0),
-                             ("fog", "visibility_m", 50.0))
+    for name, key, value in (
+        ("rain", "rate_mm_h", 25.0),
+        ("snow", "rate_mm_h", 10.0),
+        ("fog", "visibility_m", 50.0),
+    )
     for mode in ("last", "dual")
-)  # fmt: skip
+)
 TARGETS_MS = {
     ("rain", 25.0): 20.0, ("snow", 10.0): 20.0, ("fog", 50.0): 20.0, ("wet_ground", 1.2): 20.0,
 }  # fmt: skip
@@ -58,14 +61,16 @@ def _wet(labels: np.ndarray) -> Any:
     """lads.physics.wet_ground.wet_ground with the frame's labels bound, called like rain()."""
 
     def simulate(xyz: Any, intensity: Any, *, water_film_mm: float, **kw: Any) -> Any:
-        return wet_ground(xyz, intensity, labels, "semantickitti",
-                          params=WetGroundParams(water_film_mm), **kw)  # fmt: skip
+        return wet_ground(
+            xyz, intensity, labels, "semantickitti", params=WetGroundParams(water_film_mm), **kw
+        )
 
     return simulate
 
 
-def _call(frames: list[np.ndarray], labels: list[np.ndarray], f_index: int,
-          setting: tuple[Any, ...]) -> Any:  # fmt: skip
+def _call(
+    frames: list[np.ndarray], labels: list[np.ndarray], f_index: int, setting: tuple[Any, ...]
+) -> Any:
     """One frame's simulation under one setting, as a function of the generator."""
     name, key, value, *rest = setting
     mode = rest[0] if rest else "strongest"
@@ -76,9 +81,14 @@ def _call(frames: list[np.ndarray], labels: list[np.ndarray], f_index: int,
     return lambda rng: simulate(points[:, :3], points[:, 3], sensor=profile, rng=rng, **kw)
 
 
-def _summary(setting: tuple[Any, ...], times_ms: list[float], faults: list[int],
-             counts: list[dict[str, int]], n_points: int,
-             n_frames: int) -> dict[str, Any]:  # fmt: skip
+def _summary(
+    setting: tuple[Any, ...],
+    times_ms: list[float],
+    faults: list[int],
+    counts: list[dict[str, int]],
+    n_points: int,
+    n_frames: int,
+) -> dict[str, Any]:
     """Median / min / p90 wall time per frame of one setting, its page faults and what it
     did."""
     name, key, value, *rest = setting
@@ -127,8 +137,10 @@ def time_settings(
                 faults[k].append(resource.getrusage(resource.RUSAGE_SELF).ru_minflt - faults_before)
                 counts[k][f] = result.counts()
     n_points = sum(p.shape[0] for p in frames)
-    return [_summary(s, times[k], faults[k], counts[k], n_points, len(frames))
-            for k, s in enumerate(settings)]  # fmt: skip
+    return [
+        _summary(s, times[k], faults[k], counts[k], n_points, len(frames))
+        for k, s in enumerate(settings)
+    ]
 
 
 def page_fault_us(size_mb: int = 64, repeats: int = 5) -> float:
@@ -171,5 +183,7 @@ def main(out_dir: Path | None = None) -> dict[str, Any]:
 if __name__ == "__main__":
     for row in main()["results"]:
         key = next(k for k in ("rate_mm_h", "visibility_m", "water_film_mm") if k in row)
-        print(f"{row['weather']:5s} {row[key]:7.1f} {row['mode']:9s} "  # noqa: T201
-              f"median {row['median_ms_per_frame']:6.2f} ms")  # fmt: skip
+        print(
+            f"{row['weather']:5s} {row[key]:7.1f} {row['mode']:9s} "  # noqa: T201
+            f"median {row['median_ms_per_frame']:6.2f} ms"
+        )

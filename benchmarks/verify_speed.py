@@ -50,8 +50,11 @@ def _timed_sha256sum(out: Path) -> dict[str, Any] | None:
     done = subprocess.run(["sha256sum", "--quiet", "-c", "SHA256SUMS"], cwd=out, check=False)
     seconds = time.perf_counter() - start
     mb = sum(p.stat().st_size for p in out.rglob("*") if p.is_file()) / 1e6
-    return {"ok": done.returncode == 0, "seconds": round(seconds, 3),
-            "mb_per_s": round(mb / seconds, 1)}  # fmt: skip
+    return {
+        "ok": done.returncode == 0,
+        "seconds": round(seconds, 3),
+        "mb_per_s": round(mb / seconds, 1),
+    }
 
 
 def main() -> dict[str, Any]:

@@ -78,20 +78,41 @@ def _figure(scenes, fitted: W.SnowKnobs, path) -> None:
     bins = np.arange(0, 20.25, 0.25)
     real = np.concatenate([s.snow_range_m for s in scenes])
     fig, ax = plt.subplots(figsize=(7, 4))
-    ax.hist(real, bins, density=True, histtype="stepfilled", alpha=0.35, color="k",
-            label=f"WADS label 110 (n={real.size})")  # fmt: skip
+    ax.hist(
+        real,
+        bins,
+        density=True,
+        histtype="stepfilled",
+        alpha=0.35,
+        color="k",
+        label=f"WADS label 110 (n={real.size})",
+    )
     for label, mode, params, color in (
         ("ours (dual return, fitted)", "dual", fitted.params(), "C0"),
         ("LISA settings (dual return)", "dual", W.LISA_SNOW, "C3"),
     ):
-        sim = np.concatenate([
-            W.simulate(s, params, rate_mm_h=W.ASSUMED_RATE_MM_H,
-                       rng=np.random.default_rng([0, k]), mode=mode,
-                       sensor=fitted.sensor()).range_m
-            for k, s in enumerate(scenes)
-        ])  # fmt: skip
-        ax.hist(sim, bins, density=True, histtype="step", lw=1.5, color=color,
-                label=f"{label} (n={sim.size})")  # fmt: skip
+        sim = np.concatenate(
+            [
+                W.simulate(
+                    s,
+                    params,
+                    rate_mm_h=W.ASSUMED_RATE_MM_H,
+                    rng=np.random.default_rng([0, k]),
+                    mode=mode,
+                    sensor=fitted.sensor(),
+                ).range_m
+                for k, s in enumerate(scenes)
+            ]
+        )
+        ax.hist(
+            sim,
+            bins,
+            density=True,
+            histtype="step",
+            lw=1.5,
+            color=color,
+            label=f"{label} (n={sim.size})",
+        )
     ax.set_xlabel("range of falling-snow return (m)")
     ax.set_ylabel("density")
     ax.set_title(
@@ -115,10 +136,13 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         t = time.perf_counter()
         res = W.fit(fit_scenes, mode="dual", fit_threshold=True)
         fits["dual_sensor_limit"] = {
-            "knobs": asdict(res.knobs), "loss": round(res.loss, 4),
-            "grid_start": asdict(res.grid_best), "grid_loss": round(res.grid_loss, 4),
-            "evaluations": res.evaluations, "seconds": round(time.perf_counter() - t, 1),
-        }  # fmt: skip
+            "knobs": asdict(res.knobs),
+            "loss": round(res.loss, 4),
+            "grid_start": asdict(res.grid_best),
+            "grid_loss": round(res.grid_loss, 4),
+            "evaluations": res.evaluations,
+            "seconds": round(time.perf_counter() - t, 1),
+        }
         fitted = res.knobs
     results = _evaluate_all(fit_scenes, held_out, fitted)
     sensitivity = W.rate_sensitivity(fit_scenes, fitted, (1.0, 2.5, 5.0), mode="dual")
@@ -131,7 +155,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             "sequence": SEQUENCE,
             "fit_frames": FIT_FRAMES,
             "held_out_frames": HELD_OUT_FRAMES,
-        },  # fmt: skip
+        },
         "real": {s.name: s.real for s in fit_scenes + held_out},
         "rate_assumption": {
             "rate_mm_h_water_equivalent": W.ASSUMED_RATE_MM_H,
@@ -171,5 +195,9 @@ if __name__ == "__main__":
     out = main(sys.argv[1:])
     r = out["results"]
     for name in ("ours_dual", "ours_strongest", "lisa_paper_dual"):
-        print(name, {k: r[name][k]["ks_range"] for k in ("fit", "held_out")},
-              "fraction ratio", r[name]["held_out"]["fraction_ratio"])  # fmt: skip
+        print(
+            name,
+            {k: r[name][k]["ks_range"] for k in ("fit", "held_out")},
+            "fraction ratio",
+            r[name]["held_out"]["fraction_ratio"],
+        )

@@ -97,9 +97,19 @@ def demo(out: Path, frames: int, sensor: str, seed: int, jobs: int) -> None:
     from lads.demo import main as demo_main
 
     code = demo_main(
-        ["--out", str(out), "--frames", str(frames), "--sensor", sensor, "--seed", str(seed),
-         "--jobs", str(jobs)]
-    )  # fmt: skip
+        [
+            "--out",
+            str(out),
+            "--frames",
+            str(frames),
+            "--sensor",
+            sensor,
+            "--seed",
+            str(seed),
+            "--jobs",
+            str(jobs),
+        ]
+    )
     if code:
         sys.exit(EXIT_INCOMPLETE)
 
@@ -165,27 +175,31 @@ def variants() -> None:
 @click.option("--visibility-m", type=float, help="Override the fog visibility, m.")
 @click.option("--water-film-mm", type=float, help="Override the wet-ground water film, mm.")
 @click.option(
-    "--severity", type=click.Choice(SEVERITIES),
+    "--severity",
+    type=click.Choice(SEVERITIES),
     help="Weather severity preset: sets the rain/snow rate or fog visibility to the preset's "
     "(docs/physics.md, 'Severity presets'); both are recorded.",
-)  # fmt: skip
+)
 @click.option(
-    "--weather-settings", type=click.Choice(["lads", "lisa"]),
+    "--weather-settings",
+    type=click.Choice(["lads", "lisa"]),
     help="Physics settings of the weather stage: lads (the default: fitted to real snow, "
     "nothing lost in clear air) or lisa (LISA's published model with its fixed threshold, to "
     "compare; rain and snow).",
-)  # fmt: skip
+)
 @click.option(
-    "--detection", callback=lambda _ctx, _param, value: _detection_rule(value),
+    "--detection",
+    callback=lambda _ctx, _param, value: _detection_rule(value),
     help="Detection rule of the weather stage: sensor (the default: the profile's detection "
     "limit, nothing lost in clear air), frame (the frame's weakest return as threshold) or a "
     "fixed threshold in reflectivity / m^2 (docs/physics.md, 'Detection limits').",
-)  # fmt: skip
+)
 @click.option(
-    "--mode", type=click.Choice(["strongest", "last", "dual"]),
+    "--mode",
+    type=click.Choice(["strongest", "last", "dual"]),
     help="Override the return mode; dual writes a beam's strongest and, where it differs, last "
     "return (physical points only).",
-)  # fmt: skip
+)
 @click.option(
     "--points",
     type=click.Choice(list(POINT_MODES)),
@@ -193,10 +207,11 @@ def variants() -> None:
 )
 @click.option("--particle-label", type=int, help="Label of particle returns in physical mode.")
 @click.option(
-    "--neighbours", type=int,
+    "--neighbours",
+    type=int,
     help="Sensor variants: neighbouring scans in each frame's window (default 10; 0: each "
     "frame from its own scan, no poses needed). docs/transfer.md.",
-)  # fmt: skip
+)
 @click.option(
     "--intensity",
     "intensity_model",
@@ -204,10 +219,11 @@ def variants() -> None:
     "model name or .pt path replaces the pipeline's model.",
 )
 @click.option(
-    "--device", type=click.Choice(["cpu", "cuda"]),
+    "--device",
+    type=click.Choice(["cpu", "cuda"]),
     help="Device of the learned intensity stage: cpu (the default, bytes reproducible "
     "everywhere) or cuda (needs a CUDA GPU; a value may differ by one quantisation step).",
-)  # fmt: skip
+)
 @click.option(
     "--sequences",
     help="Comma-separated sequences to build (SemanticKITTI, WADS, Voxelscape, RADIATE; the "
@@ -215,56 +231,89 @@ def variants() -> None:
 )
 @click.option("--version", "nuscenes_version", help="nuScenes table version, e.g. v1.0-trainval.")
 @click.option(
-    "--sensor", "source_sensor",
+    "--sensor",
+    "source_sensor",
     help="Sensor profile of the source's scans when it is not the dataset's own: a tree "
     "`--variant sensor-<profile>` built (its run.json names the profile).",
-)  # fmt: skip
+)
 @click.option("--include-sweeps", is_flag=True, help="nuScenes: transform sweeps too.")
 @click.option("--jobs", type=int, default=1, show_default=True, help="Worker processes (loky).")
 @click.option(
-    "--batch", type=click.IntRange(min=1),
+    "--batch",
+    type=click.IntRange(min=1),
     help="Frames per task; the learned stage runs them in one forward pass (default: 8 with "
     "--device cuda, else 1). Output bytes do not depend on it.",
-)  # fmt: skip
+)
 @click.option("--backend", type=click.Choice(["loky", "dask"]), default="loky", show_default=True)
 @click.option("--scheduler", help="Dask scheduler address (with --backend dask).")
 @click.option("--fail-fast", is_flag=True, help="Stop at the first bad item.")
 @click.option(
-    "--wait", is_flag=True,
+    "--wait",
+    is_flag=True,
     help="If another lads process is writing --out, wait for it instead of refusing.",
-)  # fmt: skip
+)
 @click.option("--limit", type=int, help="Only the first N items (trial runs).")
 @click.option(
-    "--figures/--no-figures", default=True, show_default=True,
+    "--figures/--no-figures",
+    default=True,
+    show_default=True,
     help="Draw a before/after preview for the dataset card.",
-)  # fmt: skip
+)
 @_lads_errors
 def build(
-    source: str, variant: str | None, pipeline_file: Path | None, source_root: Path, out_root: Path,
-    seed: int, rate_mm_h: float | None, visibility_m: float | None,
-    water_film_mm: float | None, severity: str | None,
-    weather_settings: str | None, detection: str | float | None, mode: str | None,
-    neighbours: int | None, source_sensor: str | None,
+    source: str,
+    variant: str | None,
+    pipeline_file: Path | None,
+    source_root: Path,
+    out_root: Path,
+    seed: int,
+    rate_mm_h: float | None,
+    visibility_m: float | None,
+    water_film_mm: float | None,
+    severity: str | None,
+    weather_settings: str | None,
+    detection: str | float | None,
+    mode: str | None,
+    neighbours: int | None,
+    source_sensor: str | None,
     points: str | None,
-    particle_label: int | None, intensity_model: str | None,
-    device: str | None, sequences: str | None, nuscenes_version: str | None,
-    include_sweeps: bool, jobs: int, batch: int | None, backend: str, scheduler: str | None,
-    fail_fast: bool, wait: bool, limit: int | None, figures: bool,
-) -> None:  # fmt: skip
+    particle_label: int | None,
+    intensity_model: str | None,
+    device: str | None,
+    sequences: str | None,
+    nuscenes_version: str | None,
+    include_sweeps: bool,
+    jobs: int,
+    batch: int | None,
+    backend: str,
+    scheduler: str | None,
+    fail_fast: bool,
+    wait: bool,
+    limit: int | None,
+    figures: bool,
+) -> None:
     """Build a variant tree: one output item per source item, same format and layout."""
     from lads.config import load_pipeline, pipeline_for
     from lads.runner import run_build
 
     if (variant is None) == (pipeline_file is None):
         raise click.UsageError("give exactly one of --variant and --pipeline")
-    loaded = (load_pipeline(pipeline_file) if pipeline_file is not None
-              else pipeline_for(source, variant))  # type: ignore[arg-type]  # fmt: skip
+    loaded = (
+        load_pipeline(pipeline_file) if pipeline_file is not None else pipeline_for(source, variant)
+    )  # type: ignore[arg-type]
     pipeline = loaded.with_overrides(
-        rate_mm_h=rate_mm_h, visibility_m=visibility_m, water_film_mm=water_film_mm,
-        severity=severity, mode=mode,
-        settings=weather_settings, detection=detection, points=points,
-        particle_label=particle_label, intensity=intensity_model, neighbours=neighbours,
-    )  # fmt: skip
+        rate_mm_h=rate_mm_h,
+        visibility_m=visibility_m,
+        water_film_mm=water_film_mm,
+        severity=severity,
+        mode=mode,
+        settings=weather_settings,
+        detection=detection,
+        points=points,
+        particle_label=particle_label,
+        intensity=intensity_model,
+        neighbours=neighbours,
+    )
     if device is not None:
         pipeline = pipeline.with_overrides(device=device)
     options: dict[str, Any] = {}
@@ -277,10 +326,22 @@ def build(
     if source_sensor:
         options["sensor"] = source_sensor
     report = run_build(
-        source, source_root, out_root, pipeline, seed=seed, reader_options=options, jobs=jobs,
-        backend=backend, scheduler=scheduler, fail_fast=fail_fast, progress=None, limit=limit,
-        figures=figures, wait=wait, batch=batch,
-    )  # fmt: skip
+        source,
+        source_root,
+        out_root,
+        pipeline,
+        seed=seed,
+        reader_options=options,
+        jobs=jobs,
+        backend=backend,
+        scheduler=scheduler,
+        fail_fast=fail_fast,
+        progress=None,
+        limit=limit,
+        figures=figures,
+        wait=wait,
+        batch=batch,
+    )
     click.echo(report.summary_text())
     if not report.complete:
         sys.exit(EXIT_INCOMPLETE)
@@ -315,9 +376,13 @@ def build(
 )
 @_lads_errors
 def verify(
-    out_root: Path, source_root: Path | None, regenerate: int, inventory: str | None, seed: int,
+    out_root: Path,
+    source_root: Path | None,
+    regenerate: int,
+    inventory: str | None,
+    seed: int,
     json_out: Path | None,
-) -> None:  # fmt: skip
+) -> None:
     """Check a built tree: checksums, manifest, one-to-one layout against the source."""
     from lads.verify import verify_tree
 

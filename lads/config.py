@@ -170,8 +170,12 @@ class PipelineConfig:
                     "pipeline file, or pass --intensity physics."
                 )
             else:
-                stages = [StageConfig(s.stage, {**s.params, "model": intensity})
-                          if s.stage == "intensity" else s for s in stages]  # fmt: skip
+                stages = [
+                    StageConfig(s.stage, {**s.params, "model": intensity})
+                    if s.stage == "intensity"
+                    else s
+                    for s in stages
+                ]
             if not stages:
                 raise ConfigError(
                     "--intensity physics leaves no stage: this pipeline only changes intensity."
@@ -206,8 +210,7 @@ def _with_severity_override(
         raise ConfigError(f"--severity does not apply to this pipeline (stages: {names}).")
     for i in hit:
         stage = stages[i]
-        params = {k: v for k, v in stage.params.items()
-                  if k not in STRENGTHS or k in given}  # fmt: skip
+        params = {k: v for k, v in stage.params.items() if k not in STRENGTHS or k in given}
         params = resolved(stage.stage, {**params, "severity": severity}, "override severity")
         check_stage(stage.stage, params, "override severity")
         stages[i] = StageConfig(stage.stage, params)
@@ -320,8 +323,10 @@ def pipeline_for(source: str, variant: str, directory: Path | None = None) -> Pi
     if path.stem != SENSOR_PIPELINE or variant == SENSOR_PIPELINE:
         return pipeline
     target = variant[len(SENSOR_PIPELINE) + 1 :]
-    stages = tuple(StageConfig(s.stage, {**s.params, "target": target})
-                   if s.stage == "sensor" else s for s in pipeline.stages)  # fmt: skip
+    stages = tuple(
+        StageConfig(s.stage, {**s.params, "target": target}) if s.stage == "sensor" else s
+        for s in pipeline.stages
+    )
     return replace(pipeline, variant=variant, stages=stages)
 
 

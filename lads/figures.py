@@ -81,9 +81,16 @@ def _bev_raster(
 
 
 def variant_figure(
-    source_root: Path, variants: dict[str, Path], relpath: str, path: Path, *, sensor: str,
-    columns: int = 4, extent_m: float = 40.0, variant_sensor: str | None = None,
-) -> Path:  # fmt: skip
+    source_root: Path,
+    variants: dict[str, Path],
+    relpath: str,
+    path: Path,
+    *,
+    sensor: str,
+    columns: int = 4,
+    extent_m: float = 40.0,
+    variant_sensor: str | None = None,
+) -> Path:
     """One row per tree (source first, then each variant): BEV coloured by outcome and a
     range image of intensity; a last panel overlays the intensity histograms.
 
@@ -121,23 +128,39 @@ def variant_figure(
     ]
     fig.legend(handles=handles, loc="lower left", fontsize=7, ncol=4)
     # Fixed margins: tight_layout measured every tick label and took longer than the plot.
-    fig.subplots_adjust(left=0.04, right=0.98, bottom=0.05 + 0.1 / rows, top=1 - 0.16 / rows,
-                        wspace=0.18, hspace=0.45)  # fmt: skip
+    fig.subplots_adjust(
+        left=0.04,
+        right=0.98,
+        bottom=0.05 + 0.1 / rows,
+        top=1 - 0.16 / rows,
+        wspace=0.18,
+        hspace=0.45,
+    )
     _save(fig, path)
     return path
 
 
 def _tree_row(
-    fig: Any, grid: Any, r: int, tree: tuple[str, Any, Any, str], hist_ax: Any,
-    bins: npt.NDArray[np.float64], as_refl: bool, extent_m: float,
-) -> None:  # fmt: skip
+    fig: Any,
+    grid: Any,
+    r: int,
+    tree: tuple[str, Any, Any, str],
+    hist_ax: Any,
+    bins: npt.NDArray[np.float64],
+    as_refl: bool,
+    extent_m: float,
+) -> None:
     """Row `r` of `variant_figure`: the tree's BEV and range image, and its histogram."""
     name, pts, outcome, tree_sensor = tree
     what = "reflectivity" if as_refl else "stored intensity"
     bev = fig.add_subplot(grid[r, 0])
     box = (-extent_m, extent_m, -extent_m, extent_m)
-    bev.imshow(_bev_raster(pts[:, :2], outcome, extent_m), origin="lower", extent=box,
-               interpolation="nearest")  # fmt: skip
+    bev.imshow(
+        _bev_raster(pts[:, :2], outcome, extent_m),
+        origin="lower",
+        extent=box,
+        interpolation="nearest",
+    )
     bev.set(xlim=(-extent_m, extent_m), ylim=(-extent_m, extent_m), aspect="equal")
     counts = np.bincount(outcome, minlength=len(Outcome))
     bev.set_title(f"{name}\n{pts.shape[0]:,} pts · particle {counts[2]:,}", fontsize=9)
@@ -146,13 +169,22 @@ def _tree_row(
     img = fig.add_subplot(grid[r, 1])
     shown = img.imshow(
         _range_image(pts[keep, :3], _shown(pts[keep], tree_sensor, as_refl), tree_sensor),
-        aspect="auto", cmap="viridis", interpolation="nearest", vmin=0.0, vmax=bins[-1],
-    )  # fmt: skip
+        aspect="auto",
+        cmap="viridis",
+        interpolation="nearest",
+        vmin=0.0,
+        vmax=bins[-1],
+    )
     img.set_title(f"{name}: {what} range image (rows = channels)", fontsize=9)
     img.tick_params(labelsize=7)
     fig.colorbar(shown, ax=img, fraction=0.02)
-    hist_ax.hist(_shown(pts[keep], tree_sensor, as_refl), bins=bins, histtype="step",
-                 density=True, label=name)  # fmt: skip
+    hist_ax.hist(
+        _shown(pts[keep], tree_sensor, as_refl),
+        bins=bins,
+        histtype="step",
+        density=True,
+        label=name,
+    )
 
 
 def correspondence_figure(path: Path) -> Path:

@@ -95,10 +95,14 @@ def _preview(out_root: Path, plan: BuildPlan, manifest: list[dict[str, Any]]) ->
     reader = reader_for(plan)
     relpath = PREVIEW
     variant_figure(
-        Path(reader.root), {plan.pipeline.variant: out_root}, scan["path"], out_root / relpath,
-        sensor=reader.sensor, columns=scan["record_bytes"] // 4,
+        Path(reader.root),
+        {plan.pipeline.variant: out_root},
+        scan["path"],
+        out_root / relpath,
+        sensor=reader.sensor,
+        columns=scan["record_bytes"] // 4,
         variant_sensor=plan.pipeline.output_sensor(reader.sensor),
-    )  # fmt: skip
+    )
     return [relpath]
 
 
@@ -134,8 +138,14 @@ def _owned(manifest: list[dict[str, Any]]) -> tuple[set[str], tuple[str, ...]]:
     the provenance groups of its ok items)."""
     from lads.card import CARD_NAME
 
-    exact = {MANIFEST, PIPELINE_YAML, RUN_JSON, CARD_NAME, PREVIEW,
-             f"{provenance.STORE_NAME}/zarr.json"}  # fmt: skip
+    exact = {
+        MANIFEST,
+        PIPELINE_YAML,
+        RUN_JSON,
+        CARD_NAME,
+        PREVIEW,
+        f"{provenance.STORE_NAME}/zarr.json",
+    }
     groups = tuple(
         f"{provenance.STORE_NAME}/{provenance.node_name(r['item_id'].partition(':')[2])}/"
         for r in manifest

@@ -88,8 +88,9 @@ def write_item(
         atomic_write(folder / "zarr.json", _json(_array_metadata(values)))
         if values.size:
             atomic_write(folder / "c" / "0", _blosc().encode(values))
-    atomic_write(group / "zarr.json", _json(
-        {"attributes": attrs, "zarr_format": 3, "node_type": "group"}))  # fmt: skip
+    atomic_write(
+        group / "zarr.json", _json({"attributes": attrs, "zarr_format": 3, "node_type": "group"})
+    )
 
 
 def _json(value: dict[str, Any]) -> bytes:
@@ -116,13 +117,23 @@ def _array_metadata(values: npt.NDArray[Any]) -> dict[str, Any]:
     bytes_codec: dict[str, Any] = {"name": "bytes"}
     if itemsize > 1:
         bytes_codec["configuration"] = {"endian": "little"}
-    blosc = {"name": "blosc", "configuration": {"typesize": itemsize, "cname": BLOSC_CNAME,
-             "clevel": BLOSC_LEVEL, "shuffle": "bitshuffle", "blocksize": 0}}  # fmt: skip
+    blosc = {
+        "name": "blosc",
+        "configuration": {
+            "typesize": itemsize,
+            "cname": BLOSC_CNAME,
+            "clevel": BLOSC_LEVEL,
+            "shuffle": "bitshuffle",
+            "blocksize": 0,
+        },
+    }
     return {
         "shape": [int(values.size)],
         "data_type": values.dtype.name,
-        "chunk_grid": {"name": "regular",
-                       "configuration": {"chunk_shape": [max(int(values.size), 1)]}},
+        "chunk_grid": {
+            "name": "regular",
+            "configuration": {"chunk_shape": [max(int(values.size), 1)]},
+        },
         "chunk_key_encoding": {"name": "default", "configuration": {"separator": "/"}},
         "fill_value": 0,
         "codecs": [bytes_codec, blosc],
@@ -130,7 +141,7 @@ def _array_metadata(values: npt.NDArray[Any]) -> dict[str, Any]:
         "zarr_format": 3,
         "node_type": "array",
         "storage_transformers": [],
-    }  # fmt: skip
+    }
 
 
 def read_item(
@@ -196,8 +207,12 @@ def item_intact(out_root: Path, row: dict, listed: dict[str, str] | None = None)
         source_index, outcome, attrs = read_item(out_root, relpath)
     except Exception:  # noqa: BLE001 - damaged metadata or chunks fail in many ways; any of them means rebuild
         return False
-    want = {"item_id": row["item_id"], "relpath": relpath,
-            "n_source": points.get("source"), "n_output": points.get("output")}  # fmt: skip
+    want = {
+        "item_id": row["item_id"],
+        "relpath": relpath,
+        "n_source": points.get("source"),
+        "n_output": points.get("output"),
+    }
     if {k: attrs.get(k) for k in want} != want or source_index.shape != outcome.shape:
         return False
     if attrs.get("window"):

@@ -55,10 +55,14 @@ def table_from_env(env: dict[str, str]) -> list[Entry]:
     """The release table for the dataset roots named in `env` (empty if none)."""
     sources: list[tuple[str, Path, tuple[tuple[str, Any], ...], str | None]] = []
     if env.get("LADS_SEMANTICKITTI_ROOT"):
-        sources.append((
-            "semantickitti", Path(env["LADS_SEMANTICKITTI_ROOT"]),
-            (("sequences", tuple(KITTI_SEQUENCES)),), "semantickitti-00-10",
-        ))  # fmt: skip
+        sources.append(
+            (
+                "semantickitti",
+                Path(env["LADS_SEMANTICKITTI_ROOT"]),
+                (("sequences", tuple(KITTI_SEQUENCES)),),
+                "semantickitti-00-10",
+            )
+        )
     if env.get("LADS_NUSCENES_ROOT"):
         version = env.get("LADS_NUSCENES_VERSION", "v1.0-trainval")
         sources.append(
@@ -70,10 +74,14 @@ def table_from_env(env: dict[str, str]) -> list[Entry]:
             )
         )
     if env.get("LADS_VOXELSCAPE_ROOT"):
-        sources.append((
-            "voxelscape", Path(env["LADS_VOXELSCAPE_ROOT"]),
-            (("sequences", tuple(KITTI_SEQUENCES)),), None,
-        ))  # fmt: skip
+        sources.append(
+            (
+                "voxelscape",
+                Path(env["LADS_VOXELSCAPE_ROOT"]),
+                (("sequences", tuple(KITTI_SEQUENCES)),),
+                None,
+            )
+        )
     return [
         Entry(s, root, v, opts, inv) for s, root, opts, inv in sources for v in RELEASE_VARIANTS
     ]
@@ -103,9 +111,16 @@ def build_entry(entry: Entry, out: Path, *, seed: int, jobs: int) -> dict[str, A
     pipeline = pipeline_for(entry.source, entry.variant)
     tree = out / entry.name
     report = run_build(
-        entry.source, entry.root, tree, pipeline, seed=seed, reader_options=dict(entry.options),
-        jobs=jobs, progress=None, figures=True,
-    )  # fmt: skip
+        entry.source,
+        entry.root,
+        tree,
+        pipeline,
+        seed=seed,
+        reader_options=dict(entry.options),
+        jobs=jobs,
+        progress=None,
+        figures=True,
+    )
     check = verify_tree(tree, entry.root, regenerate=2, seed=seed, inventory=entry.inventory)
     manifests = out / "manifests" / entry.name
     manifests.mkdir(parents=True, exist_ok=True)

@@ -53,10 +53,21 @@ def git_commit() -> str | None:
         # --no-optional-locks: a read-only look that never takes the index lock, so a build
         # killed at this moment cannot leave index.lock behind in the checkout.
         dirty = subprocess.run(
-            ["git", "--no-optional-locks", "-C", str(repo), "status", "--porcelain",
-             "--untracked-files=no", "--", "lads"],
-            capture_output=True, text=True, check=True,
-        ).stdout.strip()  # fmt: skip
+            [
+                "git",
+                "--no-optional-locks",
+                "-C",
+                str(repo),
+                "status",
+                "--porcelain",
+                "--untracked-files=no",
+                "--",
+                "lads",
+            ],
+            capture_output=True,
+            text=True,
+            check=True,
+        ).stdout.strip()
     except (OSError, subprocess.CalledProcessError):
         return "unknown"
     return head + ("+dirty" if dirty else "")

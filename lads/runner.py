@@ -176,9 +176,13 @@ def _copy_files(reader: Any, source_root: Path, out_root: Path) -> list[dict[str
 
 
 def _dispatch(  # type: ignore[no-untyped-def]
-    todo: list[Item], plan: BuildPlan, jobs: int, backend: str, scheduler: str | None,
+    todo: list[Item],
+    plan: BuildPlan,
+    jobs: int,
+    backend: str,
+    scheduler: str | None,
     batch: int = 1,
-):  # fmt: skip
+):
     """Yield manifest rows as items finish (any order); `batch` items per task."""
     tasks = [todo[k : k + batch] for k in range(0, len(todo), max(batch, 1))]
     if jobs == 1 and backend == "loky":
@@ -283,10 +287,20 @@ def run_build(
         report = BuildReport(out_root, items=len(items), built=0, skipped=0)
         seconds: list[float] = []
         try:
-            _build_locked(plan, reader, items, report, seconds, jobs=jobs, backend=backend,
-                          scheduler=scheduler, fail_fast=fail_fast, progress=progress,
-                          figures=figures,
-                          batch=default_batch(pipeline) if batch is None else batch)  # fmt: skip
+            _build_locked(
+                plan,
+                reader,
+                items,
+                report,
+                seconds,
+                jobs=jobs,
+                backend=backend,
+                scheduler=scheduler,
+                fail_fast=fail_fast,
+                progress=progress,
+                figures=figures,
+                batch=default_batch(pipeline) if batch is None else batch,
+            )
         except (OutputWriteError, KeyboardInterrupt):
             report.stopped_early = True
             report.seconds = time.perf_counter() - start
@@ -304,10 +318,20 @@ def run_build(
 
 
 def _build_locked(
-    plan: BuildPlan, reader: Any, items: list[Item], report: BuildReport, seconds: list[float],
-    *, jobs: int, backend: str, scheduler: str | None, fail_fast: bool,
-    progress: bool | None, figures: bool, batch: int,
-) -> None:  # fmt: skip
+    plan: BuildPlan,
+    reader: Any,
+    items: list[Item],
+    report: BuildReport,
+    seconds: list[float],
+    *,
+    jobs: int,
+    backend: str,
+    scheduler: str | None,
+    fail_fast: bool,
+    progress: bool | None,
+    figures: bool,
+    batch: int,
+) -> None:
     """The build proper, with the output's lock held: claim, clean, copy, build, finalise."""
     from tqdm import tqdm
 
@@ -325,8 +349,12 @@ def _build_locked(
     todo = [i for i in items if i.item_id not in done]
     report.skipped = len(done)
     rows = dict(done)
-    bar = tqdm(total=len(todo), unit="scan", desc=f"{plan.source} {plan.pipeline.variant}",
-               disable=None if progress is None else not progress)  # fmt: skip
+    bar = tqdm(
+        total=len(todo),
+        unit="scan",
+        desc=f"{plan.source} {plan.pipeline.variant}",
+        disable=None if progress is None else not progress,
+    )
     with bar:
         for row in _dispatch(todo, plan, jobs, backend, scheduler, batch):
             seconds.append(row.pop("_seconds", 0.0))

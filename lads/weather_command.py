@@ -40,10 +40,18 @@ from lads.files import atomic_write
     help="Where to write the carried labels.",
 )
 def weather_command(
-    scan: Path, output: Path, sensor: str, columns: int | None, rain_mm_h: float | None,
-    snow_mm_h: float | None, visibility_m: float | None, mode: str, seed: int,
-    labels_in: Path | None, labels_out: Path | None,
-) -> None:  # fmt: skip
+    scan: Path,
+    output: Path,
+    sensor: str,
+    columns: int | None,
+    rain_mm_h: float | None,
+    snow_mm_h: float | None,
+    visibility_m: float | None,
+    mode: str,
+    seed: int,
+    labels_in: Path | None,
+    labels_out: Path | None,
+) -> None:
     """Apply one weather to a headerless float32 scan (KITTI .bin, nuScenes .pcd.bin).
 
     Extra columns (e.g. the nuScenes ring) and labels follow each output point's source beam.

@@ -38,8 +38,15 @@ class WindowStage(Protocol):
 
     def prepare(self, frame: Frame) -> Any: ...
 
-    def call_window(self, frame: Frame, parts: list[Any], poses: list[F64], centre: int,
-                    window: tuple[str, ...], rng: np.random.Generator) -> Frame: ...  # fmt: skip
+    def call_window(
+        self,
+        frame: Frame,
+        parts: list[Any],
+        poses: list[F64],
+        centre: int,
+        window: tuple[str, ...],
+        rng: np.random.Generator,
+    ) -> Frame: ...
 
 
 class _Prepared:
@@ -111,8 +118,14 @@ def run_window_stage(
         _prepare(stage, (stage_key, *stamp), it, frame if it == item else None, size, reader)
         for it in window
     ]
-    return stage.call_window(frame, parts, [poses[it.relpath] for it in window], centre,
-                             tuple(it.relpath for it in window), rng)  # fmt: skip
+    return stage.call_window(
+        frame,
+        parts,
+        [poses[it.relpath] for it in window],
+        centre,
+        tuple(it.relpath for it in window),
+        rng,
+    )
 
 
 def _stamp(reader: Reader, item: Item) -> tuple[str, int]:
@@ -127,9 +140,13 @@ def _stamp(reader: Reader, item: Item) -> tuple[str, int]:
 
 
 def _prepare(
-    stage: WindowStage, key: tuple[Any, ...], item: Item, frame: Frame | None, size: int,
+    stage: WindowStage,
+    key: tuple[Any, ...],
+    item: Item,
+    frame: Frame | None,
+    size: int,
     reader: Reader,
-) -> Any:  # fmt: skip
+) -> Any:
     def make() -> Any:
         return stage.prepare(frame if frame is not None else reader.read(item))
 

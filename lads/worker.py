@@ -82,8 +82,14 @@ def _run_stages(
     for stage in stages:
         if hasattr(stage, "call_window"):
             key = f"{plan.pipeline.config_hash()}:{stage.name}"
-            frame = run_window_stage(stage, key, reader_for(plan), item, frame,  # type: ignore[arg-type]
-                                     _rng(plan, item, stage))  # fmt: skip
+            frame = run_window_stage(
+                stage,
+                key,
+                reader_for(plan),
+                item,
+                frame,  # type: ignore[arg-type]
+                _rng(plan, item, stage),
+            )
         else:
             frame = stage(frame, _rng(plan, item, stage))
         clock.lap(f"stage:{stage.name}")
@@ -120,9 +126,13 @@ def transform(
     for spec, stage in zip(plan.pipeline.stages, stages, strict=True):
         entropy = seed_entropy(plan.seed, item.item_id, plan.pipeline.variant, stage.name)
         stage_rows.append(
-            {"name": stage.name, "version": stage.version, "params_hash": spec.params_hash(),
-             "seed_entropy": entropy}
-        )  # fmt: skip
+            {
+                "name": stage.name,
+                "version": stage.version,
+                "params_hash": spec.params_hash(),
+                "seed_entropy": entropy,
+            }
+        )
     if plan.pipeline.points == "resampled":
         encoded_frame, source_index, outcome = frame, frame.source_index, frame.outcome
     elif plan.pipeline.points == "aligned":
@@ -156,10 +166,16 @@ def _source_rows(item: Item, root: Path) -> list[dict[str, Any]]:
 
 def _output_rows(files: list[EncodedFile]) -> list[dict[str, Any]]:
     return [
-        {"path": f.relpath, "role": f.role, "bytes": len(f.payload),
-         "sha256": sha256_bytes(f.payload), "records": f.records, "record_bytes": f.record_bytes}
+        {
+            "path": f.relpath,
+            "role": f.role,
+            "bytes": len(f.payload),
+            "sha256": sha256_bytes(f.payload),
+            "records": f.records,
+            "record_bytes": f.record_bytes,
+        }
         for f in files
-    ]  # fmt: skip
+    ]
 
 
 # glibc's own ceiling for its adaptive mmap threshold on 64-bit Linux (4 MiB x sizeof(long)).
@@ -296,8 +312,16 @@ def _write_provenance(
 ) -> None:
     """provenance.write_item, with a write failure of the store said in words."""
     try:
-        provenance.write_item(out_root, item.relpath, item.item_id, source_index, outcome, n,
-                              frame.window, frame.source_scan)  # fmt: skip
+        provenance.write_item(
+            out_root,
+            item.relpath,
+            item.item_id,
+            source_index,
+            outcome,
+            n,
+            frame.window,
+            frame.source_scan,
+        )
     except OSError as exc:
         raise write_error(out_root / provenance.STORE_NAME, exc) from exc
 

@@ -60,8 +60,9 @@ def real_semantickitti_tiny(root: Path) -> Path:
 
 def real_wads_all(root: Path) -> Path:
     """The 11 real WADS frames of sequence 36, 042223-042233, with labels."""
-    _real_kitti_layout(root, SHARED_DATA / "wads" / "sequences" / "36", "36",
-                       list(WADS_FRAMES[:3]), ())  # fmt: skip
+    _real_kitti_layout(
+        root, SHARED_DATA / "wads" / "sequences" / "36", "36", list(WADS_FRAMES[:3]), ()
+    )
     return _real_kitti_layout(
         root, SHARED_DATA / "wads-more" / "sequences" / "36", "36", list(WADS_FRAMES[3:]), ()
     )
@@ -147,7 +148,8 @@ def _under(*folders: str, suffix: str) -> Callable[[], list[str]]:
 
 REAL_SOURCES: dict[str, RealSource] = {
     "semantickitti": RealSource(
-        "semantickitti", real_semantickitti_all,
+        "semantickitti",
+        real_semantickitti_all,
         _under("semantickitti", "semantickitti-more", "semantickitti-seqx", suffix=".bin"),
     ),
     "semantickitti-tiny": RealSource(
@@ -157,24 +159,34 @@ REAL_SOURCES: dict[str, RealSource] = {
     "radiate": RealSource("radiate", real_radiate, _under("radiate", suffix=".csv")),
     # the full keyframe, the 40-point keyframe and a 100-point sweep (--include-sweeps)
     "nuscenes": RealSource(
-        "nuscenes", real_nuscenes,
-        lambda: [f"nuscenes/{NUSC_FULL_SAMPLE}", f"nuscenes-tiny/{NUSC_TINY_SAMPLE}",
-                 f"nuscenes-tiny/{NUSC_TINY_SWEEP}"],
+        "nuscenes",
+        real_nuscenes,
+        lambda: [
+            f"nuscenes/{NUSC_FULL_SAMPLE}",
+            f"nuscenes-tiny/{NUSC_TINY_SAMPLE}",
+            f"nuscenes-tiny/{NUSC_TINY_SWEEP}",
+        ],
         {"version": "v1.0-mini", "include_sweeps": True},
     ),
     "nuscenes-scene0001": RealSource(
-        "nuscenes", real_nuscenes_scene0001, _under("nuscenes-scene0001", suffix="points.bin"),
+        "nuscenes",
+        real_nuscenes_scene0001,
+        _under("nuscenes-scene0001", suffix="points.bin"),
         {"version": "v1.0-trainval"},
     ),
     "nuscenes-kitti": RealSource(
         "nuscenes-kitti", real_nuscenes_kitti, _under("nuscenes-kittifmt", suffix=".bin")
     ),
     "nuscenes-scans": RealSource(
-        "nuscenes-scans", real_nuscenes_scans,
-        lambda: [f"nuscenes/{NUSC_FULL_SAMPLE}", NUSC_LONE_SWEEP,
-                 *(f"nuscenes-scene0001/{d}/points.bin" for d in NUSC_SCANS_SCENE0001)],
+        "nuscenes-scans",
+        real_nuscenes_scans,
+        lambda: [
+            f"nuscenes/{NUSC_FULL_SAMPLE}",
+            NUSC_LONE_SWEEP,
+            *(f"nuscenes-scene0001/{d}/points.bin" for d in NUSC_SCANS_SCENE0001),
+        ],
     ),
-}  # fmt: skip
+}
 
 
 # Real files no tree can hold, with the reason (none since loose scans have a reader).

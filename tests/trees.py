@@ -332,9 +332,12 @@ def real_nuscenes(root: Path, version: str = "v1.0-mini") -> Path:
 
 
 def synthetic_nuscenes_kitti(
-    root: Path, *, scenes: dict[str, int] | None = None, labelled: tuple[str, ...] = (
-        "train/0001", "train/0002"), seed: int = 5,
-) -> Path:  # fmt: skip
+    root: Path,
+    *,
+    scenes: dict[str, int] | None = None,
+    labelled: tuple[str, ...] = ("train/0001", "train/0002"),
+    seed: int = 5,
+) -> Path:
     """nuScenes keyframes in the KITTI-style export: `<split>/<scene>/velodyne/NNNNNN.bin`
     (N x 4 float32, intensity integers 0-255), `sem_labels/NNNNNN.label` (uint8 0-31) for the
     `labelled` scenes, and `poses.txt`. Default scenes {"train/0001": 2, "train/0002": 1,

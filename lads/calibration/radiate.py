@@ -65,9 +65,11 @@ def load_frame(csv_path: str | Path) -> RadiateFrame:
     frame = read_scan("radiate", path.parent.parent, path)
     points = frame.points
     return RadiateFrame(
-        path.stem, np.ascontiguousarray(points[:, :3]), points[:, 3].copy(),
+        path.stem,
+        np.ascontiguousarray(points[:, :3]),
+        points[:, 3].copy(),
         points[:, 4].astype(np.int64),
-    )  # fmt: skip
+    )
 
 
 def in_clean_half(xyz: npt.NDArray[np.floating]) -> npt.NDArray[np.bool_]:
@@ -100,7 +102,7 @@ def frame_stats(frame: RadiateFrame) -> dict[str, Any]:
             [round(float(v), 2) for v in np.percentile(r[near & clean], (5, 50, 95))]
             if (near & clean).any()
             else None
-        ),  # fmt: skip
+        ),
     }
 
 
@@ -142,9 +144,12 @@ def near_fog_share(
         fog_params = fog_params.resolved_for(profile)
     beams = prepare_beams(xyz, intensity, profile)
     res = simulate_fog(
-        beams, profile, visibility_m=visibility_m, rng=np.random.default_rng(seed),
+        beams,
+        profile,
+        visibility_m=visibility_m,
+        rng=np.random.default_rng(seed),
         params=replace(fog_params, detection_threshold=detection_threshold),
-    )  # fmt: skip
+    )
     fog = res.outcome == Outcome.PARTICLE
     r = np.linalg.norm(res.xyz[fog].astype(np.float64), axis=1)
     return float((r < NEAR_M).sum() / len(xyz)), r
@@ -173,12 +178,15 @@ def visibility_bound(
     curve: list[dict[str, Any]] = []
     for v in visibilities_m:
         share, r = near_fog_share(xyz, inten, v, p_min, params=params)
-        curve.append({
-            "visibility_m": v, "near_fog_share": round(share, 6),
-            "fog_range_pct_5_50_95": (
-                [round(float(x), 2) for x in np.percentile(r, (5, 50, 95))] if r.size else None
-            ),
-        })  # fmt: skip
+        curve.append(
+            {
+                "visibility_m": v,
+                "near_fog_share": round(share, 6),
+                "fog_range_pct_5_50_95": (
+                    [round(float(x), 2) for x in np.percentile(r, (5, 50, 95))] if r.size else None
+                ),
+            }
+        )
     ok = [c["visibility_m"] for c in curve if c["near_fog_share"] <= observed]
     return {
         "observed_near_share_clean_half": observed,

@@ -51,8 +51,10 @@ class ReturnProfile:
     per_bin: tuple[float, ...]
 
     def as_dict(self) -> dict[str, object]:
-        return {"returns_per_fired_beam": round(self.share, 4),
-                "share_per_range_bin": [round(v, 4) for v in self.per_bin]}  # fmt: skip
+        return {
+            "returns_per_fired_beam": round(self.share, 4),
+            "share_per_range_bin": [round(v, 4) for v in self.per_bin],
+        }
 
 
 def returns_profile(xyz: npt.NDArray[np.floating], firings: int) -> ReturnProfile:
@@ -128,8 +130,10 @@ def fit_visibility(real: ReturnProfile, curve: dict[float, ReturnProfile], by: s
         ConfigError: `by` not in FIT_MEASURES, or an empty curve.
     """
     if by not in FIT_MEASURES or not curve:
-        raise ConfigError(f"fit by {by!r} on {len(curve)} visibilities: expected one of "
-                          f"{FIT_MEASURES} and a non-empty curve.")  # fmt: skip
+        raise ConfigError(
+            f"fit by {by!r} on {len(curve)} visibilities: expected one of "
+            f"{FIT_MEASURES} and a non-empty curve."
+        )
     if by == "share":
         return min(curve, key=lambda mor: abs(curve[mor].share - real.share))
     return min(curve, key=lambda mor: profile_distance(curve[mor], real))

@@ -181,9 +181,14 @@ def simulate(
         raise ConfigError(f"mode {mode!r}: expected one of {MODES}.")
     profile = load_profile(sensor) if isinstance(sensor, str) else sensor
     res = snow(
-        scene.clear_xyz, scene.clear_intensity, rate_mm_h=rate_mm_h, sensor=profile, rng=rng,
-        params=params, mode=mode,
-    )  # fmt: skip
+        scene.clear_xyz,
+        scene.clear_intensity,
+        rate_mm_h=rate_mm_h,
+        sensor=profile,
+        rng=rng,
+        params=params,
+        mode=mode,
+    )
     flake = res.outcome == Outcome.PARTICLE
     r = np.linalg.norm(res.xyz[flake].astype(np.float64), axis=1)
     return SimulatedSnow(r, res.intensity[flake], float(flake.mean()), res.detection_threshold)
@@ -242,9 +247,13 @@ def evaluate(
             sim_i.append(sim.intensity)
             fs.append(sim.fraction)
     return compare(
-        np.concatenate(real_r), np.concatenate(real_i), float(np.mean(fr)),
-        np.concatenate(sim_r), np.concatenate(sim_i), float(np.mean(fs)),
-    )  # fmt: skip
+        np.concatenate(real_r),
+        np.concatenate(real_i),
+        float(np.mean(fr)),
+        np.concatenate(sim_r),
+        np.concatenate(sim_i),
+        float(np.mean(fs)),
+    )
 
 
 def loss(result: dict[str, Any], intensity_weight: float = 1.0) -> float:
@@ -272,10 +281,15 @@ def _knobs_from_vector(x: npt.NDArray[np.float64], fit_threshold: bool) -> SnowK
 
 def _vector(k: SnowKnobs) -> npt.NDArray[np.float64]:
     p = k.detection_threshold if k.detection_threshold is not None else 1e-6
-    return np.array([
-        math.log10(k.particle_reflectivity), math.log10(k.beam_divergence_mrad),
-        k.min_range_m, k.overlap_full_m - k.min_range_m, math.log10(p),
-    ])  # fmt: skip
+    return np.array(
+        [
+            math.log10(k.particle_reflectivity),
+            math.log10(k.beam_divergence_mrad),
+            k.min_range_m,
+            k.overlap_full_m - k.min_range_m,
+            math.log10(p),
+        ]
+    )
 
 
 @dataclass(frozen=True, slots=True)
@@ -309,9 +323,13 @@ def fit(
         count += 1
         knobs = _knobs_from_vector(x, fit_threshold)
         res = evaluate(
-            scenes, knobs.params(base), rate_mm_h=rate_mm_h, mode=mode, seeds=seeds,
+            scenes,
+            knobs.params(base),
+            rate_mm_h=rate_mm_h,
+            mode=mode,
+            seeds=seeds,
             sensor=knobs.sensor(),
-        )  # fmt: skip
+        )
         # Soft wall outside the bounds, so Nelder-Mead does not wander on a flat plateau.
         clipped = _vector(knobs)
         wall = float(np.abs(x - clipped)[: 5 if fit_threshold else 4].sum())
@@ -330,10 +348,16 @@ def fit(
     step = np.array([0.3, 0.2, 0.5, 0.5, 0.3])
     simplex = np.vstack([x0] + [x0 + np.diag(step)[i] for i in range(5)])
     res = optimize.minimize(
-        objective, x0, method="Nelder-Mead",
-        options={"initial_simplex": simplex, "maxfev": max_evaluations, "xatol": 1e-3,
-                 "fatol": 1e-4},
-    )  # fmt: skip
+        objective,
+        x0,
+        method="Nelder-Mead",
+        options={
+            "initial_simplex": simplex,
+            "maxfev": max_evaluations,
+            "xatol": 1e-3,
+            "fatol": 1e-4,
+        },
+    )
     x_best = res.x if res.fun < values[best] else x0
     return FitResult(
         knobs=_knobs_from_vector(x_best, fit_threshold),
@@ -367,15 +391,20 @@ def rate_sensitivity(
             return loss(result)
 
         lo, hi = (math.log10(v) for v in BOUNDS["particle_reflectivity"])
-        best = optimize.minimize_scalar(f, bounds=(lo, hi), method="bounded",
-                                        options={"xatol": 0.02})  # fmt: skip
-        out.append({
-            "rate_mm_h": rate,
-            "fitted_knobs": {"ks_range": fixed["ks_range"],
-                             "fraction_ratio": fixed["fraction_ratio"]},
-            "rho_p_refit": round(10 ** float(best.x), 4),
-            "loss_refit": round(float(best.fun), 4),
-        })  # fmt: skip
+        best = optimize.minimize_scalar(
+            f, bounds=(lo, hi), method="bounded", options={"xatol": 0.02}
+        )
+        out.append(
+            {
+                "rate_mm_h": rate,
+                "fitted_knobs": {
+                    "ks_range": fixed["ks_range"],
+                    "fraction_ratio": fixed["fraction_ratio"],
+                },
+                "rho_p_refit": round(10 ** float(best.x), 4),
+                "loss_refit": round(float(best.fun), 4),
+            }
+        )
     return out
 
 

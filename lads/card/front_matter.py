@@ -64,9 +64,12 @@ def size_category(n: int) -> str:
 
 
 def render_front_matter(
-    run: dict[str, Any], src: Source, n_ok: int, splits: list[dict[str, Any]],
+    run: dict[str, Any],
+    src: Source,
+    n_ok: int,
+    splits: list[dict[str, Any]],
     kind: str = "weather",
-) -> str:  # fmt: skip
+) -> str:
     """The YAML front matter (without the '---' lines), with a note on the inherited licence."""
     synthetic = src is SOURCES["synthetic"]
     copied = sum(int(c.get("bytes", 0)) for c in run.get("copied_files") or [])

@@ -283,8 +283,10 @@ class DiagnoseConfig:
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready values (tuples as lists, an infinite bin edge as the string "inf")."""
-        return {group: {k: _jsonable(v) for k, v in values.items()}
-                for group, values in asdict(self).items()}  # fmt: skip
+        return {
+            group: {k: _jsonable(v) for k, v in values.items()}
+            for group, values in asdict(self).items()
+        }
 
     def sha256(self) -> str:
         """Hash of `to_dict()` (sorted keys): equal hashes, equal rules."""

@@ -60,9 +60,17 @@ def diagnose(
     # Every array here is small: a second BLAS thread only spins (it doubled the CPU time of
     # a run and gained no wall time), and it starves the fit workers of `settings.jobs`.
     with threadpool_limits(limits=1):
-        return _diagnose(sim_root, real_root, source, out, paired=paired, seed=seed,
-                         write_corrected_to=write_corrected_to,
-                         settings=settings or Settings(), progress=progress)  # fmt: skip
+        return _diagnose(
+            sim_root,
+            real_root,
+            source,
+            out,
+            paired=paired,
+            seed=seed,
+            write_corrected_to=write_corrected_to,
+            settings=settings or Settings(),
+            progress=progress,
+        )
 
 
 def _diagnose(
@@ -89,8 +97,13 @@ def _diagnose(
     _check_fit_data(design, sim_root, real_root)
 
     steps = ("localise", *PHASES, "localise after", "figures and report")
-    bar = tqdm(total=len(steps), desc="diagnose", unit="step", disable=not progress,
-               bar_format="{desc} (step {n_fmt}/{total_fmt}, {elapsed})")  # fmt: skip
+    bar = tqdm(
+        total=len(steps),
+        desc="diagnose",
+        unit="step",
+        disable=not progress,
+        bar_format="{desc} (step {n_fmt}/{total_fmt}, {elapsed})",
+    )
 
     started: list[str] = []
 
@@ -103,40 +116,71 @@ def _diagnose(
     with bar:
         step(steps[0])
         residual_before = _row_residual(table, design, None)
-        loc_before = localize(table, residual_before, rng=_rng(seed, "localize"),
-                              n_boot=LOCALIZE_BOOT)  # fmt: skip
+        loc_before = localize(
+            table, residual_before, rng=_rng(seed, "localize"), n_boot=LOCALIZE_BOOT
+        )
         dg = diagnose_design(design, _rng(seed, "fit"), settings, phase=step)
         step(steps[-2])
         residual_after = _row_residual(table, design, dg)
-        loc_after = localize(table, residual_after, rng=_rng(seed, "localize-after"),
-                             n_boot=LOCALIZE_BOOT)  # fmt: skip
+        loc_after = localize(
+            table, residual_after, rng=_rng(seed, "localize-after"), n_boot=LOCALIZE_BOOT
+        )
         step(steps[-1])
-        doc = _write(table, design, dg, loc_before, loc_after, out, sim_root, real_root,
-                     source, paired, seed, settings)  # fmt: skip
+        doc = _write(
+            table,
+            design,
+            dg,
+            loc_before,
+            loc_after,
+            out,
+            sim_root,
+            real_root,
+            source,
+            paired,
+            seed,
+            settings,
+        )
         bar.update(1)
     if write_corrected_to is not None:
-        write_corrected(pair, table, design, dg.final, Path(write_corrected_to), seed,
-                        sim_table=sim_table)  # fmt: skip
+        write_corrected(
+            pair, table, design, dg.final, Path(write_corrected_to), seed, sim_table=sim_table
+        )
     return doc
 
 
 def _write(
-    table: BeamTable, design: Design, dg: Diagnosis, loc_before: Any, loc_after: Any, out: Path,
-    sim_root: Path, real_root: Path, source: str, paired: bool, seed: int, settings: Settings,
-) -> dict[str, Any]:  # fmt: skip
+    table: BeamTable,
+    design: Design,
+    dg: Diagnosis,
+    loc_before: Any,
+    loc_after: Any,
+    out: Path,
+    sim_root: Path,
+    real_root: Path,
+    source: str,
+    paired: bool,
+    seed: int,
+    settings: Settings,
+) -> dict[str, Any]:
     """Figures, report.json and report.md under `out`; returns the report document."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     figs = _figures(table, design, dg, loc_before, loc_after, out)
     context = {
-        "sim_root": str(sim_root), "real_root": str(real_root), "source": source,
-        "mode": "paired" if paired else "unpaired", "seed": seed, "rows": int(len(design)),
-        "scans": len(table.scans), "sensor": dataclasses.asdict(table.sensor),
+        "sim_root": str(sim_root),
+        "real_root": str(real_root),
+        "source": source,
+        "mode": "paired" if paired else "unpaired",
+        "seed": seed,
+        "rows": int(len(design)),
+        "scans": len(table.scans),
+        "sensor": dataclasses.asdict(table.sensor),
         "settings": dataclasses.asdict(settings),
         # Every threshold the run used, and a hash to compare reports by (config.py).
-        "config": CONFIG.to_dict(), "config_sha256": CONFIG.sha256(),
+        "config": CONFIG.to_dict(),
+        "config_sha256": CONFIG.sha256(),
         "localization_after": to_json(loc_after).get("statements", []),
-    }  # fmt: skip
+    }
     doc = build_report(dg, context, to_json(loc_before), figs)
     write_report(doc, out)
     return doc
@@ -175,18 +219,19 @@ def _figures(
     written = [
         figures.residual_panels(before, after, out / "residuals.png"),
         figures.heatmaps(before, out / "heatmaps.png"),
-        figures.selection_trace([s.to_json() for s in dg.selection.trace],
-                                out / "selection_trace.png"),
-    ]  # fmt: skip
+        figures.selection_trace(
+            [s.to_json() for s in dg.selection.trace], out / "selection_trace.png"
+        ),
+    ]
     if d.paired:
         prob = np.full(len(table), np.nan)
         prob[d.rows] = dg.final.predictions(d)[2]
         written.append(figures.return_rate(table, prob, out / "return_rate.png"))
     if "by_range" in dg.noise_model.get("point_noise", {}):
-        written.append(figures.point_noise(dg.noise_model["point_noise"],
-                                           out / "point_noise.png"))  # fmt: skip
-    samples = {f"{r.effect.label}.{k}": v for r in dg.effects for k, v in r.samples.items()
-               if v.size}  # fmt: skip
+        written.append(figures.point_noise(dg.noise_model["point_noise"], out / "point_noise.png"))
+    samples = {
+        f"{r.effect.label}.{k}": v for r in dg.effects for k, v in r.samples.items() if v.size
+    }
     if samples:
         written.append(figures.bootstrap_histograms(samples, out / "bootstrap.png"))
     for r in dg.effects:

@@ -211,8 +211,9 @@ class FittedPhysicsBaseline:
         cls = point_classes(frame) if frame.label_set == self.label_set else None
         if cls is None:
             cls = np.full(frame.n_points, UNLABELLED, dtype=np.int64)
-        refl = self.law.predict(cls, image.range_m, image.cos_incidence, frame.extinction_per_m,
-                                image.elevation_deg)  # fmt: skip
+        refl = self.law.predict(
+            cls, image.range_m, image.cos_incidence, frame.extinction_per_m, image.elevation_deg
+        )
         return frame.profile.intensity.from_reflectivity(refl)
 
 
@@ -256,12 +257,14 @@ def fit_baselines(
                 class_tables[key] = Quantiles.of(values)
     label_set = frames[0].label_set
     law = fitted_physics.fit(
-        cls_all, np.concatenate([p["range"] for p in parts]),
-        np.concatenate([p["cos"] for p in parts]), refl,
+        cls_all,
+        np.concatenate([p["range"] for p in parts]),
+        np.concatenate([p["cos"] for p in parts]),
+        refl,
         floor=frames[0].profile.intensity.detection_floor,
         extinction_per_m=np.concatenate([[f.extinction_per_m] * f.n_points for f in frames]),
         elevation_deg=np.concatenate([p["elevation"] for p in parts]),
-    )  # fmt: skip
+    )
     return {
         "unchanged": Unchanged(images),
         "physics_rescaled": PhysicsRescaled(float(np.exp(np.median(log_ratio))), images),
@@ -278,10 +281,13 @@ def _reference_points(frame: EvalFrame, images: _LastImage) -> dict[str, Any]:
     refl = encoding.to_reflectivity(frame.intensity)
     physics = image.physics.astype(np.float64)
     return {
-        "refl": refl, "cls": point_classes(frame), "range": image.range_m.astype(np.float64),
-        "cos": image.cos_incidence.astype(np.float64), "elevation": image.elevation_deg,
+        "refl": refl,
+        "cls": point_classes(frame),
+        "range": image.range_m.astype(np.float64),
+        "cos": image.cos_incidence.astype(np.float64),
+        "elevation": image.elevation_deg,
         "log_ratio": np.log(refl + encoding.detection_floor) - np.log(physics + PHYSICS_FLOOR),
-    }  # fmt: skip
+    }
 
 
 @dataclass(frozen=True)
@@ -321,8 +327,9 @@ def _bound_cells(frame: EvalFrame, images: _LastImage) -> npt.NDArray[np.int64]:
     """(N,) int64 cell code of every point: class, log-range bin, incidence bin."""
     image = images(frame)
     r = np.clip(image.range_m.astype(np.float64), 1.0, BOUND_MAX_RANGE_M)
-    rb = np.minimum((np.log(r) / np.log(BOUND_MAX_RANGE_M) * BOUND_BINS).astype(np.int64),
-                    BOUND_BINS - 1)  # fmt: skip
+    rb = np.minimum(
+        (np.log(r) / np.log(BOUND_MAX_RANGE_M) * BOUND_BINS).astype(np.int64), BOUND_BINS - 1
+    )
     cb = np.minimum((image.cos_incidence * BOUND_BINS).astype(np.int64), BOUND_BINS - 1)
     cls = point_classes(frame) + 1  # UNLABELLED (-1) becomes 0
     return (cls * BOUND_BINS + rb) * BOUND_BINS + cb

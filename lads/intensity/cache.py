@@ -195,8 +195,12 @@ def read_domain_frame(domain: DomainSpec, relpath: str, *, weather_model: bool) 
         frame = stage(frame, rng_for(domain.seed, frame.item.item_id, "train", stage.name))
         extinction = float(frame.condition("extinction_per_m", 0.0))  # type: ignore[arg-type]
     keep = np.flatnonzero(np.linalg.norm(frame.xyz.astype(np.float64), axis=1) > MIN_RANGE_M)
-    frame = frame.select(keep, outcome=frame.outcome[keep], lost_rows=np.zeros(0, np.int64),
-                         points=frame.points[keep])  # fmt: skip
+    frame = frame.select(
+        keep,
+        outcome=frame.outcome[keep],
+        lost_rows=np.zeros(0, np.int64),
+        points=frame.points[keep],
+    )
     particle = None
     if weather_model and frame.labels is not None and not domain.weather:
         # Real weather recordings label their particles (WADS 110 = falling snow).
@@ -222,23 +226,40 @@ def job_image(job: CacheJob) -> tuple[FrameImage, float, str]:
         sensor = domain.sensor or "hdl64e"
         index = int(job.frame.split("-")[1])
         sf = synth_frame(
-            sensor, frames=domain.frames, seed=domain.seed, index=index,
+            sensor,
+            frames=domain.frames,
+            seed=domain.seed,
+            index=index,
             azimuth_bins=domain.azimuth_bins,
-        )  # fmt: skip
+        )
         profile = load_profile(sensor)
         fi = frame_image(
-            sf.xyz, profile, labels=sf.labels, label_set="semantickitti", ring=sf.ring,
-            intensity=sf.intensity, style=style, styles=styles,
+            sf.xyz,
+            profile,
+            labels=sf.labels,
+            label_set="semantickitti",
+            ring=sf.ring,
+            intensity=sf.intensity,
+            style=style,
+            styles=styles,
             range_exponent=job.range_exponent,
-        )  # fmt: skip
+        )
         return fi, 0.0, profile.name
     d = read_domain_frame(domain, job.frame, weather_model=styles)
     fi = frame_image(
-        d.frame.xyz, d.profile, labels=d.frame.labels, label_set=d.label_set, ring=d.ring,
-        intensity=d.frame.intensity, outcome=d.frame.outcome, particle=d.particle,
-        style=style, styles=styles, range_exponent=job.range_exponent,
+        d.frame.xyz,
+        d.profile,
+        labels=d.frame.labels,
+        label_set=d.label_set,
+        ring=d.ring,
+        intensity=d.frame.intensity,
+        outcome=d.frame.outcome,
+        particle=d.particle,
+        style=style,
+        styles=styles,
+        range_exponent=job.range_exponent,
         extinction_per_m=d.extinction_per_m,
-    )  # fmt: skip
+    )
     return fi, d.extinction_per_m, d.profile.name
 
 
@@ -250,8 +271,9 @@ def _build_one(root: str, job: CacheJob) -> str:
             f"cache: frame {job.frame} of pair {job.pair} ({job.role}): {exc}"
         ) from None
     group = zarr.open_group(Path(root) / job.node, mode="w", zarr_format=3)
-    arrays = {"inputs": fi.inputs} if fi.target is None else {"inputs": fi.inputs,
-                                                               "target": fi.target}  # fmt: skip
+    arrays = (
+        {"inputs": fi.inputs} if fi.target is None else {"inputs": fi.inputs, "target": fi.target}
+    )
     for name, values in arrays.items():
         arr = group.create_array(name, shape=values.shape, chunks=values.shape, dtype="float32")
         arr[:] = values
@@ -302,11 +324,15 @@ def read_frame(run_dir: Path, job: CacheJob) -> CachedFrame:
     # "target" and "inputs" are arrays, never subgroups: the caching worker writes them so.
     target = np.asarray(cast(zarr.Array, group["target"])[:]) if "target" in group else None
     return CachedFrame(
-        pair=job.pair, role=job.role, frame=job.frame,
-        inputs=np.asarray(cast(zarr.Array, group["inputs"])[:]), target=target,
-        labelled=bool(attrs["labelled"]), extinction_per_m=float(attrs["extinction_per_m"]),
+        pair=job.pair,
+        role=job.role,
+        frame=job.frame,
+        inputs=np.asarray(cast(zarr.Array, group["inputs"])[:]),
+        target=target,
+        labelled=bool(attrs["labelled"]),
+        extinction_per_m=float(attrs["extinction_per_m"]),
         sensor=str(attrs["sensor"]),
-    )  # fmt: skip
+    )
 
 
 def cache_fingerprint(run_dir: Path, jobs: Iterable[CacheJob]) -> str:

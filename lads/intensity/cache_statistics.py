@@ -76,8 +76,12 @@ def statistics_to_json(stats: Statistics) -> dict[str, Any]:
         key: {"sensor": t["sensor"], **{n: number_to_json(t[n]) for n in _TARGET_NUMBERS}}
         for key, t in stats.targets.items()
     }
-    return {"mean": numbers(stats.mean), "std": numbers(stats.std), "targets": targets,
-            "calibration": numbers(stats.calibration)}  # fmt: skip
+    return {
+        "mean": numbers(stats.mean),
+        "std": numbers(stats.std),
+        "targets": targets,
+        "calibration": numbers(stats.calibration),
+    }
 
 
 def statistics_from_json(raw: Any, where: str) -> Statistics:
@@ -189,8 +193,9 @@ class _MedianHistogram:
             return float("nan")
         cumulative = np.cumsum(self.counts)
         low_rank, high_rank = (total - 1) // 2, total // 2
-        return 0.5 * (self._rank_value(cumulative, low_rank)
-                      + self._rank_value(cumulative, high_rank))  # fmt: skip
+        return 0.5 * (
+            self._rank_value(cumulative, low_rank) + self._rank_value(cumulative, high_rank)
+        )
 
     def _rank_value(self, cumulative: npt.NDArray[np.int64], rank: int) -> float:
         """Value of the 0-based `rank`-th sample, its bin's samples taken as evenly spread

@@ -180,9 +180,15 @@ def build_generator(meta: ModelMeta) -> Generator | PointGenerator:
             f"{meta.name}: generator architecture {meta.architecture!r} is not one this lads "
             "knows (unet, pointwise); update lads or retrain the model."
         )
-    return make_generator(meta.architecture, meta.channels, NORMALISED_CHANNELS, size=meta.base,
-                          depth=meta.blocks, materials=len(meta.materials),
-                          material_dims=meta.material_dims)  # fmt: skip
+    return make_generator(
+        meta.architecture,
+        meta.channels,
+        NORMALISED_CHANNELS,
+        size=meta.base,
+        depth=meta.blocks,
+        materials=len(meta.materials),
+        material_dims=meta.material_dims,
+    )
 
 
 def stats_hash(generator: Generator | PointGenerator) -> str:

@@ -21,9 +21,14 @@ from lads.intensity.train_config import (
 
 
 def evaluate_pair(
-    cfg: TrainConfig, pair: PairSpec, model_path: str, out_dir: Path, *, split: str = "test",
+    cfg: TrainConfig,
+    pair: PairSpec,
+    model_path: str,
+    out_dir: Path,
+    *,
+    split: str = "test",
     figures: bool = True,
-) -> dict[str, Any]:  # fmt: skip
+) -> dict[str, Any]:
     """Evaluation of one pair on the target's `split` frames ("test", or "validation" while
     choosing): the generator against every baseline fitted on the target's train split, and
     the in-sample bound; writes the report and figures under out_dir/<pair>/ and returns
@@ -54,20 +59,30 @@ def evaluate_pair(
 
     def generator(frame: Any) -> np.ndarray:
         return predict_points(
-            model, frame.xyz, frame.profile, target=pair.key, labels=frame.labels,
-            label_set=frame.label_set, ring=frame.ring, particle=frame.particle,
-            extinction_per_m=frame.extinction_per_m, where=frame.name,
-        ).encoded  # fmt: skip
+            model,
+            frame.xyz,
+            frame.profile,
+            target=pair.key,
+            labels=frame.labels,
+            label_set=frame.label_set,
+            ring=frame.ring,
+            particle=frame.particle,
+            extinction_per_m=frame.extinction_per_m,
+            where=frame.name,
+        ).encoded
 
     methods["generator"] = generator
     result = evaluate(heldout, methods)
     folder = out_dir / pair.key
     context = {
-        "model": model_path, "config": cfg.name, "pair": pair.key, "split": split,
-        "frames": names, "reference_frames": len(reference),
-    }  # fmt: skip
-    write_report(result, folder, title=f"{cfg.name} / {pair.key}: {split} split",
-                 context=context)  # fmt: skip
+        "model": model_path,
+        "config": cfg.name,
+        "pair": pair.key,
+        "split": split,
+        "frames": names,
+        "reference_frames": len(reference),
+    }
+    write_report(result, folder, title=f"{cfg.name} / {pair.key}: {split} split", context=context)
     if figures:
         first = heldout[0]
         preds = {name: result.predictions[first.name][name] for name in ("unchanged", "generator")}
@@ -84,21 +99,34 @@ _DATA_ROOT_HELP = (
 
 @click.command("train")
 @click.argument("config")
-@click.option("--data-root", type=click.Path(file_okay=False, path_type=Path),
-              help=_DATA_ROOT_HELP)  # fmt: skip
-@click.option("--run-dir", type=click.Path(file_okay=False, path_type=Path),
-              help="Run folder (cache, checkpoints, loss.png, weights); "
-                   "default runs/<name>.")  # fmt: skip
-@click.option("--output", type=click.Path(dir_okay=False, path_type=Path),
-              help="Weight file to write; default <run folder>/<name>.pt.")  # fmt: skip
-@click.option("--device", type=click.Choice(["cpu", "cuda"]), default=None,
-              help="Default: cuda when present, else cpu.")  # fmt: skip
+@click.option("--data-root", type=click.Path(file_okay=False, path_type=Path), help=_DATA_ROOT_HELP)
+@click.option(
+    "--run-dir",
+    type=click.Path(file_okay=False, path_type=Path),
+    help="Run folder (cache, checkpoints, loss.png, weights); default runs/<name>.",
+)
+@click.option(
+    "--output",
+    type=click.Path(dir_okay=False, path_type=Path),
+    help="Weight file to write; default <run folder>/<name>.pt.",
+)
+@click.option(
+    "--device",
+    type=click.Choice(["cpu", "cuda"]),
+    default=None,
+    help="Default: cuda when present, else cpu.",
+)
 @click.option("--steps", type=int, help="Override the number of steps.")
 @click.option("--jobs", type=int, help="Parallel jobs for the range-image cache.")
 def train_command(
-    config: str, data_root: Path | None, run_dir: Path | None, output: Path | None,
-    device: str | None, steps: int | None, jobs: int | None,
-) -> None:  # fmt: skip
+    config: str,
+    data_root: Path | None,
+    run_dir: Path | None,
+    output: Path | None,
+    device: str | None,
+    steps: int | None,
+    jobs: int | None,
+) -> None:
     """Train an intensity generator from a config: a shipped name (synth-to-kitti,
     synth-to-nuscenes, weather) or a YAML path."""
     from dataclasses import replace
@@ -121,22 +149,36 @@ def train_command(
 
 @click.command("eval-intensity")
 @click.argument("config")
-@click.option("--data-root", type=click.Path(file_okay=False, path_type=Path),
-              help=_DATA_ROOT_HELP)  # fmt: skip
-@click.option("--model", "model_path",
-              help="Weights to evaluate: a .pt path or a shipped name (default: the shipped "
-                   "model of the config's name, else the config's output).")  # fmt: skip
-@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path),
-              default=Path("eval-intensity"), show_default=True)  # fmt: skip
-@click.option("--split", type=click.Choice(["test", "validation"]), default="test",
-              show_default=True,
-              help="Which frames to score: test (report once per model) or validation "
-                   "(choose with it).")  # fmt: skip
+@click.option("--data-root", type=click.Path(file_okay=False, path_type=Path), help=_DATA_ROOT_HELP)
+@click.option(
+    "--model",
+    "model_path",
+    help="Weights to evaluate: a .pt path or a shipped name (default: the shipped "
+    "model of the config's name, else the config's output).",
+)
+@click.option(
+    "--out",
+    "out_dir",
+    type=click.Path(file_okay=False, path_type=Path),
+    default=Path("eval-intensity"),
+    show_default=True,
+)
+@click.option(
+    "--split",
+    type=click.Choice(["test", "validation"]),
+    default="test",
+    show_default=True,
+    help="Which frames to score: test (report once per model) or validation (choose with it).",
+)
 @click.option("--no-figures", is_flag=True)
 def eval_intensity_command(
-    config: str, data_root: Path | None, model_path: str | None, out_dir: Path, split: str,
+    config: str,
+    data_root: Path | None,
+    model_path: str | None,
+    out_dir: Path,
+    split: str,
     no_figures: bool,
-) -> None:  # fmt: skip
+) -> None:
     """Score a generator on the config's test (or validation) frames against the baselines
     fitted on its train frames."""
     from lads.intensity.checkpoint import SHIPPED
@@ -150,7 +192,8 @@ def eval_intensity_command(
         if not role_split(pair.target, split, f"pairs.{pair.key}.target"):
             click.echo(f"{pair.key}: no {split} split in the config; skipped.")
             continue
-        results[pair.key] = evaluate_pair(cfg, pair, path, out_dir, split=split,
-                                          figures=not no_figures)  # fmt: skip
+        results[pair.key] = evaluate_pair(
+            cfg, pair, path, out_dir, split=split, figures=not no_figures
+        )
     atomic_write(out_dir / "eval.json", json.dumps(results, indent=2, sort_keys=True).encode())
     click.echo(f"wrote {out_dir}/eval.json and per-pair reports")

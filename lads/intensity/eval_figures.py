@@ -71,8 +71,9 @@ def range_panels(frame: EvalFrame, predictions: Mapping[str, npt.ArrayLike], out
     pooled = np.concatenate([g[owned] for g in grids.values()])
     # The 99.5th percentile, not the maximum, so a few retro-reflector returns do not
     # squeeze everything else into the bottom of the scale.
-    vmax = max(float(np.percentile(pooled, 99.5)) if pooled.size else 0.0,
-               frame.profile.intensity.step)  # fmt: skip
+    vmax = max(
+        float(np.percentile(pooled, 99.5)) if pooled.size else 0.0, frame.profile.intensity.step
+    )
 
     # About one screen pixel per azimuth column, so nearest-neighbour drawing drops none.
     width_in = max(PANEL_WIDTH_IN, image.index.shape[1] / DPI / AXES_WIDTH_FRACTION)
@@ -187,8 +188,9 @@ def histograms(
     fig.suptitle(title or "intensity histograms: real vs methods", fontsize=10)
     # Fixed margins: tight_layout would cost a second measuring log-axis tick labels.
     height = fig.get_figheight()
-    fig.subplots_adjust(left=0.07, right=0.98, top=1 - 0.75 / height, bottom=0.5 / height,
-                        hspace=0.55, wspace=0.28)  # fmt: skip
+    fig.subplots_adjust(
+        left=0.07, right=0.98, top=1 - 0.75 / height, bottom=0.5 / height, hspace=0.55, wspace=0.28
+    )
     _save(fig, out)
     return out
 
@@ -196,8 +198,11 @@ def histograms(
 def _with_unchanged(
     frame: EvalFrame, predictions: Mapping[str, npt.ArrayLike]
 ) -> dict[str, npt.NDArray[np.float32]]:
-    shown = {UNCHANGED: np.asarray(predictions[UNCHANGED]) if UNCHANGED in predictions
-             else unchanged_intensity(frame)}  # fmt: skip
+    shown = {
+        UNCHANGED: np.asarray(predictions[UNCHANGED])
+        if UNCHANGED in predictions
+        else unchanged_intensity(frame)
+    }
     shown.update({k: np.asarray(v) for k, v in predictions.items() if k != UNCHANGED})
     for name, values in shown.items():
         if values.shape != (frame.n_points,):

@@ -34,6 +34,6 @@ def frames_of(frames: list[tuple[str, DomainSpec, str]], kind: str) -> list[Any]
                 ring=d.ring,
                 particle=d.particle,
                 extinction_per_m=d.extinction_per_m,
-            )  # fmt: skip
+            )
         )
     return out

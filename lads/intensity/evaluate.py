@@ -152,18 +152,24 @@ class EvalFrame:
 def retro_classes(label_set: str) -> frozenset[int]:
     """Class ids of `label_set` whose material is retro-reflective sheeting (materials.yaml)."""
     return frozenset(
-        cid for cid, (_, material) in class_materials(label_set).items()
+        cid
+        for cid, (_, material) in class_materials(label_set).items()
         if material == RETRO_MATERIAL
-    )  # fmt: skip
+    )
 
 
 def physics_image(frame: EvalFrame, range_exponent: float = 1.0) -> FrameImage:
     """`lads.intensity.features.frame_image` of a frame (per-point I_P, cos, rho, range)."""
     return frame_image(
-        frame.xyz, frame.profile, labels=frame.labels, label_set=frame.label_set,
-        ring=frame.ring, particle=frame.particle, range_exponent=range_exponent,
+        frame.xyz,
+        frame.profile,
+        labels=frame.labels,
+        label_set=frame.label_set,
+        ring=frame.ring,
+        particle=frame.particle,
+        range_exponent=range_exponent,
         extinction_per_m=frame.extinction_per_m,
-    )  # fmt: skip
+    )
 
 
 def unchanged_intensity(frame: EvalFrame, image: FrameImage | None = None) -> FloatArray:
@@ -288,9 +294,12 @@ def evaluate(
     counts = np.bincount(pooled_ctx.cls, minlength=len(names))
     summary = summarise(pooled, subject)
     summary["targets"] = targets.check(
-        pooled, {n: int(c) for n, c in zip(names, counts, strict=True)},
-        frames[0].profile.name, subject=subject, bound_prefix=BOUND_PREFIX,
-    )  # fmt: skip
+        pooled,
+        {n: int(c) for n, c in zip(names, counts, strict=True)},
+        frames[0].profile.name,
+        subject=subject,
+        bound_prefix=BOUND_PREFIX,
+    )
     return EvalResult(
         methods=tuple(methods),
         frame_names=tuple(f.name for f in frames),

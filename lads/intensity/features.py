@@ -206,7 +206,7 @@ def frame_image(
                 extinction_per_m=extinction_per_m,
             ).astype(np.float64)
             + GEOMETRY_FLOOR
-        ),  # fmt: skip
+        ),
         "elevation": np.asarray(profile.elevation_deg, dtype=np.float64)[chan]
         / ELEVATION_SCALE_DEG,
         "mask": np.ones(n, dtype=np.float32),

@@ -98,9 +98,13 @@ class FittedPhysics:
     laser_curves: tuple[tuple[float, ...], ...] = ()
 
     def ln_predict(
-        self, group: npt.ArrayLike, range_m: npt.ArrayLike, cos_theta: npt.ArrayLike,
-        extinction_per_m: float = 0.0, elevation_deg: npt.ArrayLike | None = None,
-    ) -> npt.NDArray[np.float64]:  # fmt: skip
+        self,
+        group: npt.ArrayLike,
+        range_m: npt.ArrayLike,
+        cos_theta: npt.ArrayLike,
+        extinction_per_m: float = 0.0,
+        elevation_deg: npt.ArrayLike | None = None,
+    ) -> npt.NDArray[np.float64]:
         """(N,) predicted ln(I + floor) of points of the given groups, ranges, cosines and
         (optional) beam elevations in degrees."""
         r = np.clip(np.asarray(range_m, dtype=np.float64), self.range_min_m, self.range_max_m)
@@ -141,9 +145,13 @@ class FittedPhysics:
         return np.where(known, table[np.where(known, group - low, 0)], self.pooled_intercept)
 
     def predict(
-        self, group: Any, range_m: Any, cos_theta: Any, extinction_per_m: float = 0.0,
+        self,
+        group: Any,
+        range_m: Any,
+        cos_theta: Any,
+        extinction_per_m: float = 0.0,
         elevation_deg: Any = None,
-    ) -> npt.NDArray[np.float64]:  # fmt: skip
+    ) -> npt.NDArray[np.float64]:
         """(N,) predicted reflectivity (>= 0)."""
         ln = self.ln_predict(group, range_m, cos_theta, extinction_per_m, elevation_deg)
         return np.maximum(np.exp(ln) - self.floor, 0.0)
@@ -154,25 +162,37 @@ class FittedPhysics:
         lasers = raw.get("lasers") or {}
         return cls(
             intercepts={int(k): float(v) for k, v in raw["intercepts"].items()},
-            pooled_intercept=float(raw["pooled_intercept"]), b1=float(raw["b1_ln_range"]),
-            b2=float(raw["b2_per_10m"]), sigma_rad=float(raw["sigma_rad"]),
-            floor=float(raw["floor"]), range_min_m=float(raw["range_min_m"]),
+            pooled_intercept=float(raw["pooled_intercept"]),
+            b1=float(raw["b1_ln_range"]),
+            b2=float(raw["b2_per_10m"]),
+            sigma_rad=float(raw["sigma_rad"]),
+            floor=float(raw["floor"]),
+            range_min_m=float(raw["range_min_m"]),
             range_max_m=float(raw["range_max_m"]),
             laser_elevation_deg=tuple(float(v) for v in lasers.get("elevation_deg", ())),
             laser_knots_ln=tuple(float(v) for v in lasers.get("knots_ln_m", ())),
             laser_curves=tuple(tuple(float(v) for v in row) for row in lasers.get("curves", ())),
-        )  # fmt: skip
+        )
 
     def to_json(self) -> dict[str, Any]:
-        out = {"b1_ln_range": self.b1, "b2_per_10m": self.b2, "sigma_rad": self.sigma_rad,
-               "pooled_intercept": self.pooled_intercept, "floor": self.floor,
-               "range_min_m": self.range_min_m, "range_max_m": self.range_max_m,
-               "intercepts": {str(k): v for k, v in sorted(self.intercepts.items())},
-               "mae_log_train": self.mae_log, "points": self.points}  # fmt: skip
+        out = {
+            "b1_ln_range": self.b1,
+            "b2_per_10m": self.b2,
+            "sigma_rad": self.sigma_rad,
+            "pooled_intercept": self.pooled_intercept,
+            "floor": self.floor,
+            "range_min_m": self.range_min_m,
+            "range_max_m": self.range_max_m,
+            "intercepts": {str(k): v for k, v in sorted(self.intercepts.items())},
+            "mae_log_train": self.mae_log,
+            "points": self.points,
+        }
         if self.laser_curves:
-            out["lasers"] = {"elevation_deg": list(self.laser_elevation_deg),
-                             "knots_ln_m": list(self.laser_knots_ln),
-                             "curves": [list(row) for row in self.laser_curves]}  # fmt: skip
+            out["lasers"] = {
+                "elevation_deg": list(self.laser_elevation_deg),
+                "knots_ln_m": list(self.laser_knots_ln),
+                "curves": [list(row) for row in self.laser_curves],
+            }
         return out
 
 
@@ -203,10 +223,15 @@ def hat_basis(
 
 
 def fit(
-    group: npt.ArrayLike, range_m: npt.ArrayLike, cos_theta: npt.ArrayLike,
-    reflectivity: npt.ArrayLike, *, floor: float, extinction_per_m: npt.ArrayLike | float = 0.0,
+    group: npt.ArrayLike,
+    range_m: npt.ArrayLike,
+    cos_theta: npt.ArrayLike,
+    reflectivity: npt.ArrayLike,
+    *,
+    floor: float,
+    extinction_per_m: npt.ArrayLike | float = 0.0,
     elevation_deg: npt.ArrayLike | None = None,
-) -> FittedPhysics:  # fmt: skip
+) -> FittedPhysics:
     """Fit the law to (N,) training points: group ids, ranges (m), cosines, reflectivity,
     and optionally each point's beam elevation in degrees (then per-laser curves are fitted;
     one laser per distinct elevation).
@@ -236,8 +261,9 @@ def fit(
     member = (column < len(kept)) & (kept[np.minimum(column, len(kept) - 1)] == g)
     # Columns: one intercept per kept group, the pooled intercept of rare groups, ln R, R/10.
     n, p = len(y), len(kept) + 3
-    cols = np.concatenate([np.where(member, column, len(kept)), np.full(n, p - 2),
-                           np.full(n, p - 1)])  # fmt: skip
+    cols = np.concatenate(
+        [np.where(member, column, len(kept)), np.full(n, p - 2), np.full(n, p - 1)]
+    )
     values = np.concatenate([np.ones(n), np.log(r), r / 10.0])
     design = sparse.csr_matrix((values, (np.tile(np.arange(n), 3), cols)), shape=(n, p))
     best = None
@@ -253,18 +279,27 @@ def fit(
     pooled = float(beta[len(kept)]) if (~member).any() else float(np.median(beta[: len(kept)]))
     return FittedPhysics(
         intercepts={int(k): float(v) for k, v in zip(kept, beta[: len(kept)], strict=True)},
-        pooled_intercept=pooled, b1=float(beta[len(kept) + 1]), b2=float(beta[len(kept) + 2]),
-        sigma_rad=float(sigma), floor=float(floor), range_min_m=float(r.min()),
-        range_max_m=float(r.max()), mae_log=float(loss), points=len(y),
+        pooled_intercept=pooled,
+        b1=float(beta[len(kept) + 1]),
+        b2=float(beta[len(kept) + 2]),
+        sigma_rad=float(sigma),
+        floor=float(floor),
+        range_min_m=float(r.min()),
+        range_max_m=float(r.max()),
+        mae_log=float(loss),
+        points=len(y),
         counts={int(k): int(n) for k, n in zip(keys, counts, strict=True)},
         **({} if lasers is None else lasers["law"]),
-    )  # fmt: skip
+    )
 
 
 def _fit_lasers(
-    design: sparse.csr_matrix, y: npt.NDArray[np.float64], r: npt.NDArray[np.float64],
-    elevation: npt.NDArray[np.float64] | None, start: npt.NDArray[np.float64],
-) -> dict[str, Any] | None:  # fmt: skip
+    design: sparse.csr_matrix,
+    y: npt.NDArray[np.float64],
+    r: npt.NDArray[np.float64],
+    elevation: npt.NDArray[np.float64] | None,
+    start: npt.NDArray[np.float64],
+) -> dict[str, Any] | None:
     """The shared parameters and the per-laser curves in one sparse LAD fit (None without
     elevations or without a laser of MIN_LASER_POINTS points)."""
     if elevation is None:
@@ -280,24 +315,32 @@ def _fit_lasers(
     rows = np.repeat(np.arange(n), 2)
     laser_x = sparse.csr_matrix(
         (basis.ravel(), (rows, (laser[:, None] * k + cols).ravel())), shape=(n, len(table) * k)
-    )  # fmt: skip
+    )
     x = sparse.hstack([design, laser_x], format="csr")
     # A laser with too few points is held at the shared law by an overwhelming ridge.
     strength = np.where(np.repeat(counts, k) >= MIN_LASER_POINTS, 1.0, 1e6) * LASER_PRIOR_POINTS
-    beta, loss = _lad(x, y, start=np.r_[start, np.zeros(len(table) * k)],
-                      ridge_points=np.r_[np.zeros(p), strength])  # fmt: skip
+    beta, loss = _lad(
+        x,
+        y,
+        start=np.r_[start, np.zeros(len(table) * k)],
+        ridge_points=np.r_[np.zeros(p), strength],
+    )
     curves = beta[p:].reshape(len(table), k)
-    law = {"laser_elevation_deg": tuple(float(v) for v in table),
-           "laser_knots_ln": tuple(float(v) for v in knots),
-           "laser_curves": tuple(tuple(float(v) for v in row) for row in curves)}  # fmt: skip
+    law = {
+        "laser_elevation_deg": tuple(float(v) for v in table),
+        "laser_knots_ln": tuple(float(v) for v in knots),
+        "laser_curves": tuple(tuple(float(v) for v in row) for row in curves),
+    }
     return {"beta": beta[:p], "loss": loss, "law": law}
 
 
 def _lad(
-    x: sparse.csr_matrix, y: npt.NDArray[np.float64], *,
+    x: sparse.csr_matrix,
+    y: npt.NDArray[np.float64],
+    *,
     start: npt.NDArray[np.float64] | None = None,
     ridge_points: npt.NDArray[np.float64] | None = None,
-) -> tuple[npt.NDArray[np.float64], float]:  # fmt: skip
+) -> tuple[npt.NDArray[np.float64], float]:
     """Least-absolute-deviation fit by IRLS on a sparse design: (coefficients, mean
     |residual|). Each step solves the weighted normal equations, plus a ridge of
     `ridge_points` x the mean weight on each coefficient (0: none), from `start` if given."""

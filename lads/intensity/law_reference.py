@@ -38,8 +38,10 @@ def fit_law(frames: Iterable[CachedFrame], floor: float) -> fitted_physics.Fitte
         if f.target is None:
             continue
         names = channel_names(f.inputs.shape[0] != len(channel_names(False)))
-        x = {n: f.inputs[names.index(n)] for n in ("mask", "ln_range", "cos_incidence",
-                                                    "material", "elevation")}  # fmt: skip
+        x = {
+            n: f.inputs[names.index(n)]
+            for n in ("mask", "ln_range", "cos_incidence", "material", "elevation")
+        }
         occ = x["mask"] > 0
         parts["mat"].append(np.rint(x["material"][occ]).astype(np.int64) - 1)
         parts["r"].append(np.exp(x["ln_range"][occ].astype(np.float64)))
@@ -48,9 +50,15 @@ def fit_law(frames: Iterable[CachedFrame], floor: float) -> fitted_physics.Fitte
         parts["alpha"].append(np.full(int(occ.sum()), f.extinction_per_m))
         parts["elev"].append(x["elevation"][occ].astype(np.float64) * ELEVATION_SCALE_DEG)
     cat = {k: np.concatenate(v) for k, v in parts.items()}
-    return fitted_physics.fit(cat["mat"], cat["r"], cat["cos"], cat["refl"], floor=floor,
-                              extinction_per_m=cat["alpha"],
-                              elevation_deg=cat["elev"])  # fmt: skip
+    return fitted_physics.fit(
+        cat["mat"],
+        cat["r"],
+        cat["cos"],
+        cat["refl"],
+        floor=floor,
+        extinction_per_m=cat["alpha"],
+        elevation_deg=cat["elev"],
+    )
 
 
 @dataclass
@@ -71,13 +79,15 @@ class TorchLaw:
     def ln_reference(self, raw: torch.Tensor, extinction: torch.Tensor) -> torch.Tensor:
         x = raw.detach().to("cpu", torch.float64).numpy()
         b, _, h, w = x.shape
-        alpha = np.broadcast_to(extinction.detach().cpu().double().numpy()[:, None, None],
-                                (b, h, w))  # fmt: skip
+        alpha = np.broadcast_to(
+            extinction.detach().cpu().double().numpy()[:, None, None], (b, h, w)
+        )
         pick = {n: x[:, i].ravel() for n, i in self.index.items()}
         # No material (0 in the channel, -1 here) takes the pooled intercept, as in numpy.
         material = np.rint(pick["material"]).astype(np.int64) - 1
         r = np.clip(np.exp(pick["ln_range"]), self.law.range_min_m, self.law.range_max_m)
-        ln = self.law.ln_predict(material, r, pick["cos_incidence"], 0.0,
-                                 pick["elevation"] * ELEVATION_SCALE_DEG)  # fmt: skip
+        ln = self.law.ln_predict(
+            material, r, pick["cos_incidence"], 0.0, pick["elevation"] * ELEVATION_SCALE_DEG
+        )
         ln = ln - 2.0 * alpha.ravel() * r
         return torch.from_numpy(ln.reshape(b, 1, h, w)).to(raw.device, raw.dtype)

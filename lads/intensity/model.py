@@ -152,8 +152,9 @@ class Generator(nn.Module):
         return out[..., m : m + w]
 
     def _with_materials(self, x: torch.Tensor, raw: torch.Tensor) -> torch.Tensor:
-        return with_materials(x, raw, self.material_embedding.weight, self.material_channel,
-                              self.kept)  # fmt: skip
+        return with_materials(
+            x, raw, self.material_embedding.weight, self.material_channel, self.kept
+        )
 
 
 # The channels a pointwise generator reads (styles too, when present). The others (I_P,
@@ -198,8 +199,9 @@ class PointGenerator(nn.Module):
         super().__init__()
         self.channels = tuple(channels)
         self.norm = Normaliser(self.channels, normalised)
-        picked = [i for i, name in enumerate(self.channels)
-                  if name in POINT_INPUTS or name in STYLES]  # fmt: skip
+        picked = [
+            i for i, name in enumerate(self.channels) if name in POINT_INPUTS or name in STYLES
+        ]
         self.register_buffer("picked", torch.tensor(picked, dtype=torch.long), persistent=False)
         self.material_channel = self.channels.index("material") if materials else -1
         c = len(picked) + 1  # the law's z as one more input
@@ -232,8 +234,9 @@ class PointGenerator(nn.Module):
         """
         x = self._inputs(raw, mask, law)
         flat = x.reshape(-1, x.shape[-1])
-        out = torch.cat([self._mlp(flat[i : i + INFER_CHUNK])
-                         for i in range(0, flat.shape[0], INFER_CHUNK)])  # fmt: skip
+        out = torch.cat(
+            [self._mlp(flat[i : i + INFER_CHUNK]) for i in range(0, flat.shape[0], INFER_CHUNK)]
+        )
         return out.reshape(*x.shape[:-1], 1).permute(0, 3, 1, 2)
 
     def _inputs(
@@ -303,13 +306,31 @@ def count_parameters(module: nn.Module) -> int:
 
 
 def make_generator(
-    architecture: str, channels: Sequence[str], normalised: Sequence[str], *, size: int,
-    depth: int, materials: int, material_dims: int,
-) -> Generator | PointGenerator:  # fmt: skip
+    architecture: str,
+    channels: Sequence[str],
+    normalised: Sequence[str],
+    *,
+    size: int,
+    depth: int,
+    materials: int,
+    material_dims: int,
+) -> Generator | PointGenerator:
     """An untrained generator: "pointwise" (size = hidden width, depth = hidden layers) or
     "unet" (size = base width, depth = residual blocks). The caller checks the name."""
     if architecture == "pointwise":
-        return PointGenerator(channels, normalised, width=size, layers=depth,
-                              materials=materials, material_dims=material_dims)  # fmt: skip
-    return Generator(channels, normalised, base=size, blocks=depth, materials=materials,
-                     material_dims=material_dims)  # fmt: skip
+        return PointGenerator(
+            channels,
+            normalised,
+            width=size,
+            layers=depth,
+            materials=materials,
+            material_dims=material_dims,
+        )
+    return Generator(
+        channels,
+        normalised,
+        base=size,
+        blocks=depth,
+        materials=materials,
+        material_dims=material_dims,
+    )

@@ -51,8 +51,10 @@ def _domain_line(role: str, spec: Any) -> str:
         extra = f"; physics weather first: {d.weather}" if d.weather else ""
         split = "; ".join(f"{k}: {', '.join(v)}" for k, v in d.split.items()) or "all frames train"
         name = f"{role} ({tag})" if tag else role
-        lines.append(f"- {name}: `{d.dataset}` ({where}){extra}; split by place: {split}. "
-                     f"Terms: {TERMS.get(d.dataset)}.")  # fmt: skip
+        lines.append(
+            f"- {name}: `{d.dataset}` ({where}){extra}; split by place: {split}. "
+            f"Terms: {TERMS.get(d.dataset)}."
+        )
     return "\n".join(lines)
 
 
@@ -62,10 +64,13 @@ def _metrics_table(results: dict[str, Any]) -> list[str]:
         pooled = res.get("pooled", {})
         frames = res["context"]["frames"]
         shown = ", ".join(frames[:6]) + (f" and {len(frames) - 6} more" if len(frames) > 6 else "")
-        lines += [f"### {key}, {res['context']['split']} split ({shown})", "",
-                  "| method | MAE (encoded) | MAE (reflectivity) | Pearson r | Spearman | "
-                  "cell W1 (refl.) | cell KS | retro contrast pred / real |",
-                  "|---|---|---|---|---|---|---|---|"]  # fmt: skip
+        lines += [
+            f"### {key}, {res['context']['split']} split ({shown})",
+            "",
+            "| method | MAE (encoded) | MAE (reflectivity) | Pearson r | Spearman | "
+            "cell W1 (refl.) | cell KS | retro contrast pred / real |",
+            "|---|---|---|---|---|---|---|---|",
+        ]
         for method, m in pooled.items():
             lines.append(
                 f"| {method} | {_f(m.get('mae_encoded'))} | {_f(m.get('mae_reflectivity'))} | "
@@ -80,11 +85,14 @@ def _metrics_table(results: dict[str, Any]) -> list[str]:
                 won = [b for b, ok in table.items() if ok]
                 lost = [b for b, ok in table.items() if not ok]
                 if not lost:
-                    lines.append(f"- {metric}: the generator beats every baseline "
-                                 f"({', '.join(won)}).")  # fmt: skip
+                    lines.append(
+                        f"- {metric}: the generator beats every baseline ({', '.join(won)})."
+                    )
                 else:
-                    lines.append(f"- {metric}: the generator beats {', '.join(won) or 'none'}; "
-                                 f"does not beat {', '.join(lost)}.")  # fmt: skip
+                    lines.append(
+                        f"- {metric}: the generator beats {', '.join(won) or 'none'}; "
+                        f"does not beat {', '.join(lost)}."
+                    )
         rows = res.get("summary", {}).get("targets", [])
         if rows:
             lines += ["", "Targets (`lads.intensity.targets`):", "", *targets.lines(rows)]
@@ -93,8 +101,10 @@ def _metrics_table(results: dict[str, Any]) -> list[str]:
 
 
 def _shares(shares: dict[str, float]) -> str:
-    return ", ".join(f"{k} {v:.0%}" for k, v in sorted(shares.items(), key=lambda kv: -kv[1])
-                     if v > 0) or "not recorded"  # fmt: skip
+    return (
+        ", ".join(f"{k} {v:.0%}" for k, v in sorted(shares.items(), key=lambda kv: -kv[1]) if v > 0)
+        or "not recorded"
+    )
 
 
 def _decay(cfg: TrainConfig) -> str:
@@ -111,8 +121,10 @@ def render_card(cfg: TrainConfig, weights: Path, results: dict[str, Any]) -> str
     model = load_model(weights)
     training = model.meta.training
     lines = [
-        f"# Intensity model `{cfg.name}`", "",
-        cfg.description, "",
+        f"# Intensity model `{cfg.name}`",
+        "",
+        cfg.description,
+        "",
         f"- file: `{weights.name}`, {weights.stat().st_size / 1e6:.2f} MB, "
         f"sha256 `{sha256_file(weights)}`",
         f"- kind: {cfg.kind}; targets: {', '.join(sorted(model.meta.targets))}; "
@@ -128,8 +140,10 @@ def render_card(cfg: TrainConfig, weights: Path, results: dict[str, Any]) -> str
         f"- loss composition (share of the generator loss, last 100 steps before that "
         f"checkpoint): {_shares(training.get('loss_shares', {}))}; supervised = identity "
         "(labelled real targets), the rest unpaired",
-        "", "## Training data", "",
-    ]  # fmt: skip
+        "",
+        "## Training data",
+        "",
+    ]
     for pair in cfg.pairs:
         lines.append(f"**{pair.key}**")
         lines.append(_domain_line("source", pair.source))
@@ -137,19 +151,23 @@ def render_card(cfg: TrainConfig, weights: Path, results: dict[str, Any]) -> str
         lines.append("")
     lines += [
         "The weights derive from non-commercial data where a target above is non-commercial: "
-        "use them under the same terms.", "",
-    ]  # fmt: skip
+        "use them under the same terms.",
+        "",
+    ]
     if cfg.kind == "weather":
         lines += [NO_RAIN, ""]
-    lines += ["## Test metrics", "",
-              "Paired: each test frame's geometry and labels are the input; the prediction "
-              "is compared with the real intensity of the same points. Cell metrics: "
-              "Wasserstein-1 and KS per class x range bin x incidence bin, weighted by count. "
-              "Baselines are fitted on the train split only; `bound_in_sample` is fitted on "
-              "the test points themselves (an upper bound for per-point features, not a "
-              "method). The test frames were scored once, after training, and chose nothing. "
-              "Produced by `python -m lads.intensity.model_card` (`lads eval-intensity`).",
-              ""]  # fmt: skip
+    lines += [
+        "## Test metrics",
+        "",
+        "Paired: each test frame's geometry and labels are the input; the prediction "
+        "is compared with the real intensity of the same points. Cell metrics: "
+        "Wasserstein-1 and KS per class x range bin x incidence bin, weighted by count. "
+        "Baselines are fitted on the train split only; `bound_in_sample` is fitted on "
+        "the test points themselves (an upper bound for per-point features, not a "
+        "method). The test frames were scored once, after training, and chose nothing. "
+        "Produced by `python -m lads.intensity.model_card` (`lads eval-intensity`).",
+        "",
+    ]
     if results:
         lines += _metrics_table(results)
     else:
@@ -163,14 +181,25 @@ def main(argv: list[str] | None = None) -> int:
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("configs", nargs="+", help="shipped config names or YAML paths")
-    parser.add_argument("--weights-dir", type=Path, default=None,
-                        help="folder of <name>.pt (default: each config's output)")  # fmt: skip
-    parser.add_argument("--docs", type=Path, default=Path("docs/intensity"),
-                        help="where the held-out figures go (<docs>/<name>/)")  # fmt: skip
+    parser.add_argument(
+        "--weights-dir",
+        type=Path,
+        default=None,
+        help="folder of <name>.pt (default: each config's output)",
+    )
+    parser.add_argument(
+        "--docs",
+        type=Path,
+        default=Path("docs/intensity"),
+        help="where the held-out figures go (<docs>/<name>/)",
+    )
     parser.add_argument("--data-root", type=Path, default=None)
-    parser.add_argument("--reuse-eval", action="store_true",
-                        help="render from <docs>/<name>/eval.json instead of scoring the test "
-                             "frames again (same weights)")  # fmt: skip
+    parser.add_argument(
+        "--reuse-eval",
+        action="store_true",
+        help="render from <docs>/<name>/eval.json instead of scoring the test "
+        "frames again (same weights)",
+    )
     args = parser.parse_args(argv)
     for name in args.configs:
         cfg = load_train_config(name, data_root=args.data_root)

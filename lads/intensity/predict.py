@@ -120,8 +120,9 @@ def law_points(
     """(N,) the target's fitted law, ln(I + f), at every point of the frame (its material,
     range, incidence and beam elevation)."""
     law = FittedPhysics.from_json(spec.law)  # type: ignore[arg-type]
-    return law.ln_predict(fi.material, fi.range_m, fi.cos_incidence, extinction_per_m,
-                          fi.elevation_deg)  # fmt: skip
+    return law.ln_predict(
+        fi.material, fi.range_m, fi.cos_incidence, extinction_per_m, fi.elevation_deg
+    )
 
 
 @dataclass(frozen=True, slots=True)
@@ -191,8 +192,19 @@ def predict_points(
         InvalidPointsError: bad points, or a frame that is clearly not a scan of `profile`
             (`lads.sensors.conformity.check_scan_of`).
     """
-    req = PointRequest(xyz, profile, output_profile, target, labels, label_set, ring, outcome,
-                       particle, extinction_per_m, where)  # fmt: skip
+    req = PointRequest(
+        xyz,
+        profile,
+        output_profile,
+        target,
+        labels,
+        label_set,
+        ring,
+        outcome,
+        particle,
+        extinction_per_m,
+        where,
+    )
     return predict_points_batch(model, [req], device=device)[0]
 
 
@@ -232,11 +244,18 @@ def _prepare(model: IntensityModel, req: PointRequest) -> _Prepared:
             )
         shift = cal[out_profile.name] - cal[spec.sensor]
     fi = frame_image(
-        xyz_arr, req.profile, labels=req.labels, label_set=req.label_set, ring=req.ring,
-        outcome=req.outcome, particle=req.particle, style=key if weather else None,
-        styles=weather, range_exponent=model.meta.range_exponent,
+        xyz_arr,
+        req.profile,
+        labels=req.labels,
+        label_set=req.label_set,
+        ring=req.ring,
+        outcome=req.outcome,
+        particle=req.particle,
+        style=key if weather else None,
+        styles=weather,
+        range_exponent=model.meta.range_exponent,
         extinction_per_m=req.extinction_per_m,
-    )  # fmt: skip
+    )
     return _Prepared(fi, spec, out_profile, shift, req.extinction_per_m)
 
 

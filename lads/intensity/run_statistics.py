@@ -56,8 +56,10 @@ class PairFacts:
 
     def mean_alpha(self) -> dict[str, float]:
         """Per pair key, mean extinction of its source frames (1/m); NaN without any."""
-        return {k: s / n if (n := self._alpha_count[k]) else float("nan")
-                for k, s in self._alpha_sum.items()}  # fmt: skip
+        return {
+            k: s / n if (n := self._alpha_count[k]) else float("nan")
+            for k, s in self._alpha_sum.items()
+        }
 
 
 @dataclass(frozen=True, slots=True)
@@ -77,8 +79,11 @@ class RunStatistics:
     def to_json(self) -> dict[str, Any]:
         """Strict-JSON data that `from_json` reads back exactly (NaN included)."""
         alpha = {k: number_to_json(v) for k, v in self.mean_alpha.items()}
-        return {"statistics": statistics_to_json(self.stats), "labelled": self.labelled,
-                "mean_alpha": alpha}  # fmt: skip
+        return {
+            "statistics": statistics_to_json(self.stats),
+            "labelled": self.labelled,
+            "mean_alpha": alpha,
+        }
 
     @classmethod
     def from_json(cls, raw: Any, where: str, pairs: tuple[PairSpec, ...]) -> RunStatistics:
@@ -102,8 +107,10 @@ class RunStatistics:
                 f"{exc}); delete it and it is recomputed from the cache."
             ) from None
         if list(stats.targets) != keys:
-            raise TrainingError(f"{where}: statistics of pairs {list(stats.targets)}, "
-                                f"expected {keys}; delete it to recompute.")  # fmt: skip
+            raise TrainingError(
+                f"{where}: statistics of pairs {list(stats.targets)}, "
+                f"expected {keys}; delete it to recompute."
+            )
         return cls(stats, dict(labelled), mean_alpha)
 
 
@@ -196,8 +203,7 @@ def _stored_statistics(path: Path, key: str, pairs: tuple[PairSpec, ...]) -> Run
 def _floors(stats: Statistics) -> dict[str, float | str]:
     """Detection floor (reflectivity units) of every sensor the statistics saw, as JSON.
     Raises SensorProfileError for a sensor without a profile."""
-    return {s: number_to_json(load_profile(s).intensity.detection_floor)
-            for s in stats.calibration}  # fmt: skip
+    return {s: number_to_json(load_profile(s).intensity.detection_floor) for s in stats.calibration}
 
 
 def _content_digest(content: Any) -> str:

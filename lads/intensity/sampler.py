@@ -77,9 +77,12 @@ class Sampler:
         mask = torch.from_numpy(np.stack(masks))
         z = torch.from_numpy(np.stack(zs)).float() * mask if zs else None
         return Batch(
-            torch.from_numpy(np.stack(raws)), mask, z, labelled,
+            torch.from_numpy(np.stack(raws)),
+            mask,
+            z,
+            labelled,
             torch.tensor(ext, dtype=torch.float32),
-        )  # fmt: skip
+        )
 
     def points(self, pair: str, count: int, z_stats: tuple[float, float, float]) -> Batch:
         """`count` occupied target pixels drawn at random from all of the pair's target
@@ -104,10 +107,13 @@ class Sampler:
         z = torch.from_numpy(np.concatenate(zs)[None, None, :, None]).float()
         extinction = np.concatenate(ext)
         if np.ptp(extinction) > 0:
-            raise TrainingError(f"pair {pair}: target frames of different extinction; the "
-                                "pointwise identity batch needs one per pair.")  # fmt: skip
-        return Batch(raw, torch.ones_like(z), z, labelled,
-                     torch.tensor(extinction[:1], dtype=torch.float32))  # fmt: skip
+            raise TrainingError(
+                f"pair {pair}: target frames of different extinction; the "
+                "pointwise identity batch needs one per pair."
+            )
+        return Batch(
+            raw, torch.ones_like(z), z, labelled, torch.tensor(extinction[:1], dtype=torch.float32)
+        )
 
     def _occupied(self, node: str, flat: npt.NDArray[np.float32]) -> npt.NDArray[np.int64]:
         if node not in self._occupied_pixels:

@@ -49,10 +49,17 @@ def score(model: IntensityModel, frames: dict[str, list[Any]]) -> dict[str, Any]
 
         def generator(frame: Any, key: str = key) -> Any:
             return predict_points(
-                model, frame.xyz, frame.profile, target=key, labels=frame.labels,
-                label_set=frame.label_set, ring=frame.ring, particle=frame.particle,
-                extinction_per_m=frame.extinction_per_m, where=frame.name,
-            ).encoded  # fmt: skip
+                model,
+                frame.xyz,
+                frame.profile,
+                target=key,
+                labels=frame.labels,
+                label_set=frame.label_set,
+                ring=frame.ring,
+                particle=frame.particle,
+                extinction_per_m=frame.extinction_per_m,
+                where=frame.name,
+            ).encoded
 
         pooled = evaluate(heldout, {"generator": generator}).pooled["generator"]
         per_pair[key] = {m: float(pooled[m]) for m in CRITERION}

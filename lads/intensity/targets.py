@@ -59,8 +59,11 @@ def check(
     rows.append(_row("mae_vs_median", mine["mae_reflectivity"], limit, "<="))
     law = pooled.get(LAW_BASELINE, {}).get("mae_reflectivity")
     rows.append(_row("mae_vs_fitted_law", mine["mae_reflectivity"], law, "<"))
-    others = [row["cell_w1_reflectivity"] for name, row in pooled.items()
-              if name != subject and not name.startswith(bound_prefix)]  # fmt: skip
+    others = [
+        row["cell_w1_reflectivity"]
+        for name, row in pooled.items()
+        if name != subject and not name.startswith(bound_prefix)
+    ]
     finite = [v for v in others if v is not None and math.isfinite(v)]
     rows.append(_row("cell_w1", mine["cell_w1_reflectivity"], min(finite, default=None), "<"))
     if encoding in MIN_SPEARMAN:
@@ -75,8 +78,13 @@ def check(
 
 
 def _row(target: str, value: Any, threshold: Any, relation: str) -> dict[str, Any]:
-    return {"target": target, "value": value, "relation": relation, "threshold": threshold,
-            "met": _met(value, threshold, relation)}  # fmt: skip
+    return {
+        "target": target,
+        "value": value,
+        "relation": relation,
+        "threshold": threshold,
+        "met": _met(value, threshold, relation),
+    }
 
 
 def _met(value: Any, threshold: Any, relation: str) -> bool:
@@ -96,8 +104,13 @@ def lines(rows: list[dict[str, Any]]) -> list[str]:
     out = []
     for row in rows:
         threshold = row["threshold"]
-        shown = (f"[{threshold[0]:.4g}, {threshold[1]:.4g}]" if isinstance(threshold, list)
-                 else "–" if threshold is None else f"{threshold:.4g}")  # fmt: skip
+        shown = (
+            f"[{threshold[0]:.4g}, {threshold[1]:.4g}]"
+            if isinstance(threshold, list)
+            else "–"
+            if threshold is None
+            else f"{threshold:.4g}"
+        )
         value = row["value"]
         text = "–" if value is None or not math.isfinite(value) else f"{value:.4g}"
         verdict = "met" if row["met"] else "MISSED"

@@ -118,24 +118,35 @@ def train(
     targets = {k: (v["log_mean"], v["log_std"], v["floor"]) for k, v in stats.targets.items()}
     log_k = {k: v["log_k"] for k, v in stats.targets.items()}
     nets.use_laws(torch_laws, targets, cfg.residual)
-    record = {"laws": {k: law.to_json() for k, law in laws.items()}, "jobs": len(jobs),
-              "data_hash": cfg.data_hash()}  # fmt: skip
+    record = {
+        "laws": {k: law.to_json() for k, law in laws.items()},
+        "jobs": len(jobs),
+        "data_hash": cfg.data_hash(),
+    }
     validation = validation_frames(cfg)
     selector = Selector(run, config_id, resumed=start > 0)
     end = cfg.steps if max_steps is None else min(cfg.steps, max_steps)
     if start == 0 and cfg.residual:
         # The untrained residual generator outputs 0, i.e. the fitted law alone: training
         # must beat it on validation to be chosen.
-        _offer(nets, selector, _meta(cfg, stats, channels, record, history, 0), validation, 0,
-               device)  # fmt: skip
-    bar = tqdm(range(start, end), initial=start, total=cfg.steps, desc=f"train {cfg.name}",
-               unit="step", disable=not progress)  # fmt: skip
+        _offer(
+            nets, selector, _meta(cfg, stats, channels, record, history, 0), validation, 0, device
+        )
+    bar = tqdm(
+        range(start, end),
+        initial=start,
+        total=cfg.steps,
+        desc=f"train {cfg.name}",
+        unit="step",
+        disable=not progress,
+    )
     for step in bar:
         for opt in (opt_g, opt_d):
             for group in opt.param_groups:
                 group["lr"] = learning_rate(cfg, step)
-        losses = _step(nets, cfg, sampler, targets, torch_laws, log_k, mean_alpha, opt_g, opt_d,
-                       device)  # fmt: skip
+        losses = _step(
+            nets, cfg, sampler, targets, torch_laws, log_k, mean_alpha, opt_g, opt_d, device
+        )
         if not all(math.isfinite(v) for v in losses.values()):
             raise TrainingError(
                 f"{cfg.name}: loss became NaN/inf at step {step} ({losses}); lower lr in the "
@@ -150,8 +161,11 @@ def train(
             meta = _meta(cfg, stats, channels, record, history, done)
             _offer(nets, selector, meta, validation, done, device)
     atomic_write(run / "history.json", json.dumps(history).encode())
-    summary: dict[str, Any] = {"run_dir": str(run), "steps_done": len(history),
-                               "selection": selector.record.get("best")}  # fmt: skip
+    summary: dict[str, Any] = {
+        "run_dir": str(run),
+        "steps_done": len(history),
+        "selection": selector.record.get("best"),
+    }
     if len(history) < cfg.steps:
         return summary
     weights = cfg.output_path(run)
@@ -179,9 +193,13 @@ def learning_rate(cfg: TrainConfig, step: int) -> float:
 
 
 def _offer(
-    nets: Nets, selector: Selector, meta: ModelMeta, validation: dict[str, list[Any]], step: int,
+    nets: Nets,
+    selector: Selector,
+    meta: ModelMeta,
+    validation: dict[str, list[Any]],
+    step: int,
     device: str,
-) -> None:  # fmt: skip
+) -> None:
     """Score the generator as it is at `step` on the validation frames and offer it."""
     nets.g.cpu().eval()
     scores = score(IntensityModel(meta, nets.g, f"{meta.name} step {step}"), validation)
@@ -190,33 +208,57 @@ def _offer(
 
 
 def _meta(
-    cfg: TrainConfig, stats: Statistics, channels: tuple[str, ...], record: dict[str, Any],
-    history: list[dict[str, float]], step: int,
-) -> ModelMeta:  # fmt: skip
+    cfg: TrainConfig,
+    stats: Statistics,
+    channels: tuple[str, ...],
+    record: dict[str, Any],
+    history: list[dict[str, float]],
+    step: int,
+) -> ModelMeta:
     """The metadata of the generator at `step`."""
     return ModelMeta(
-        name=cfg.name, kind=cfg.kind, channels=channels, feature_version=FEATURE_VERSION,
+        name=cfg.name,
+        kind=cfg.kind,
+        channels=channels,
+        feature_version=FEATURE_VERSION,
         range_exponent=cfg.range_exponent,
-        base=cfg.generator_size[0], blocks=cfg.generator_size[1],
-        targets={k: TargetSpec(**v, law=record["laws"][k] if cfg.residual else None)
-                 for k, v in stats.targets.items()},
-        calibration=stats.calibration, materials=material_names(), material_dims=MATERIAL_DIMS,
+        base=cfg.generator_size[0],
+        blocks=cfg.generator_size[1],
+        targets={
+            k: TargetSpec(**v, law=record["laws"][k] if cfg.residual else None)
+            for k, v in stats.targets.items()
+        },
+        calibration=stats.calibration,
+        materials=material_names(),
+        material_dims=MATERIAL_DIMS,
         architecture=cfg.architecture,
-        training={"config": cfg.to_dict(), "steps": step, "seed": cfg.seed,
-                  "final_losses": history[step - 1] if history else {},
-                  "loss_shares": _loss_shares(cfg, history[max(0, step - 100):step]),
-                  "physics_reference": record["laws"], "cache_frames": record["jobs"],
-                  "data_hash": record["data_hash"]},
-    )  # fmt: skip
+        training={
+            "config": cfg.to_dict(),
+            "steps": step,
+            "seed": cfg.seed,
+            "final_losses": history[step - 1] if history else {},
+            "loss_shares": _loss_shares(cfg, history[max(0, step - 100) : step]),
+            "physics_reference": record["laws"],
+            "cache_frames": record["jobs"],
+            "data_hash": record["data_hash"],
+        },
+    )
 
 
 def _loss_shares(cfg: TrainConfig, recent: list[dict[str, float]]) -> dict[str, float]:
     """Each weighted generator term's share of the generator loss over `recent` steps."""
     w = cfg.losses
-    weights = {"adversarial": w.adversarial, "cycle": w.cycle, "physics": w.physics,
-               "identity": w.identity, "style": w.style}  # fmt: skip
-    parts = {k: weights[k] * float(np.mean([h.get(k, 0.0) for h in recent])) if recent else 0.0
-             for k in weights}  # fmt: skip
+    weights = {
+        "adversarial": w.adversarial,
+        "cycle": w.cycle,
+        "physics": w.physics,
+        "identity": w.identity,
+        "style": w.style,
+    }
+    parts = {
+        k: weights[k] * float(np.mean([h.get(k, 0.0) for h in recent])) if recent else 0.0
+        for k in weights
+    }
     total = sum(parts.values())
     return {k: v / total for k, v in parts.items()} if total > 0 else parts
 
@@ -257,8 +299,9 @@ def _step(
         inv_t = nets.pick(t.raw, nets.inv_channels, z_intensity=t.z)
         rho_t = MAX_REFLECTANCE * torch.sigmoid(nets.inv(inv_t, t.mask)) * t.mask
         ds_fake = nets.pick(t.raw, nets.ds_channels, reflectance=rho_t)
-        l_adv = l_adv + masked_mse_to(nets.d_s(ds_fake, t.mask), 1.0,
-                                      Discriminator.patch_mask(t.mask))  # fmt: skip
+        l_adv = l_adv + masked_mse_to(
+            nets.d_s(ds_fake, t.mask), 1.0, Discriminator.patch_mask(t.mask)
+        )
 
         inv_s = nets.pick(s.raw, nets.inv_channels, z_intensity=fake)
         rho_s = MAX_REFLECTANCE * torch.sigmoid(nets.inv(inv_s, s.mask))
@@ -268,8 +311,7 @@ def _step(
         rebuilt[:, ch.index("reflectance")] = rho_t[:, 0]
         rebuilt[:, ch.index("ln_physics")] = torch.log(rho_t * geometry + PHYSICS_FLOOR)[:, 0]
         rebuilt = rebuilt * t.mask
-        l_cyc = l_cyc + masked_l1(nets.translate(rebuilt, t.mask, key, t.extinction), t.z,
-                                  t.mask)  # fmt: skip
+        l_cyc = l_cyc + masked_l1(nets.translate(rebuilt, t.mask, key, t.extinction), t.z, t.mask)
 
         l_id = torch.zeros((), device=device)
         if t.labelled:
@@ -278,19 +320,33 @@ def _step(
                 ti = _to(sampler.points(key, cfg.identity_points, targets[key]), device)
             if ti.z is None:
                 raise TrainingError(f"pair {key}: target frames carry no intensity.")
-            l_id = balanced_l1(nets.translate(ti.raw, ti.mask, key, ti.extinction), ti.z, ti.mask,
-                               ti.raw[:, ch.index("material")][:, None],
-                               w.identity_balance)  # fmt: skip
+            l_id = balanced_l1(
+                nets.translate(ti.raw, ti.mask, key, ti.extinction),
+                ti.z,
+                ti.mask,
+                ti.raw[:, ch.index("material")][:, None],
+                w.identity_balance,
+            )
 
         l_style = torch.zeros((), device=device)
         if cfg.kind == "weather" and len(cfg.pairs) > 1:
             other = next(p.key for p in cfg.pairs if p.key != key)
             l_style = _style_term(nets, s, fake, key, other, targets, log_k, mean_alpha)
 
-        g_total = g_total + (w.adversarial * l_adv + w.cycle * l_cyc + w.physics * l_phy
-                             + w.identity * l_id + w.style * l_style)  # fmt: skip
-        for name, value in (("adversarial", l_adv), ("cycle", l_cyc), ("physics", l_phy),
-                            ("identity", l_id), ("style", l_style)):  # fmt: skip
+        g_total = g_total + (
+            w.adversarial * l_adv
+            + w.cycle * l_cyc
+            + w.physics * l_phy
+            + w.identity * l_id
+            + w.style * l_style
+        )
+        for name, value in (
+            ("adversarial", l_adv),
+            ("cycle", l_cyc),
+            ("physics", l_phy),
+            ("identity", l_id),
+            ("style", l_style),
+        ):
             parts[name] += float(value.detach())
         d_terms.append((key, s, t, fake.detach(), rho_t.detach()))
 
@@ -359,6 +415,10 @@ def _style_term(
 def _to(batch: Batch, device: str) -> Batch:
     if device == "cpu":
         return batch
-    return Batch(batch.raw.to(device), batch.mask.to(device),
-                 None if batch.z is None else batch.z.to(device), batch.labelled,
-                 batch.extinction.to(device))  # fmt: skip
+    return Batch(
+        batch.raw.to(device),
+        batch.mask.to(device),
+        None if batch.z is None else batch.z.to(device),
+        batch.labelled,
+        batch.extinction.to(device),
+    )

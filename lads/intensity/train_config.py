@@ -291,10 +291,13 @@ def resolve_roots(cfg: TrainConfig, data_root: Path | None, where: str) -> Train
         return replace(domain, data_root=str(data_root.expanduser().resolve()))
 
     pairs = tuple(
-        replace(p, source=fix(p.source, f"pairs.{p.key}.source"),
-                target=fix(p.target, f"pairs.{p.key}.target"))
+        replace(
+            p,
+            source=fix(p.source, f"pairs.{p.key}.source"),
+            target=fix(p.target, f"pairs.{p.key}.target"),
+        )
         for p in cfg.pairs
-    )  # fmt: skip
+    )
     return replace(cfg, pairs=pairs)
 
 
@@ -320,8 +323,13 @@ def parse_train_config(raw: Any, where: str) -> TrainConfig:
             raise ConfigError(f"{ctx}: weather pairs are keyed by style, one of {STYLES}.")
         if not isinstance(entry, dict) or set(entry) != {"source", "target"}:
             raise ConfigError(f"{ctx}: expected exactly the keys 'source' and 'target'.")
-        pairs.append(PairSpec(str(key), _domain(entry["source"], f"{ctx}.source"),
-                              _domain(entry["target"], f"{ctx}.target")))  # fmt: skip
+        pairs.append(
+            PairSpec(
+                str(key),
+                _domain(entry["source"], f"{ctx}.source"),
+                _domain(entry["target"], f"{ctx}.target"),
+            )
+        )
     if kind == "sensor" and len(pairs) != 1:
         raise ConfigError(f"{where}: a sensor model has exactly one pair, got {len(pairs)}.")
     losses_raw = raw.get("losses", {}) or {}
@@ -334,8 +342,17 @@ def parse_train_config(raw: Any, where: str) -> TrainConfig:
         cfg = TrainConfig(pairs=tuple(pairs), losses=losses, **scalars)
     except TypeError as exc:
         raise ConfigError(f"{where}: {exc}") from None
-    for name in ("steps", "batch", "crop_width", "base", "blocks", "checkpoint_every", "workers",
-                 "point_width", "point_layers"):  # fmt: skip
+    for name in (
+        "steps",
+        "batch",
+        "crop_width",
+        "base",
+        "blocks",
+        "checkpoint_every",
+        "workers",
+        "point_width",
+        "point_layers",
+    ):
         value = getattr(cfg, name)
         if not isinstance(value, int) or value < 1:
             raise ConfigError(f"{where}: {name} = {value!r}; expected a positive integer.")

@@ -28,15 +28,22 @@ class Nets(torch.nn.Module):
         styles = STYLES if weather else ()
         size, depth = cfg.generator_size
         self.g = make_generator(
-            cfg.architecture, self.channels, NORMALISED_CHANNELS, size=size, depth=depth,
-            materials=len(material_names()), material_dims=MATERIAL_DIMS,
-        )  # fmt: skip
+            cfg.architecture,
+            self.channels,
+            NORMALISED_CHANNELS,
+            size=size,
+            depth=depth,
+            materials=len(material_names()),
+            material_dims=MATERIAL_DIMS,
+        )
         self.inv_channels = GEOMETRY + ("particle",) + styles + ("z_intensity",)
-        self.inv = Generator(self.inv_channels, ("ln_range", "cos_incidence"),
-                             base=cfg.base, blocks=cfg.blocks)  # fmt: skip
+        self.inv = Generator(
+            self.inv_channels, ("ln_range", "cos_incidence"), base=cfg.base, blocks=cfg.blocks
+        )
         self.ds_channels = GEOMETRY + styles + ("reflectance",)
-        self.d_s = Discriminator(self.ds_channels, ("ln_range", "cos_incidence", "reflectance"),
-                                 cfg.disc_base)  # fmt: skip
+        self.d_s = Discriminator(
+            self.ds_channels, ("ln_range", "cos_incidence", "reflectance"), cfg.disc_base
+        )
         self.dt_channels: dict[str, tuple[str, ...]] = {}
         self.d_t = torch.nn.ModuleDict()
         for pair in cfg.pairs:
@@ -48,9 +55,11 @@ class Nets(torch.nn.Module):
             )
 
     def use_laws(
-        self, laws: dict[str, TorchLaw], zstats: dict[str, tuple[float, float, float]],
+        self,
+        laws: dict[str, TorchLaw],
+        zstats: dict[str, tuple[float, float, float]],
         residual: bool,
-    ) -> None:  # fmt: skip
+    ) -> None:
         """The fitted law of each target, and whether G predicts a correction to it."""
         self.laws, self.zstats, self.residual = laws, zstats, residual
 
@@ -69,8 +78,9 @@ class Nets(torch.nn.Module):
         self, raw: torch.Tensor, names: tuple[str, ...], **extra: torch.Tensor
     ) -> torch.Tensor:
         """Stack the named channels: from `raw` by name, or given as (B, 1, H, W) tensors."""
-        planes = [extra[n] if n in extra else raw[:, self.channels.index(n)][:, None]
-                  for n in names]  # fmt: skip
+        planes = [
+            extra[n] if n in extra else raw[:, self.channels.index(n)][:, None] for n in names
+        ]
         return torch.cat(planes, 1)
 
 

@@ -16,8 +16,16 @@ from lads.files import atomic_write, atomic_write_figure
 from lads.intensity.train_nets import Nets
 
 
-def save_checkpoint(path: Path, config_id: str, step: int, nets: Nets, opt_g: Any, opt_d: Any,
-                rng: np.random.Generator, history: list[dict[str, float]]) -> None:  # fmt: skip
+def save_checkpoint(
+    path: Path,
+    config_id: str,
+    step: int,
+    nets: Nets,
+    opt_g: Any,
+    opt_d: Any,
+    rng: np.random.Generator,
+    history: list[dict[str, float]],
+) -> None:
     """Everything a killed run needs to go on bit for bit, written atomically."""
     blob = {
         "config": config_id,
@@ -34,8 +42,9 @@ def save_checkpoint(path: Path, config_id: str, step: int, nets: Nets, opt_g: An
     atomic_write(path, buffer.getvalue())
 
 
-def resume(path: Path, config_id: str, nets: Nets, opt_g: Any, opt_d: Any,
-            rng: np.random.Generator) -> tuple[int, list[dict[str, float]]]:  # fmt: skip
+def resume(
+    path: Path, config_id: str, nets: Nets, opt_g: Any, opt_d: Any, rng: np.random.Generator
+) -> tuple[int, list[dict[str, float]]]:
     """Load a checkpoint into the run's objects; (step reached, loss history).
 
     Raises:

@@ -139,9 +139,17 @@ def assemble(
     """
     none = np.full(outcome.size, Outcome.LOST, dtype=np.uint8)  # no second returns
     source, out, xyz, intensity = survivors(
-        beams.xyz, beams.range_m, beams.intensity, *sensor.intensity.compiled, outcome, range_m,
-        reflectivity, none, range_m, reflectivity,
-    )  # fmt: skip
+        beams.xyz,
+        beams.range_m,
+        beams.intensity,
+        *sensor.intensity.compiled,
+        outcome,
+        range_m,
+        reflectivity,
+        none,
+        range_m,
+        reflectivity,
+    )
     return WeatherResult(
         xyz=xyz,
         intensity=intensity,
@@ -172,9 +180,17 @@ def assemble_dual(
     codes1, range1_m, refl1 = first
     codes2, range2_m, refl2 = second
     source, outcome, xyz, intensity = survivors(
-        beams.xyz, beams.range_m, beams.intensity, *sensor.intensity.compiled, codes1, range1_m,
-        refl1, codes2, range2_m, refl2,
-    )  # fmt: skip
+        beams.xyz,
+        beams.range_m,
+        beams.intensity,
+        *sensor.intensity.compiled,
+        codes1,
+        range1_m,
+        refl1,
+        codes2,
+        range2_m,
+        refl2,
+    )
     return WeatherResult(
         xyz=xyz,
         intensity=intensity,

@@ -189,9 +189,15 @@ def _draw_survivals(
     """
     z, z_weather = _z_scores(effective, two_way_ln, rule.threshold, rule.spread_ln)
     q, state = survival_screen(
-        z, z_weather, active, _phi_table(), PHI_TABLE_START, PHI_STEPS_PER_UNIT, CERTAIN_Z,
+        z,
+        z_weather,
+        active,
+        _phi_table(),
+        PHI_TABLE_START,
+        PHI_STEPS_PER_UNIT,
+        CERTAIN_Z,
         SCREEN_TOLERANCE,
-    )  # fmt: skip
+    )
     exact = np.flatnonzero(state == EXACT)
     if exact.size:
         q[exact] = _survival_ratio(z[exact], z_weather[exact])

@@ -293,17 +293,23 @@ def simulate_fog(
         raise ConfigError(f"fog mode = {mode!r}; expected one of {MODES}.")
     alpha = extinction_from_visibility(visibility_m)
     detection = resolve_detection(
-        params.detection_threshold, sensor.detection.power, sensor.detection.spread_ln,
+        params.detection_threshold,
+        sensor.detection.power,
+        sensor.detection.spread_ln,
         auto_threshold(beams),
-    )  # fmt: skip
+    )
     p_min = detection.threshold
     n = beams.range_m.size
     if alpha == 0.0 or n == 0:
         return assemble(
-            beams, sensor, outcome=np.full(n, Outcome.KEPT, dtype=np.uint8),
-            range_m=np.zeros(n), reflectivity=np.zeros(n), extinction_per_m=alpha,
+            beams,
+            sensor,
+            outcome=np.full(n, Outcome.KEPT, dtype=np.uint8),
+            range_m=np.zeros(n),
+            reflectivity=np.zeros(n),
+            extinction_per_m=alpha,
             detection_threshold=p_min,
-        )  # fmt: skip
+        )
     beta = backscatter_from_visibility(visibility_m, params)
     idx = np.flatnonzero(beams.active)
     r0, rho = beams.range_m[idx], beams.reflectivity[idx]
@@ -318,10 +324,15 @@ def simulate_fog(
         raise ConfigError("simulate_fog: FogParams.overlap_start_m unresolved.")
     length = params.pulse_length_m
     p_fog, reported, kappa = echo_lookup(
-        r0, table.target_range_m, table.peak_unit, table.peak_range_m,
-        table.relative_curvature_per_m2, np.pi * beta, r1,
+        r0,
+        table.target_range_m,
+        table.peak_unit,
+        table.peak_range_m,
+        table.relative_curvature_per_m2,
+        np.pi * beta,
+        r1,
         0.5 * length if params.report_pulse_centre else 0.0,
-    )  # fmt: skip
+    )
     fog_ok = detection.faint_detected(p_fog, rng)
     choice, counts = fog_choices(
         MODE_CODES[mode], target_ok, fog_ok, p_target, p_fog, r0, reported, length
@@ -329,15 +340,37 @@ def simulate_fog(
     noise = rng.standard_normal(int(counts[0]) + int(counts[1]))
     # Second echoes draw after the first returns' normals (none drawn where there are none).
     noise_second = rng.standard_normal(int(counts[2])) if counts[2] else np.zeros(0)
-    constants = np.array([
-        0.5 * sensor.range_accuracy_m**2 * p_min, p_min, 2.0 * np.pi**2 / length**2,
-        sensor.range_accuracy_m, 0.5 * length, MIN_OUTPUT_RANGE_M,
-    ])  # fmt: skip
+    constants = np.array(
+        [
+            0.5 * sensor.range_accuracy_m**2 * p_min,
+            p_min,
+            2.0 * np.pi**2 / length**2,
+            sensor.range_accuracy_m,
+            0.5 * length,
+            MIN_OUTPUT_RANGE_M,
+        ]
+    )
     codes1, range1, refl1, codes2, range2, refl2 = fog_returns(
-        n, idx, choice, r0, rho, t2, p_target, detection.effective_power(rho / r0**2), p_fog,
-        reported, kappa, noise, noise_second, constants,
-    )  # fmt: skip
+        n,
+        idx,
+        choice,
+        r0,
+        rho,
+        t2,
+        p_target,
+        detection.effective_power(rho / r0**2),
+        p_fog,
+        reported,
+        kappa,
+        noise,
+        noise_second,
+        constants,
+    )
     return assemble_dual(
-        beams, sensor, first=(codes1, range1, refl1), second=(codes2, range2, refl2),
-        extinction_per_m=alpha, detection_threshold=p_min,
-    )  # fmt: skip
+        beams,
+        sensor,
+        first=(codes1, range1, refl1),
+        second=(codes2, range2, refl2),
+        extinction_per_m=alpha,
+        detection_threshold=p_min,
+    )

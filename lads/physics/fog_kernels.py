@@ -155,9 +155,13 @@ def fog_returns(
     noise_second: npt.NDArray[np.float64],
     constants: npt.NDArray[np.float64],
 ) -> tuple[
-    npt.NDArray[np.uint8], npt.NDArray[np.float64], npt.NDArray[np.float64],
-    npt.NDArray[np.uint8], npt.NDArray[np.float64], npt.NDArray[np.float64],
-]:  # fmt: skip
+    npt.NDArray[np.uint8],
+    npt.NDArray[np.float64],
+    npt.NDArray[np.float64],
+    npt.NDArray[np.uint8],
+    npt.NDArray[np.float64],
+    npt.NDArray[np.float64],
+]:
     """First and second returns of every beam (n,) from the choices of `fog_choices`.
 
     A returned target: range max(r0 + sqrt(max(c (1/P_w - 1/P_clear), 0)) e, min_range),
@@ -202,8 +206,9 @@ def fog_returns(
         if c & (ECHO_FIRST | ECHO_SECOND):
             kappa = kappa_per_m2[a]
             snr = p_fog[a] / p_min
-            timing = range_accuracy_m / math.sqrt(2.0 * snr) * min(kappa_pulse / kappa,
-                                                                   KAPPA_RATIO_CAP)  # fmt: skip
+            timing = (
+                range_accuracy_m / math.sqrt(2.0 * snr) * min(kappa_pulse / kappa, KAPPA_RATIO_CAP)
+            )
             sigma = min(timing, 1.0 / math.sqrt(kappa))
             e = noise[k_echo] if c & ECHO_FIRST else noise_second[k_second]
             e_range = min(max(reported_m[a] + sigma * e, min_range_m), r0_m[a] + half_pulse_m)

@@ -244,9 +244,13 @@ def dual_particle_returns(
     last_power: npt.NDArray[np.float64],
     has_last: npt.NDArray[np.bool_],
 ) -> tuple[
-    npt.NDArray[np.uint8], npt.NDArray[np.float64], npt.NDArray[np.float64],
-    npt.NDArray[np.uint8], npt.NDArray[np.float64], npt.NDArray[np.float64],
-]:  # fmt: skip
+    npt.NDArray[np.uint8],
+    npt.NDArray[np.float64],
+    npt.NDArray[np.float64],
+    npt.NDArray[np.uint8],
+    npt.NDArray[np.float64],
+    npt.NDArray[np.float64],
+]:
     """First and second returns (n,) of a dual-return rain or snow frame
     (`lads.physics.particles._dual`: the rule is stated there).
 

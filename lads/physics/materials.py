@@ -165,8 +165,14 @@ def class_roles(label_set: str) -> ClassRoles:
         )
 
     road_like = frozenset(int(c) for c in np.flatnonzero(lset.ground))
-    return ClassRoles(finished("clearcoat"), finished("retroreflective"), road_like,
-                      road_like | lset.flat, lset.moving, lset.ego)  # fmt: skip
+    return ClassRoles(
+        finished("clearcoat"),
+        finished("retroreflective"),
+        road_like,
+        road_like | lset.flat,
+        lset.moving,
+        lset.ego,
+    )
 
 
 def class_ids(labels: npt.ArrayLike, label_set: str) -> npt.NDArray[np.int64]:

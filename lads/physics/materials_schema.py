@@ -86,17 +86,20 @@ def _material(name: str, spec: Any, where: str) -> Material:
     if not isinstance(spec, dict):
         raise ConfigError(f"{where}: materials.{name} must be a mapping.")
     _require_keys(
-        spec, {"reflectance", "source"}, f"{where}: materials.{name}",
+        spec,
+        {"reflectance", "source"},
+        f"{where}: materials.{name}",
         optional=frozenset({"texture_depth_mm", "finish"}),
-    )  # fmt: skip
+    )
     finish = spec.get("finish")
     if finish is not None and finish not in FINISHES:
         raise ConfigError(
             f"{where}: materials.{name}.finish = {finish!r}; expected one of {list(FINISHES)}."
         )
     depth = spec.get("texture_depth_mm")
-    if depth is not None and (isinstance(depth, bool) or not isinstance(depth, int | float)
-                              or not depth > 0):  # fmt: skip
+    if depth is not None and (
+        isinstance(depth, bool) or not isinstance(depth, int | float) or not depth > 0
+    ):
         raise ConfigError(f"{where}: materials.{name}.texture_depth_mm must be a number > 0.")
     rho = spec["reflectance"]
     if isinstance(rho, bool) or not isinstance(rho, int | float):
@@ -109,9 +112,12 @@ def _material(name: str, spec: Any, where: str) -> Material:
     if not isinstance(spec["source"], str) or not spec["source"].strip():
         raise ConfigError(f"{where}: materials.{name}.source must cite where {rho} comes from.")
     return Material(
-        str(name), float(rho), spec["source"].strip(), None if depth is None else float(depth),
+        str(name),
+        float(rho),
+        spec["source"].strip(),
+        None if depth is None else float(depth),
         finish,
-    )  # fmt: skip
+    )
 
 
 def _label_set(
@@ -165,8 +171,18 @@ def _label_set(
         material_of[class_id] = order[material]
     for table in (lookup, known, material_of, ground):
         table.flags.writeable = False
-    return LabelSet(name, bool(spec["instance_bits"]), classes, lookup, known, material_of,
-                     ground, frozenset(flats), frozenset(movers), frozenset(egos))  # fmt: skip
+    return LabelSet(
+        name,
+        bool(spec["instance_bits"]),
+        classes,
+        lookup,
+        known,
+        material_of,
+        ground,
+        frozenset(flats),
+        frozenset(movers),
+        frozenset(egos),
+    )
 
 
 def _classes(raw: Any, ctx: str) -> tuple[dict[int, tuple[str, str]], dict[str, set[int]]]:
@@ -184,9 +200,11 @@ def _classes(raw: Any, ctx: str) -> tuple[dict[int, tuple[str, str]], dict[str, 
         if not isinstance(entry, dict):
             raise ConfigError(f"{ctx}.classes.{class_id} must be a mapping.")
         _require_keys(
-            entry, {"name", "material"}, f"{ctx}.classes.{class_id}",
+            entry,
+            {"name", "material"},
+            f"{ctx}.classes.{class_id}",
             optional=frozenset(CLASS_FLAGS),
-        )  # fmt: skip
+        )
         for flag in CLASS_FLAGS:
             if not isinstance(entry.get(flag, False), bool):
                 raise ConfigError(f"{ctx}.classes.{class_id}.{flag} must be true or false.")

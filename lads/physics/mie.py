@@ -76,8 +76,10 @@ def _qext_table(material: str, wavelength_nm: float) -> tuple[np.ndarray, np.nda
     d_max = MIE_MAX_SIZE_PARAMETER * wavelength_nm * 1e-6 / np.pi
     d = np.geomspace(1e-4, d_max, MIE_TABLE_SIZES)
     # ~1.5 s of Mie series per table: kept on disk so each build worker does not redo it.
-    key = (f"{_index(material)!r} {wavelength_nm!r} {d_max!r} {MIE_TABLE_SIZES} "
-           f"miepython {importlib.metadata.version('miepython')}")  # fmt: skip
+    key = (
+        f"{_index(material)!r} {wavelength_nm!r} {d_max!r} {MIE_TABLE_SIZES} "
+        f"miepython {importlib.metadata.version('miepython')}"
+    )
     q = cached_array("mie-qext", key, lambda: efficiencies(material, d, wavelength_nm)[0])
     if q.shape != d.shape:
         q = efficiencies(material, d, wavelength_nm)[0]

@@ -273,9 +273,12 @@ def _incidence(
         return Incidence(np.zeros(0, dtype=np.float32), source)
     range_img = image.range_m.astype(np.float64)
     normal, ok = image_normals(
-        image.xyz.astype(np.float64), range_img, image.index >= 0, MAX_COLUMN_GAP,
+        image.xyz.astype(np.float64),
+        range_img,
+        image.index >= 0,
+        MAX_COLUMN_GAP,
         float(max_depth_jump),
-    )  # fmt: skip
+    )
     owner_range = range_img[image.row, image.col]
     use = ok[image.row, image.col] & (np.abs(r - owner_range) <= max_depth_jump * owner_range)
     cos = pixel_normal_cos(normal, image.row, image.col, np.ascontiguousarray(xyz64), use)
@@ -296,6 +299,10 @@ def _neighbour_cos(
 ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.bool_]]:
     """PCA-normal cosine for the `query` points; (M,) cos and (M,) found flags."""
     return neighbour_cos(
-        xyz64, query, k=KNN_NEIGHBOURS, radius_m=KNN_RADIUS_M,
-        min_neighbours=KNN_MIN_NEIGHBOURS, min_planarity=KNN_MIN_PLANARITY,
-    )  # fmt: skip
+        xyz64,
+        query,
+        k=KNN_NEIGHBOURS,
+        radius_m=KNN_RADIUS_M,
+        min_neighbours=KNN_MIN_NEIGHBOURS,
+        min_planarity=KNN_MIN_PLANARITY,
+    )

@@ -161,9 +161,11 @@ def resolve_optics(
         overlap_full_m=max(_pick(params.overlap_full_m, sensor.overlap_full_m), min_range),
     )
     detection = resolve_detection(
-        params.detection_threshold, sensor.detection.power, sensor.detection.spread_ln,
+        params.detection_threshold,
+        sensor.detection.power,
+        sensor.detection.spread_ln,
         auto_threshold(beams),
-    )  # fmt: skip
+    )
     return FrameOptics(
         particles, detection, _pick(params.range_accuracy_m, sensor.range_accuracy_m)
     )
@@ -228,8 +230,9 @@ def simulate_particles(
     outcome[kept] = Outcome.ATTENUATED
     outcome[particle_wins] = Outcome.PARTICLE
 
-    out_range, out_refl = _target_returns(beams, sensor, optics, target_power, transmission,
-                                          kept, rng)  # fmt: skip
+    out_range, out_refl = _target_returns(
+        beams, sensor, optics, target_power, transmission, kept, rng
+    )
     out_range[particle_wins] = best_r[particle_wins]
     out_refl[particle_wins] = best_p[particle_wins] * best_r[particle_wins] ** 2
     return assemble(
@@ -294,13 +297,25 @@ def _dual(
     # Target strongest and last: Velodyne's dual mode then reports the second strongest,
     # the strongest flake in front (the WADS recording shows them, lads.calibration.wads).
     codes1, range1, refl1, codes2, range2, refl2 = dual_particle_returns(
-        beams.active, detected, target_power, target_range, target_refl, s_r, s_p, has_s, l_r,
-        l_p, has_l,
-    )  # fmt: skip
-    common = {"extinction_per_m": optics.particles.alpha_per_m,
-              "detection_threshold": optics.threshold}  # fmt: skip
-    return assemble_dual(beams, sensor, first=(codes1, range1, refl1),
-                         second=(codes2, range2, refl2), **common)  # fmt: skip
+        beams.active,
+        detected,
+        target_power,
+        target_range,
+        target_refl,
+        s_r,
+        s_p,
+        has_s,
+        l_r,
+        l_p,
+        has_l,
+    )
+    common = {
+        "extinction_per_m": optics.particles.alpha_per_m,
+        "detection_threshold": optics.threshold,
+    }
+    return assemble_dual(
+        beams, sensor, first=(codes1, range1, refl1), second=(codes2, range2, refl2), **common
+    )
 
 
 def _best_per_beam(

@@ -167,9 +167,14 @@ def sample_winning_particles(
     log_ratio = np.log(np.maximum(s, S_MIN) / S_MIN) / math.log(S_RATIO)
     column = np.clip(np.floor(log_ratio).astype(np.int64), 0, table.s_grid.size - 1)
     mean, counts = poisson_counts_from_table(
-        table.cumulative, table.r_grid, table.cell_lookup, LOOKUP_STEP_M, column,
-        np.minimum(r0, optics.max_range_m), rng.random(r0.size),
-    )  # fmt: skip
+        table.cumulative,
+        table.r_grid,
+        table.cell_lookup,
+        LOOKUP_STEP_M,
+        column,
+        np.minimum(r0, optics.max_range_m),
+        rng.random(r0.size),
+    )
     # The inversion underflows for large means (exp(-mu) = 0 beyond ~745); such beams
     # (huge divergence or absurdly low thresholds) take numpy's Poisson sampler instead.
     large = np.flatnonzero(counts < 0)

@@ -87,9 +87,13 @@ LISA_RAIN = ParticleParams(
 # Snow: the same beam and threshold, Gunn-Marshall with twice the primary intercept, melted
 # diameter taken as optical, Fresnel reflectivity of ice.
 LISA_SNOW = with_overrides(
-    LISA_RAIN, size_distribution="gunn_marshall", material="ice",
-    particle_reflectivity=0.01732, n0_scale=2.0, diameter_ratio=1.0,
-)  # fmt: skip
+    LISA_RAIN,
+    size_distribution="gunn_marshall",
+    material="ice",
+    particle_reflectivity=0.01732,
+    n0_scale=2.0,
+    diameter_ratio=1.0,
+)
 # The physics settings a weather stage can run with: lads' own (fitted to real snow, the
 # sensor's detection limit) or LISA's published ones. Fog has no LISA setting here (LISA's
 # fog is another model, docs/physics.md §4).
@@ -189,6 +193,10 @@ def fog(
     profile = resolve_sensor(sensor)
     beams = prepare_beams(xyz, intensity, profile)
     return simulate_fog(
-        beams, profile, visibility_m=visibility_m, rng=rng, mode=mode,
+        beams,
+        profile,
+        visibility_m=visibility_m,
+        rng=rng,
+        mode=mode,
         params=FOG_DEFAULTS if params is None else params,
-    )  # fmt: skip
+    )

@@ -172,6 +172,11 @@ def wet_ground(
     outcome[wet & detected] = Outcome.ATTENUATED
     reflectivity = profile.intensity.to_reflectivity(beams.intensity) * ratio
     return assemble(
-        beams, profile, outcome=outcome, range_m=beams.range_m, reflectivity=reflectivity,
-        extinction_per_m=0.0, detection_threshold=rule.threshold,
-    )  # fmt: skip
+        beams,
+        profile,
+        outcome=outcome,
+        range_m=beams.range_m,
+        reflectivity=reflectivity,
+        extinction_per_m=0.0,
+        detection_threshold=rule.threshold,
+    )

@@ -225,8 +225,9 @@ def read_scan_and_labels(
     check_finite(points, path, columns)
     labels = None
     if item.label_relpath is not None:
-        labels = read_labels(root / item.label_relpath, label_dtype, points.shape[0], label_what,
-                             path, why=why)  # fmt: skip
+        labels = read_labels(
+            root / item.label_relpath, label_dtype, points.shape[0], label_what, path, why=why
+        )
     return points, labels
 
 

@@ -197,13 +197,20 @@ class NuScenesReader:
                 continue
             extras = (("panoptic", panoptic[token]),) if token in panoptic else ()
             scene = nusc.get("sample", sd["sample_token"])["scene_token"]
-            meta = (("sample_data_token", token), ("scene", scene),
-                    ("timestamp", str(int(sd["timestamp"]))))  # fmt: skip
+            meta = (
+                ("sample_data_token", token),
+                ("scene", scene),
+                ("timestamp", str(int(sd["timestamp"]))),
+            )
             items.append(Item(self.name, filename, lidarseg.get(token), extras, meta))
             ego = nusc.get("ego_pose", sd["ego_pose_token"])
             calib = nusc.get("calibrated_sensor", sd["calibrated_sensor_token"])
-            rows[filename] = (*ego["translation"], *ego["rotation"], *calib["translation"],
-                              *calib["rotation"])  # fmt: skip
+            rows[filename] = (
+                *ego["translation"],
+                *ego["rotation"],
+                *calib["translation"],
+                *calib["rotation"],
+            )
         if not items:
             raise DatasetNotFoundError(
                 f"{table_root}: no {CHANNEL} sample_data with lidarseg labels"
@@ -322,6 +329,7 @@ def _numbered(items: list[Item]) -> list[Item]:
     out = []
     for scene_items in by_scene.values():
         ranked = sorted(scene_items, key=lambda it: (int(dict(it.meta)["timestamp"]), it.relpath))
-        out += [replace(it, meta=(*it.meta, ("scan_number", str(k))))
-                for k, it in enumerate(ranked)]  # fmt: skip
+        out += [
+            replace(it, meta=(*it.meta, ("scan_number", str(k)))) for k, it in enumerate(ranked)
+        ]
     return out

@@ -121,10 +121,14 @@ class NuScenesKittiReader:
     def read(self, item: Item) -> Frame:
         """Scan (N, 4) float32 and, when the scene is labelled, labels (N,) uint8."""
         points, labels = read_scan_and_labels(
-            self.root, item, self.columns, "nuScenes KITTI-style scan (N x 4 float32)",
-            self.label_dtype, "lidarseg labels (uint8 per point)",
+            self.root,
+            item,
+            self.columns,
+            "nuScenes KITTI-style scan (N x 4 float32)",
+            self.label_dtype,
+            "lidarseg labels (uint8 per point)",
             f"this scene has a {LABELS}/ folder",
-        )  # fmt: skip
+        )
         return Frame.from_source(item, self.sensor, self.columns, points, labels)
 
     def encode(self, frame: Frame) -> list[EncodedFile]:

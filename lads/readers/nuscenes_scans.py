@@ -78,10 +78,14 @@ class NuScenesScansReader:
     def read(self, item: Item) -> Frame:
         """Scan (N, 5) float32 and, when it has a `ground.bin`, labels (N,) uint8."""
         points, labels = read_scan_and_labels(
-            self.root, item, self.columns, "nuScenes LIDAR_TOP scan (N x 5 float32)",
-            self.label_dtype, "lidarseg labels (uint8 per point)",
+            self.root,
+            item,
+            self.columns,
+            "nuScenes LIDAR_TOP scan (N x 5 float32)",
+            self.label_dtype,
+            "lidarseg labels (uint8 per point)",
             f"a {LABELS_NAME} lies beside the scan",
-        )  # fmt: skip
+        )
         return Frame.from_source(item, self.sensor, self.columns, points, labels)
 
     def encode(self, frame: Frame) -> list[EncodedFile]:

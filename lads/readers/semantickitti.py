@@ -111,9 +111,14 @@ class SemanticKittiReader:
     def read(self, item: Item) -> Frame:
         """Scan (N, 4) float32 and, when the item has them, labels (N,) uint32."""
         points, labels = read_scan_and_labels(
-            self.root, item, self.columns, self.scan_what, self.label_dtype, self.label_what,
+            self.root,
+            item,
+            self.columns,
+            self.scan_what,
+            self.label_dtype,
+            self.label_what,
             "this sequence has a labels/ folder",
-        )  # fmt: skip
+        )
         return Frame.from_source(item, self.sensor, self.columns, points, labels)
 
     def encode(self, frame: Frame) -> list[EncodedFile]:

@@ -70,13 +70,17 @@ def level_counts(
     """
     top = profile.max_range_m if max_range_m is None else max_range_m
     # A stored 0 was detected, so it is taken at the encoding's half step (its floor).
-    rho = np.maximum(profile.intensity.to_reflectivity(np.asarray(intensity, dtype=np.float32)),
-                     profile.intensity.detection_floor)  # fmt: skip
+    rho = np.maximum(
+        profile.intensity.to_reflectivity(np.asarray(intensity, dtype=np.float32)),
+        profile.intensity.detection_floor,
+    )
     r = np.asarray(range_m, dtype=np.float64)
     use = (r >= FIT_MIN_RANGE_M) & (r < top) & (rho <= 1.0)
     if not use.any():
-        raise ConfigError(f"no diffuse returns between {FIT_MIN_RANGE_M} and {top} m to fit "
-                          "a detection limit on; give frames with far returns.")  # fmt: skip
+        raise ConfigError(
+            f"no diffuse returns between {FIT_MIN_RANGE_M} and {top} m to fit "
+            "a detection limit on; give frames with far returns."
+        )
     r, rho = r[use], rho[use].astype(np.float64)
     levels, level = np.unique(rho, return_inverse=True)
     edges = np.arange(FIT_MIN_RANGE_M, top + RANGE_BIN_M, RANGE_BIN_M)
@@ -126,8 +130,9 @@ def fit_detection_limit(
     ln_power = np.log(levels)[None, :] - 2.0 * np.log(r_bin)[:, None]
     # Start: every level equally likely, the limit at the weakest power seen, s = 1.
     start = np.concatenate([np.zeros(levels.size), [float(ln_power[counts > 0].min()), 0.0]])
-    res = minimize(_nll, start, args=(counts, ln_power), jac=True, method="L-BFGS-B",
-                   options={"maxiter": 5000})  # fmt: skip
+    res = minimize(
+        _nll, start, args=(counts, ln_power), jac=True, method="L-BFGS-B", options={"maxiter": 5000}
+    )
     if not res.success:
         raise ConfigError(f"detection-limit fit did not converge: {res.message}")
     n = int(counts.sum())

@@ -269,9 +269,12 @@ def _check(p: SensorProfile, path: Path) -> None:
     if len(elev) and not (low <= elev.min() and elev.max() <= high):
         problems.append(f"elevations [{elev.min()}, {elev.max()}] fall outside vertical_fov_deg")
     for key in (
-        "wavelength_nm", "beam_divergence_mrad", "max_range_m", "range_accuracy_m",
+        "wavelength_nm",
+        "beam_divergence_mrad",
+        "max_range_m",
+        "range_accuracy_m",
         "pulse_width_ns",
-    ):  # fmt: skip
+    ):
         if not getattr(p, key) > 0:
             problems.append(f"{key} must be > 0")
     if not 0 <= p.min_range_m < p.max_range_m:

@@ -148,8 +148,15 @@ class IntensityStage:
             ring = frame.points[valid, frame.columns.index("ring")]
         extinction = float(frame.condition("extinction_per_m", 0.0) or 0.0)  # type: ignore[arg-type]
         request = PointRequest(
-            xyz[valid], profile, output_profile=profile if weather else None, target=target,
-            labels=labels, label_set=label_set, ring=ring, outcome=frame.outcome[valid],
-            extinction_per_m=extinction, where=where,
-        )  # fmt: skip
+            xyz[valid],
+            profile,
+            output_profile=profile if weather else None,
+            target=target,
+            labels=labels,
+            label_set=label_set,
+            ring=ring,
+            outcome=frame.outcome[valid],
+            extinction_per_m=extinction,
+            where=where,
+        )
         return request, valid

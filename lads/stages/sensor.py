@@ -76,8 +76,9 @@ class SensorStage:
 
     def __call__(self, frame: Frame, rng: np.random.Generator) -> Frame:
         """The frame transferred from its own scan alone (a window of one)."""
-        return self.call_window(frame, [self.prepare(frame)], [np.eye(4)], 0,
-                                (frame.item.relpath,), rng)  # fmt: skip
+        return self.call_window(
+            frame, [self.prepare(frame)], [np.eye(4)], 0, (frame.item.relpath,), rng
+        )
 
     def call_window(
         self,
@@ -99,11 +100,19 @@ class SensorStage:
             rng: randomness of the target's range noise.
         """
         _check_columns(frame)
-        numbered = [replace(p.surfels, frame=np.full(len(p.surfels), k, np.int32))
-                    for k, p in enumerate(parts)]  # fmt: skip
-        out = transfer_surfels(numbered, poses, centre, load_profile(frame.sensor),
-                               load_profile(self.target), rng,
-                               label_set=label_set_for(frame.item.dataset))  # fmt: skip
+        numbered = [
+            replace(p.surfels, frame=np.full(len(p.surfels), k, np.int32))
+            for k, p in enumerate(parts)
+        ]
+        out = transfer_surfels(
+            numbered,
+            poses,
+            centre,
+            load_profile(frame.sensor),
+            load_profile(self.target),
+            rng,
+            label_set=label_set_for(frame.item.dataset),
+        )
         points = np.zeros((out.xyz.shape[0], len(frame.columns)), np.float32)
         points[:, :3] = out.xyz
         points[:, 3] = out.intensity

@@ -55,15 +55,25 @@ class WeatherStage:
             params = replace(params, detection_threshold=self.detection)
         if self.name == "fog":
             result = wx.fog(
-                xyz, intensity, visibility_m=float(self.visibility_m),  # type: ignore[arg-type]
-                sensor=frame.sensor, rng=rng, mode=self.mode, params=params,  # type: ignore[arg-type]
-            )  # fmt: skip
+                xyz,
+                intensity,
+                visibility_m=float(self.visibility_m),  # type: ignore[arg-type]
+                sensor=frame.sensor,
+                rng=rng,
+                mode=self.mode,
+                params=params,  # type: ignore[arg-type]
+            )
         else:
             simulate = wx.rain if self.name == "rain" else wx.snow
             result = simulate(
-                xyz, intensity, rate_mm_h=float(self.rate_mm_h),  # type: ignore[arg-type]
-                sensor=frame.sensor, rng=rng, mode=self.mode, params=params,  # type: ignore[arg-type]
-            )  # fmt: skip
+                xyz,
+                intensity,
+                rate_mm_h=float(self.rate_mm_h),  # type: ignore[arg-type]
+                sensor=frame.sensor,
+                rng=rng,
+                mode=self.mode,
+                params=params,  # type: ignore[arg-type]
+            )
         points = frame.points[result.source_index]
         points[:, :3] = result.xyz
         points[:, 3] = result.intensity

@@ -44,10 +44,15 @@ class WetGroundStage:
         if frame.labels is None or label_set is None:
             return replace(frame, conditions=frame.conditions + (("wet_ground", "no labels"),))
         result = wet_ground(
-            frame.xyz, frame.intensity, frame.labels, label_set, sensor=frame.sensor, rng=rng,
+            frame.xyz,
+            frame.intensity,
+            frame.labels,
+            label_set,
+            sensor=frame.sensor,
+            rng=rng,
             params=WetGroundParams(float(self.water_film_mm)),
             detection="sensor" if self.detection is None else self.detection,
-        )  # fmt: skip
+        )
         points = frame.points[result.source_index]
         points[:, 3] = result.intensity
         out = frame.select(

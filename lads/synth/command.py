@@ -14,16 +14,32 @@ _LAYOUTS = ("semantickitti", "nuscenes", "voxelscape")
 
 
 @click.command("synth")
-@click.option("--sensor", default=None,
-              help="Sensor profile name or YAML path (see `lads profiles`). Default: hdl64e, "
-                   "or hdl32e for --layout nuscenes.")  # fmt: skip
+@click.option(
+    "--sensor",
+    default=None,
+    help="Sensor profile name or YAML path (see `lads profiles`). Default: hdl64e, "
+    "or hdl32e for --layout nuscenes.",
+)
 @click.option("--frames", type=int, default=20, show_default=True, help="Frames at 10 Hz.")
-@click.option("--layout", type=click.Choice(_LAYOUTS), default="semantickitti",
-              show_default=True, help="Dataset tree to write.")  # fmt: skip
-@click.option("--out", type=click.Path(file_okay=False, path_type=Path), required=True,
-              help="Root of the tree (created if missing).")  # fmt: skip
-@click.option("--sequence", default="00", show_default=True,
-              help="Sequence folder name (nuscenes: scene-00SS).")  # fmt: skip
+@click.option(
+    "--layout",
+    type=click.Choice(_LAYOUTS),
+    default="semantickitti",
+    show_default=True,
+    help="Dataset tree to write.",
+)
+@click.option(
+    "--out",
+    type=click.Path(file_okay=False, path_type=Path),
+    required=True,
+    help="Root of the tree (created if missing).",
+)
+@click.option(
+    "--sequence",
+    default="00",
+    show_default=True,
+    help="Sequence folder name (nuscenes: scene-00SS).",
+)
 @click.option("--seed", type=int, default=0, show_default=True)
 def synth_command(
     sensor: str | None, frames: int, layout: str, out: Path, sequence: str, seed: int
@@ -33,9 +49,14 @@ def synth_command(
 
     try:
         summary = write_synthetic_dataset(
-            out, sensor=sensor, frames=frames, layout=layout, sequence=sequence, seed=seed,
+            out,
+            sensor=sensor,
+            frames=frames,
+            layout=layout,
+            sequence=sequence,
+            seed=seed,
             progress=True,
-        )  # fmt: skip
+        )
     except ConfigError as err:
         raise click.UsageError(str(err)) from err
     except LadsError as err:

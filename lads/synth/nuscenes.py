@@ -156,8 +156,9 @@ def lidarseg_classes() -> LidarsegClasses:
             "categories differ from the nuscenes label set of lads/physics/materials.yaml "
             f"({len(categories)} vs {len(known)} classes)"
         )
-    problems += [f"id {k} maps to unknown class '{v}'" for k, v in mapping.items()
-                 if v not in categories]  # fmt: skip
+    problems += [
+        f"id {k} maps to unknown class '{v}'" for k, v in mapping.items() if v not in categories
+    ]
     problems += [f"id {k} is outside 0..65535" for k in mapping if not 0 <= k <= 0xFFFF]
     emitted = sorted(set(SEMANTICKITTI_OF_PART.tolist()))
     problems += [f"generator id {s} is not mapped" for s in emitted if s not in mapping]

@@ -89,8 +89,13 @@ RHO_FACTOR_OF_PART: npt.NDArray[np.float32] = np.array(
 )
 # Parts whose points carry an instance id (things); the generator gives stuff instance 0.
 THING_PARTS = (
-    Part.PARKED_CAR, Part.MOVING_CAR, Part.ADULT, Part.WALKING_ADULT, Part.KID, Part.WALKING_KID,
-)  # fmt: skip
+    Part.PARKED_CAR,
+    Part.MOVING_CAR,
+    Part.ADULT,
+    Part.WALKING_ADULT,
+    Part.KID,
+    Part.WALKING_KID,
+)
 # Retro-reflective sheeting returns light towards the source almost independently of the
 # incidence angle, so these parts get no cos(incidence) factor.
 RETROREFLECTIVE_PARTS = (Part.TRAFFIC_SIGN,)

@@ -45,19 +45,42 @@ class _Builder:
         default_factory=list
     )
 
-    def box(self, lo: tuple[float, float, float], hi: tuple[float, float, float], part: int,
-            inst: int = 0, rho: float = 1.0, speed: float = 0.0) -> None:  # fmt: skip
+    def box(
+        self,
+        lo: tuple[float, float, float],
+        hi: tuple[float, float, float],
+        part: int,
+        inst: int = 0,
+        rho: float = 1.0,
+        speed: float = 0.0,
+    ) -> None:
         params = (lo[0], hi[0], lo[1], hi[1], lo[2], hi[2])
         self.rows.append((BOX, params, params, part, inst, rho, speed))
 
-    def cylinder(self, x: float, y: float, radius: float, z0: float, z1: float, part: int,
-                 inst: int = 0, rho: float = 1.0, speed: float = 0.0) -> None:  # fmt: skip
+    def cylinder(
+        self,
+        x: float,
+        y: float,
+        radius: float,
+        z0: float,
+        z1: float,
+        part: int,
+        inst: int = 0,
+        rho: float = 1.0,
+        speed: float = 0.0,
+    ) -> None:
         bbox = (x - radius, x + radius, y - radius, y + radius, z0, z1)
         self.rows.append((CYLINDER, (x, y, radius, z0, z1, 0.0), bbox, part, inst, rho, speed))
 
-    def ellipsoid(self, centre: tuple[float, float, float], radii: tuple[float, float, float],
-                  part: int, inst: int = 0, rho: float = 1.0,
-                  speed: float = 0.0) -> None:  # fmt: skip
+    def ellipsoid(
+        self,
+        centre: tuple[float, float, float],
+        radii: tuple[float, float, float],
+        part: int,
+        inst: int = 0,
+        rho: float = 1.0,
+        speed: float = 0.0,
+    ) -> None:
         bbox = tuple(c + s * r for c, r in zip(centre, radii, strict=True) for s in (-1, 1))
         self.rows.append((ELLIPSOID, (*centre, *radii), bbox, part, inst, rho, speed))
 
@@ -170,8 +193,16 @@ class _InstanceIds:
         return self.base + self.count - 1
 
 
-def _car(b: _Builder, x_rear: float, y_centre: float, heading: float, rng: np.random.Generator,
-         part: int, inst: int, speed: float = 0.0) -> float:  # fmt: skip
+def _car(
+    b: _Builder,
+    x_rear: float,
+    y_centre: float,
+    heading: float,
+    rng: np.random.Generator,
+    part: int,
+    inst: int,
+    speed: float = 0.0,
+) -> float:
     """Body and cabin boxes of one car (or van); returns its length, m."""
     van = rng.random() < 0.12
     length = rng.uniform(4.6, 5.3) if van else rng.uniform(3.9, 4.9)
@@ -204,8 +235,9 @@ def _oncoming(b: _Builder, rng: np.random.Generator, x0: float, ids: _InstanceId
         x += _car(b, x, y, -1.0, rng, Part.MOVING_CAR, ids.next(), speed) + rng.uniform(25, 80)
 
 
-def _parked_cars(b: _Builder, rng: np.random.Generator, x0: float, side: float,
-                 ids: _InstanceIds) -> None:  # fmt: skip
+def _parked_cars(
+    b: _Builder, rng: np.random.Generator, x0: float, side: float, ids: _InstanceIds
+) -> None:
     x = x0 + rng.uniform(0, 5)
     while x < x0 + BLOCK_M - 6:
         if rng.random() < 0.7:
@@ -235,8 +267,12 @@ def _buildings(b: _Builder, rng: np.random.Generator, x0: float, side: float) ->
         front = rng.uniform(30, 45)
         ys = sorted((side * front, side * (front + rng.uniform(15, 25))))
         part = BUILDING_PARTS[int(rng.integers(len(BUILDING_PARTS)))]
-        b.box((x, ys[0], CURB_HEIGHT_M), (x + width, ys[1], rng.uniform(12, 28)), part,
-              rho=float(rng.lognormal(0.0, 0.25)))  # fmt: skip
+        b.box(
+            (x, ys[0], CURB_HEIGHT_M),
+            (x + width, ys[1], rng.uniform(12, 28)),
+            part,
+            rho=float(rng.lognormal(0.0, 0.25)),
+        )
         x += width + rng.uniform(5, 30)
 
 
@@ -282,19 +318,32 @@ def _fences(b: _Builder, rng: np.random.Generator, x0: float, side: float) -> No
         b.box((x, ys[0], CURB_HEIGHT_M), (x + length, ys[1], height), Part.FENCE)
 
 
-def _people(b: _Builder, rng: np.random.Generator, x0: float, side: float,
-            ids: _InstanceIds) -> None:  # fmt: skip
+def _people(
+    b: _Builder, rng: np.random.Generator, x0: float, side: float, ids: _InstanceIds
+) -> None:
     for _ in range(int(rng.poisson(3.5))):
         kid, walking = rng.random() < 0.2, rng.random() < 0.5
         height = rng.uniform(1.0, 1.35) if kid else rng.uniform(1.55, 1.9)
-        part = (Part.WALKING_KID if walking else Part.KID) if kid else (
-            Part.WALKING_ADULT if walking else Part.ADULT)  # fmt: skip
+        part = (
+            (Part.WALKING_KID if walking else Part.KID)
+            if kid
+            else (Part.WALKING_ADULT if walking else Part.ADULT)
+        )
         speed = rng.choice([-1.0, 1.0]) * rng.uniform(0.9, 1.6) if walking else 0.0
         x, y = x0 + rng.uniform(1, 99), side * rng.uniform(ROAD_HALF_WIDTH_M + 1.0, 7.8)
         inst, rho = ids.next(), float(rng.lognormal(0.0, 0.3))
         head = 0.065 * height
-        b.cylinder(x, y, 0.125 * height, CURB_HEIGHT_M, CURB_HEIGHT_M + height - 2 * head, part,
-                   inst, rho, speed)  # fmt: skip
+        b.cylinder(
+            x,
+            y,
+            0.125 * height,
+            CURB_HEIGHT_M,
+            CURB_HEIGHT_M + height - 2 * head,
+            part,
+            inst,
+            rho,
+            speed,
+        )
         centre = (x, y, CURB_HEIGHT_M + height - head)
         b.ellipsoid(centre, (head, head, 1.1 * head), part, inst, rho, speed)
 

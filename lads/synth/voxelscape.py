@@ -59,10 +59,16 @@ def voxelscape_ids() -> VoxelscapeIds:
     problems = [
         f"sub-label {s} has no class {s // 10}" for s in sublabels if s // 10 not in classes
     ]
-    problems += [f"sub-label {s}: kitti_label {k} is not a Voxelscape id"
-                 for s, (_, k) in sublabels.items() if k not in known_kitti]  # fmt: skip
-    problems += [f"generator sub-label {s} is missing" for s in set(SUBLABEL_OF_PART.tolist())
-                 if s not in sublabels]  # fmt: skip
+    problems += [
+        f"sub-label {s}: kitti_label {k} is not a Voxelscape id"
+        for s, (_, k) in sublabels.items()
+        if k not in known_kitti
+    ]
+    problems += [
+        f"generator sub-label {s} is missing"
+        for s in set(SUBLABEL_OF_PART.tolist())
+        if s not in sublabels
+    ]
     if problems:
         raise ConfigError(f"{where}: " + "; ".join(problems) + ".")
     return VoxelscapeIds(

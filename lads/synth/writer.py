@@ -156,8 +156,9 @@ def _scan_bytes(xyz: npt.NDArray[np.float32], intensity: npt.NDArray[np.float32]
     return np.column_stack([xyz, intensity]).astype("<f4").tobytes()
 
 
-def _refuse_stale_files(out_root: Path, frame_dirs: dict[Path, Callable[[str], set[str]]],
-                        names: list[str]) -> None:  # fmt: skip
+def _refuse_stale_files(
+    out_root: Path, frame_dirs: dict[Path, Callable[[str], set[str]]], names: list[str]
+) -> None:
     for folder, expected in frame_dirs.items():
         if not folder.is_dir():
             continue
@@ -175,9 +176,9 @@ _FrameWriter = Callable[[str, SynthFrame], list[Path]]
 _Finisher = Callable[[list[npt.NDArray[np.float64]], list[float]], list[Path]]
 
 
-def _semantickitti(out_root: Path, sequence: str, seed: int, profile: SensorProfile) -> tuple[
-    _FrameWriter, dict[Path, Callable[[str], set[str]]], _Finisher
-]:  # fmt: skip
+def _semantickitti(
+    out_root: Path, sequence: str, seed: int, profile: SensorProfile
+) -> tuple[_FrameWriter, dict[Path, Callable[[str], set[str]]], _Finisher]:
     seq = out_root / "sequences" / sequence
 
     def write_frame(name: str, f: SynthFrame) -> list[Path]:
@@ -201,9 +202,9 @@ def _semantickitti(out_root: Path, sequence: str, seed: int, profile: SensorProf
     return write_frame, dirs, finish
 
 
-def _voxelscape(out_root: Path, sequence: str, seed: int, profile: SensorProfile) -> tuple[
-    _FrameWriter, dict[Path, Callable[[str], set[str]]], _Finisher
-]:  # fmt: skip
+def _voxelscape(
+    out_root: Path, sequence: str, seed: int, profile: SensorProfile
+) -> tuple[_FrameWriter, dict[Path, Callable[[str], set[str]]], _Finisher]:
     seq, ids = out_root / sequence, voxelscape_ids()
 
     def write_frame(name: str, f: SynthFrame) -> list[Path]:
@@ -242,9 +243,9 @@ NUSC_KEYFRAME_US = 500_000
 NUSC_LOG = "n000-2018-06-26-08-00-00+0000"  # the real naming pattern; vehicle n000 = synthetic
 
 
-def _nuscenes(out_root: Path, sequence: str, seed: int, profile: SensorProfile) -> tuple[
-    _FrameWriter, dict[Path, Callable[[str], set[str]]], _Finisher
-]:  # fmt: skip
+def _nuscenes(
+    out_root: Path, sequence: str, seed: int, profile: SensorProfile
+) -> tuple[_FrameWriter, dict[Path, Callable[[str], set[str]]], _Finisher]:
     version, classes = nusc.VERSION, nusc.lidarseg_classes()
     scene = nusc.NuscScene(
         logfile=NUSC_LOG,
@@ -269,10 +270,16 @@ def _nuscenes(out_root: Path, sequence: str, seed: int, profile: SensorProfile) 
         scan = f"samples/{nusc.CHANNEL}/{scan_name(name)}"
         labels = f"lidarseg/{version}/{label_name(name)}"
         translation, rotation = nusc.ego_pose_of(f.pose)
-        records.append(nusc.NuscSampleData(
-            nusc.token(scene.salt + scan_name(name)), scan, True, labels,
-            ego_translation=translation, ego_rotation=rotation,
-        ))  # fmt: skip
+        records.append(
+            nusc.NuscSampleData(
+                nusc.token(scene.salt + scan_name(name)),
+                scan,
+                True,
+                labels,
+                ego_translation=translation,
+                ego_rotation=rotation,
+            )
+        )
         payload = nusc.nuscenes_scan(f.xyz, f.intensity, f.reflectivity, f.ring, profile)
         return [
             _atomic_write(out_root / scan, payload),

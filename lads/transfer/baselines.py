@@ -85,8 +85,16 @@ def ring_drop(
         starts = np.r_[0, np.flatnonzero(np.diff(rings_sorted)) + 1]
         rank = np.arange(len(order)) - np.repeat(starts, np.diff(np.r_[starts, len(order)]))
         keep = np.sort(order[rank % k == 0])
-    return _baseline(xyz, intensity, labels, to_target[np.asarray(ring)[keep]], keep, source,
-                     target, azimuth_offset_rad)  # fmt: skip
+    return _baseline(
+        xyz,
+        intensity,
+        labels,
+        to_target[np.asarray(ring)[keep]],
+        keep,
+        source,
+        target,
+        azimuth_offset_rad,
+    )
 
 
 def row_resample(

@@ -108,19 +108,44 @@ def cast_parts(
         turn = np.ascontiguousarray(np.asarray(pose, np.float64)[:3, :3])
         shift = np.ascontiguousarray(np.asarray(pose, np.float64)[:3, 3])
         # numba's Dispatcher stub takes fewer arguments than the compiled functions do.
-        buffers = _HitBuffers(*_record_hits(  # type: ignore[call-arg]
-            g["centre"], g["normal"], g["axis_a"], g["axis_b"], g["radius_m"],
-            np.asarray(idx, np.int64), turn, shift, offset, el, float(azimuth_offset_rad),
-            int(columns), float(max_range_m), best, best_cos, *buffers.arrays(), buffers.n,
-        ))  # fmt: skip
+        buffers = _HitBuffers(
+            *_record_hits(  # type: ignore[call-arg]
+                g["centre"],
+                g["normal"],
+                g["axis_a"],
+                g["axis_b"],
+                g["radius_m"],
+                np.asarray(idx, np.int64),
+                turn,
+                shift,
+                offset,
+                el,
+                float(azimuth_offset_rad),
+                int(columns),
+                float(max_range_m),
+                best,
+                best_cos,
+                *buffers.arrays(),
+                buffers.n,
+            )
+        )
         offset += len(idx)
-    scalars = {f: np.concatenate([np.asarray(_fields(p, (f,))[f])[k]
-                                  for p, k in zip(parts, kept, strict=True)])
-               for f in VOTE_FIELDS}  # fmt: skip
+    scalars = {
+        f: np.concatenate(
+            [np.asarray(_fields(p, (f,))[f])[k] for p, k in zip(parts, kept, strict=True)]
+        )
+        for f in VOTE_FIELDS
+    }
     t, owner, refl, cos = _blend(  # type: ignore[call-arg]
-        best, best_cos, *buffers.trimmed(), scalars["albedo"], scalars["weight"],
-        scalars["retro"], depth_tol_m, depth_tol_share,
-    )  # fmt: skip
+        best,
+        best_cos,
+        *buffers.trimmed(),
+        scalars["albedo"],
+        scalars["weight"],
+        scalars["retro"],
+        depth_tol_m,
+        depth_tol_share,
+    )
     return BeamHits(t, owner, cos, refl, el, az)
 
 
@@ -142,8 +167,14 @@ class _HitBuffers:
 
     @staticmethod
     def empty(cap: int) -> _HitBuffers:
-        return _HitBuffers(np.empty(cap, np.int64), np.empty(cap), np.empty(cap), np.empty(cap),
-                           np.empty(cap, np.int64), 0)  # fmt: skip
+        return _HitBuffers(
+            np.empty(cap, np.int64),
+            np.empty(cap),
+            np.empty(cap),
+            np.empty(cap),
+            np.empty(cap, np.int64),
+            0,
+        )
 
     def arrays(self) -> tuple[Any, ...]:
         return self.pix, self.t, self.cos, self.w, self.i
@@ -264,8 +295,11 @@ def _record_hits(
 @numba.njit(cache=True, nogil=True, inline="always")
 def _turned(m: F64, x: float, y: float, z: float) -> tuple[float, float, float]:
     """(m @ (x, y, z)) of a 3 x 3 matrix, as three scalars."""
-    return (m[0, 0] * x + m[0, 1] * y + m[0, 2] * z, m[1, 0] * x + m[1, 1] * y + m[1, 2] * z,
-            m[2, 0] * x + m[2, 1] * y + m[2, 2] * z)  # fmt: skip
+    return (
+        m[0, 0] * x + m[0, 1] * y + m[0, 2] * z,
+        m[1, 0] * x + m[1, 1] * y + m[1, 2] * z,
+        m[2, 0] * x + m[2, 1] * y + m[2, 2] * z,
+    )
 
 
 @numba.njit(cache=True, nogil=True)

@@ -76,14 +76,19 @@ def compare_scans(
         "range_error_median_m": float(np.median(err)) if err.size else None,
         "range_error_p90_m": float(np.quantile(err, 0.9)) if err.size else None,
         "label_accuracy": float((cls_m == cls_r).mean()) if err.size else None,
-        "intensity_mae": float(np.abs(np.asarray(method.intensity, np.float64)[i_m]
-                                      - np.asarray(reference.intensity, np.float64)[i_r]).mean())
-        if err.size else None,
+        "intensity_mae": float(
+            np.abs(
+                np.asarray(method.intensity, np.float64)[i_m]
+                - np.asarray(reference.intensity, np.float64)[i_r]
+            ).mean()
+        )
+        if err.size
+        else None,
         "pixel_recall": float((both & ref_cov).sum() / max(ref_cov.sum(), 1)),
         "chamfer_m": _chamfer(np.asarray(method.xyz)[in_m], np.asarray(reference.xyz)[in_r]),
         "points": int(len(method.ring)),
         "points_reference": int(len(reference.ring)),
-    }  # fmt: skip
+    }
 
 
 def covered_rings(

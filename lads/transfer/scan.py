@@ -122,10 +122,18 @@ def transfer_scan(
         InputDataError: `centre` outside the window, or a pose that is not (4, 4) and finite.
     """
     parts = [window_surfels(scan, k, source, label_set, shape) for k, scan in enumerate(window)]
-    return transfer_surfels(parts, [s.pose for s in window], centre, source, target, rng,
-                            label_set=label_set, azimuth_offset_rad=azimuth_offset_rad,
-                            target_from_source=target_from_source,
-                            detector=detector)  # fmt: skip
+    return transfer_surfels(
+        parts,
+        [s.pose for s in window],
+        centre,
+        source,
+        target,
+        rng,
+        label_set=label_set,
+        azimuth_offset_rad=azimuth_offset_rad,
+        target_from_source=target_from_source,
+        detector=detector,
+    )
 
 
 def window_surfels(
@@ -144,8 +152,16 @@ def window_surfels(
         roles = class_roles(label_set)
     refl = source.intensity.to_reflectivity(scan.intensity)
     retro = None if classes is None else np.isin(classes, sorted(roles.retroreflective))
-    s = scan_surfels(scan.xyz, refl, source, labels=scan.labels, retro=retro,
-                     ring=scan.ring, frame=index, shape=shape)  # fmt: skip
+    s = scan_surfels(
+        scan.xyz,
+        refl,
+        source,
+        labels=scan.labels,
+        retro=retro,
+        ring=scan.ring,
+        frame=index,
+        shape=shape,
+    )
     if classes is not None and roles.ego:
         s = s.take(~np.isin(classes[s.point], sorted(roles.ego)))
     return s
@@ -178,12 +194,18 @@ def transfer_surfels(
     kept = [np.flatnonzero(m) for m in _static(parts, poses64, centre, label_set, bits)]
     mount = np.eye(4) if target_from_source is None else np.asarray(target_from_source, float)
     to_target = np.linalg.inv(poses64[centre] @ mount)
-    hits = cast_parts(parts, kept, [to_target @ pose for pose in poses64],
-                      np.radians(np.asarray(target.elevation_deg)), target.range_image_width,
-                      azimuth_offset_rad=azimuth_offset_rad,
-                      max_range_m=target.max_range_m)  # fmt: skip
-    return _returns(hits, _Lookup(parts, kept), source, target, rng,
-                    detector or profile_detector(target))  # fmt: skip
+    hits = cast_parts(
+        parts,
+        kept,
+        [to_target @ pose for pose in poses64],
+        np.radians(np.asarray(target.elevation_deg)),
+        target.range_image_width,
+        azimuth_offset_rad=azimuth_offset_rad,
+        max_range_m=target.max_range_m,
+    )
+    return _returns(
+        hits, _Lookup(parts, kept), source, target, rng, detector or profile_detector(target)
+    )
 
 
 @dataclass(frozen=True, slots=True)
@@ -236,8 +258,9 @@ def _centroids(part: Surfels, pose: F64) -> tuple[npt.NDArray[np.int64], F64]:
     some = np.flatnonzero(ids)
     ids, centre = ids[some], part.centre[some]
     n = np.bincount(ids, minlength=1 << 16)
-    sums = np.stack([np.bincount(ids, weights=centre[:, a], minlength=1 << 16)
-                     for a in range(3)], axis=1)  # fmt: skip
+    sums = np.stack(
+        [np.bincount(ids, weights=centre[:, a], minlength=1 << 16) for a in range(3)], axis=1
+    )
     mean = sums / np.maximum(n, 1)[:, None]
     return n, mean @ np.ascontiguousarray(pose[:3, :3].T) + pose[:3, 3]
 

@@ -125,8 +125,7 @@ def scan_surfels(
     normal = _normals(pts, rng_m, view, chan, profile)
     cos_raw = -np.einsum("ij,ij->i", normal, view)
     cos = np.clip(cos_raw, shape.min_cos, 1.0)
-    axis_a, axis_b = _cell_axes(pts, rng_m, view, normal, cos, profile, chan,
-                                shape.radius_share)  # fmt: skip
+    axis_a, axis_b = _cell_axes(pts, rng_m, view, normal, cos, profile, chan, shape.radius_share)
     radius = np.linalg.norm(axis_a, axis=1) + np.linalg.norm(axis_b, axis=1)
     refl = np.asarray(reflectivity, dtype=np.float64)[valid]
     is_retro = (np.zeros(len(r), bool) if retro is None else np.asarray(retro, bool))[valid]
@@ -136,9 +135,19 @@ def scan_surfels(
     albedo = np.where(is_retro, refl, refl / c)
     weight = np.where(is_retro, 1.0, c * c)
     lab = np.zeros(len(pts), np.uint32) if labels is None else np.asarray(labels)[valid]
-    return Surfels(pts, normal, axis_a, axis_b, radius, lab.astype(np.uint32), albedo, weight,
-                   is_retro, np.full(len(pts), frame, np.int32),
-                   valid.astype(np.int64))  # fmt: skip
+    return Surfels(
+        pts,
+        normal,
+        axis_a,
+        axis_b,
+        radius,
+        lab.astype(np.uint32),
+        albedo,
+        weight,
+        is_retro,
+        np.full(len(pts), frame, np.int32),
+        valid.astype(np.int64),
+    )
 
 
 def _normals(
@@ -148,8 +157,13 @@ def _normals(
     does not own its pixel or has no usable neighbourhood gets the view direction reversed
     (a disk facing the sensor)."""
     image = organise(pts, r, chan, profile.channels, profile.range_image_width)
-    raw, ok = image_normals(image.xyz.astype(np.float64), image.range_m.astype(np.float64),
-                            image.index >= 0, MAX_COLUMN_GAP, DEFAULT_MAX_DEPTH_JUMP)  # fmt: skip
+    raw, ok = image_normals(
+        image.xyz.astype(np.float64),
+        image.range_m.astype(np.float64),
+        image.index >= 0,
+        MAX_COLUMN_GAP,
+        DEFAULT_MAX_DEPTH_JUMP,
+    )
     normal = -view.copy()
     owner = image.index[image.row, image.col] == np.arange(len(pts))
     good = owner & ok[image.row, image.col]

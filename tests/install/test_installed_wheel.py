@@ -47,10 +47,22 @@ def wheel(tmp_path_factory: pytest.TempPathFactory) -> Path:
         else:
             shutil.copy2(REPO / name, src / name)
     subprocess.run(
-        [sys.executable, "-m", "pip", "wheel", "--quiet", "--no-deps", "--no-build-isolation",
-         "--wheel-dir", str(dist), str(src)],
-        check=True, capture_output=True, text=True,
-    )  # fmt: skip
+        [
+            sys.executable,
+            "-m",
+            "pip",
+            "wheel",
+            "--quiet",
+            "--no-deps",
+            "--no-build-isolation",
+            "--wheel-dir",
+            str(dist),
+            str(src),
+        ],
+        check=True,
+        capture_output=True,
+        text=True,
+    )
     (found,) = dist.glob("lads-*.whl")
     return found
 
@@ -62,14 +74,27 @@ def venv(wheel: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(root)], check=True)
     python = root / "bin" / "python"
     subprocess.run(
-        [sys.executable, "-m", "pip", "--python", str(python), "install", "--quiet", "--no-deps",
-         str(wheel)],
-        check=True, capture_output=True, text=True,
-    )  # fmt: skip
+        [
+            sys.executable,
+            "-m",
+            "pip",
+            "--python",
+            str(python),
+            "install",
+            "--quiet",
+            "--no-deps",
+            str(wheel),
+        ],
+        check=True,
+        capture_output=True,
+        text=True,
+    )
     purelib = subprocess.run(
         [str(python), "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
-        check=True, capture_output=True, text=True,
-    ).stdout.strip()  # fmt: skip
+        check=True,
+        capture_output=True,
+        text=True,
+    ).stdout.strip()
     deps = sysconfig.get_paths()["purelib"]
     (Path(purelib) / "lads_test_dependencies.pth").write_text(deps + "\n")
     return root / "bin"
@@ -78,9 +103,13 @@ def venv(wheel: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
 def lads(bin_dir: Path, cwd: Path, *args: str, ok: tuple[int, ...] = (0,)) -> str:
     env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "LADS_DATA")}
     done = subprocess.run(
-        [str(bin_dir / "lads"), *args], cwd=cwd, env=env, capture_output=True, text=True,
+        [str(bin_dir / "lads"), *args],
+        cwd=cwd,
+        env=env,
+        capture_output=True,
+        text=True,
         timeout=600,
-    )  # fmt: skip
+    )
     assert done.returncode in ok, f"lads {' '.join(args)}: {done.returncode}\n{done.stderr}"
     return done.stdout + done.stderr
 
@@ -95,10 +124,16 @@ def test_the_wheel_carries_every_runtime_resource_and_the_licence(wheel: Path) -
 
 def test_the_installed_package_is_not_the_checkout(venv: Path, tmp_path: Path) -> None:
     out = subprocess.run(
-        [str(venv / "python"), "-c", "import lads, lads.resources as r; "
-         "print(lads.__file__); print(r.pipelines_dir())"],
-        cwd=tmp_path, check=True, capture_output=True, text=True,
-    ).stdout.split()  # fmt: skip
+        [
+            str(venv / "python"),
+            "-c",
+            "import lads, lads.resources as r; print(lads.__file__); print(r.pipelines_dir())",
+        ],
+        cwd=tmp_path,
+        check=True,
+        capture_output=True,
+        text=True,
+    ).stdout.split()
     assert all(str(REPO) not in line and "site-packages" in line for line in out), out
 
 
@@ -112,8 +147,20 @@ def test_demo_from_an_empty_folder(venv: Path, tmp_path: Path) -> None:
 def test_synth_then_every_variant_builds_and_verifies(venv: Path, tmp_path: Path) -> None:
     lads(venv, tmp_path, "synth", "--frames", "2", "--out", "syn")
     for variant in VARIANTS:  # each reads its own pipeline and, for most, shipped weights
-        lads(venv, tmp_path, "build", "--source", "semantickitti", "--variant", variant,
-             "--in", "syn", "--out", f"syn-{variant}", "--no-figures")  # fmt: skip
+        lads(
+            venv,
+            tmp_path,
+            "build",
+            "--source",
+            "semantickitti",
+            "--variant",
+            variant,
+            "--in",
+            "syn",
+            "--out",
+            f"syn-{variant}",
+            "--no-figures",
+        )
     lads(venv, tmp_path, "verify", "syn-snow", "--against", "syn", "--regenerate", "2")
     run = json.loads((tmp_path / "syn-snow" / "run.json").read_text())
     assert run["git_commit"] is None  # an installed lads records its version only
@@ -127,15 +174,39 @@ def test_other_layouts_build_their_own_pipelines(venv: Path, tmp_path: Path, lay
     # nuScenes: the devkit walks the tables, the weather model writes HDL-32E integers;
     # Voxelscape: its source-specific physics-only pipeline.
     lads(venv, tmp_path, "synth", "--layout", layout, "--frames", "2", "--out", "syn")
-    lads(venv, tmp_path, "build", "--source", layout, "--variant", "snow", "--in", "syn",
-         "--out", "snow", "--no-figures")  # fmt: skip
+    lads(
+        venv,
+        tmp_path,
+        "build",
+        "--source",
+        layout,
+        "--variant",
+        "snow",
+        "--in",
+        "syn",
+        "--out",
+        "snow",
+        "--no-figures",
+    )
     lads(venv, tmp_path, "verify", "snow", "--against", "syn", "--regenerate", "1")
 
 
 def test_verify_finds_the_shipped_inventories(venv: Path, tmp_path: Path) -> None:
     lads(venv, tmp_path, "synth", "--frames", "1", "--out", "syn")
-    lads(venv, tmp_path, "build", "--source", "semantickitti", "--variant", "rain", "--in", "syn",
-         "--out", "rain", "--no-figures")  # fmt: skip
+    lads(
+        venv,
+        tmp_path,
+        "build",
+        "--source",
+        "semantickitti",
+        "--variant",
+        "rain",
+        "--in",
+        "syn",
+        "--out",
+        "rain",
+        "--no-figures",
+    )
     said = lads(venv, tmp_path, "verify", "rain", "--inventory", "semantickitti-00-10", ok=(1,))
     assert "incomplete_release" in said and "no inventory" not in said
 
@@ -143,8 +214,20 @@ def test_verify_finds_the_shipped_inventories(venv: Path, tmp_path: Path) -> Non
 def test_listings(venv: Path, tmp_path: Path) -> None:
     assert "intensity-nuscenes" in lads(venv, tmp_path, "variants")
     assert "hdl32e" in lads(venv, tmp_path, "profiles")
-    said = lads(venv, tmp_path, "build", "--source", "nuscenes", "--variant", "hail", "--in", ".",
-                "--out", "x", ok=(2,))  # fmt: skip
+    said = lads(
+        venv,
+        tmp_path,
+        "build",
+        "--source",
+        "nuscenes",
+        "--variant",
+        "hail",
+        "--in",
+        ".",
+        "--out",
+        "x",
+        ok=(2,),
+    )
     assert "variants of 'nuscenes': fog, intensity-kitti" in said
 
 
@@ -165,8 +248,17 @@ def test_train_and_evaluate_a_user_config(venv: Path, tmp_path: Path) -> None:
     lads(venv, tmp_path, "train", "data/mine.yaml")
     weights = tmp_path / "runs" / "mine" / "mine.pt"
     assert weights.is_file()
-    lads(venv, tmp_path, "eval-intensity", "data/mine.yaml", "--model", str(weights),
-         "--out", "eval", "--no-figures")  # fmt: skip
+    lads(
+        venv,
+        tmp_path,
+        "eval-intensity",
+        "data/mine.yaml",
+        "--model",
+        str(weights),
+        "--out",
+        "eval",
+        "--no-figures",
+    )
     result = json.loads((tmp_path / "eval" / "eval.json").read_text())["kitti"]
     assert "generator" in result["methods"] and result["frames"] == [
         "sequences/00/velodyne/000002.bin"
@@ -176,10 +268,29 @@ def test_train_and_evaluate_a_user_config(venv: Path, tmp_path: Path) -> None:
 def test_train_and_evaluate_a_shipped_config_on_real_data(
     venv: Path, tmp_path: Path, shared_data: Path
 ) -> None:
-    lads(venv, tmp_path, "train", "synth-to-kitti", "--data-root", str(shared_data),
-         "--steps", "2", "--jobs", "1")  # fmt: skip
+    lads(
+        venv,
+        tmp_path,
+        "train",
+        "synth-to-kitti",
+        "--data-root",
+        str(shared_data),
+        "--steps",
+        "2",
+        "--jobs",
+        "1",
+    )
     weights = tmp_path / "runs" / "synth-to-kitti" / "synth-to-kitti.pt"
     assert weights.is_file()
-    lads(venv, tmp_path, "eval-intensity", "synth-to-kitti", "--data-root", str(shared_data),
-         "--out", "eval", "--no-figures")  # fmt: skip
+    lads(
+        venv,
+        tmp_path,
+        "eval-intensity",
+        "synth-to-kitti",
+        "--data-root",
+        str(shared_data),
+        "--out",
+        "eval",
+        "--no-figures",
+    )
     assert (tmp_path / "eval" / "eval.json").is_file()

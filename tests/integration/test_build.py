@@ -216,9 +216,25 @@ def test_refuses_a_foreign_nonempty_directory(source, tmp_path):
 def test_killed_build_resumes_to_identical_bytes(source, built, tmp_path):
     """SIGKILL a CLI build mid-way, run it again: the tree equals the uninterrupted one."""
     out = tmp_path / "killed"
-    cmd = [sys.executable, "-m", "lads.cli", "build", "--source", "semantickitti",
-           "--variant", "snow", "--intensity", "physics", "--rate-mm-h", "10",
-           "--in", str(source), "--out", str(out), "--no-figures"]  # fmt: skip
+    cmd = [
+        sys.executable,
+        "-m",
+        "lads.cli",
+        "build",
+        "--source",
+        "semantickitti",
+        "--variant",
+        "snow",
+        "--intensity",
+        "physics",
+        "--rate-mm-h",
+        "10",
+        "--in",
+        str(source),
+        "--out",
+        str(out),
+        "--no-figures",
+    ]
     proc = subprocess.Popen(
         cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True
     )
@@ -287,9 +303,20 @@ def test_bad_items_are_reported_and_the_rest_is_built(source, tmp_path):
 def test_fail_fast_stops_at_the_first_bad_item(source, tmp_path):
     src = _bad_tree(source, tmp_path / "bad_src")
     result = CliRunner().invoke(
-        main, ["build", "--source", "semantickitti", "--variant", "snow", "--in", str(src),
-               "--out", str(tmp_path / "ff"), "--fail-fast"],
-    )  # fmt: skip
+        main,
+        [
+            "build",
+            "--source",
+            "semantickitti",
+            "--variant",
+            "snow",
+            "--in",
+            str(src),
+            "--out",
+            str(tmp_path / "ff"),
+            "--fail-fast",
+        ],
+    )
     assert result.exit_code == 2
     assert "fail-fast" in result.output
     assert not (tmp_path / "ff" / SEQ / "velodyne/000003.bin").exists()
@@ -331,8 +358,21 @@ def test_a_severity_preset_builds_records_both_values_and_verifies(source, tmp_p
     import yaml
 
     out = tmp_path / "fog-light"
-    args = ["build", "--source", "semantickitti", "--variant", "fog", "--severity", "light",
-            "--intensity", "physics", "--in", str(source), "--out", str(out)]  # fmt: skip
+    args = [
+        "build",
+        "--source",
+        "semantickitti",
+        "--variant",
+        "fog",
+        "--severity",
+        "light",
+        "--intensity",
+        "physics",
+        "--in",
+        str(source),
+        "--out",
+        str(out),
+    ]
     result = CliRunner().invoke(main, args)
     assert result.exit_code == 0, result.output
     stage = yaml.safe_load((out / "pipeline.yaml").read_text())["stages"][0]
@@ -352,9 +392,23 @@ def test_dual_returns_build_count_and_verify_with_regeneration(source, tmp_path)
     """--mode dual: a beam's second return is written after its first, with the beam's
     label; the manifest counts it and verify (regenerating items) agrees."""
     out = tmp_path / "snow-dual"
-    args = ["build", "--source", "semantickitti", "--variant", "snow", "--mode", "dual",
-            "--rate-mm-h", "10", "--intensity", "physics", "--in", str(source),
-            "--out", str(out)]  # fmt: skip
+    args = [
+        "build",
+        "--source",
+        "semantickitti",
+        "--variant",
+        "snow",
+        "--mode",
+        "dual",
+        "--rate-mm-h",
+        "10",
+        "--intensity",
+        "physics",
+        "--in",
+        str(source),
+        "--out",
+        str(out),
+    ]
     result = CliRunner().invoke(main, args)
     assert result.exit_code == 0, result.output
     rows = [json.loads(line) for line in (out / "manifest.jsonl").read_text().splitlines()]

@@ -51,8 +51,7 @@ def one_by_one(source, learned_snow, tmp_path_factory) -> Path:
 
 
 @pytest.mark.parametrize(("batch", "jobs"), [(3, 1), (FRAMES, 1), (2, 2)])
-def test_bytes_do_not_depend_on_batch_size(source, learned_snow, one_by_one, tmp_path, batch,
-                                           jobs):  # fmt: skip
+def test_bytes_do_not_depend_on_batch_size(source, learned_snow, one_by_one, tmp_path, batch, jobs):
     out = tmp_path / "batched"
     report = run_build("semantickitti", source, out, learned_snow, seed=0, batch=batch, jobs=jobs)
     assert report.complete

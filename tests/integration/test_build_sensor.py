@@ -37,8 +37,15 @@ def street(tmp_path_factory: pytest.TempPathFactory) -> Path:
 @pytest.fixture(scope="module")
 def built(street: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = tmp_path_factory.mktemp("sensor") / "out"
-    report = run_build("semantickitti", street, out, pipeline_for("semantickitti", "sensor-hdl32e"),
-                       jobs=1, progress=False, figures=False)  # fmt: skip
+    report = run_build(
+        "semantickitti",
+        street,
+        out,
+        pipeline_for("semantickitti", "sensor-hdl32e"),
+        jobs=1,
+        progress=False,
+        figures=False,
+    )
     assert report.complete, report.failed
     return out
 
@@ -114,8 +121,15 @@ def test_provenance_names_the_source_return_each_beam_hit(built: Path, street: P
 
 def test_output_bytes_do_not_depend_on_the_job_count(built: Path, street: Path, tmp_path):
     out = tmp_path / "two"
-    run_build("semantickitti", street, out, pipeline_for("semantickitti", "sensor-hdl32e"),
-              jobs=2, progress=False, figures=False)  # fmt: skip
+    run_build(
+        "semantickitti",
+        street,
+        out,
+        pipeline_for("semantickitti", "sensor-hdl32e"),
+        jobs=2,
+        progress=False,
+        figures=False,
+    )
     for item in get_reader("semantickitti", street).items():
         for rel in item.source_relpaths():
             assert (out / rel).read_bytes() == (built / rel).read_bytes()
@@ -126,12 +140,21 @@ def test_missing_poses_fail_each_frame_by_name_and_neighbours_0_needs_none(stree
     shutil.copytree(street, src)
     (src / "sequences" / "00" / "poses.txt").unlink()
     pipeline = pipeline_for("semantickitti", "sensor-hdl32e")
-    report = run_build("semantickitti", src, tmp_path / "a", pipeline, jobs=1, progress=False,
-                       figures=False, limit=1)  # fmt: skip
+    report = run_build(
+        "semantickitti",
+        src,
+        tmp_path / "a",
+        pipeline,
+        jobs=1,
+        progress=False,
+        figures=False,
+        limit=1,
+    )
     assert len(report.failed) == 1 and "poses.txt" in report.failed[0][1]
     alone = pipeline.with_overrides(neighbours=0)
-    report = run_build("semantickitti", src, tmp_path / "b", alone, jobs=1, progress=False,
-                       figures=False, limit=1)  # fmt: skip
+    report = run_build(
+        "semantickitti", src, tmp_path / "b", alone, jobs=1, progress=False, figures=False, limit=1
+    )
     assert report.complete
     window, scans = provenance.read_source_scan(tmp_path / "b", "sequences/00/velodyne/000000.bin")
     assert window == ["sequences/00/velodyne/000000.bin"] and not scans.any()
@@ -142,12 +165,15 @@ def test_missing_poses_fail_each_frame_by_name_and_neighbours_0_needs_none(stree
     [
         ([{"stage": "sensor", "target": "hdl32e"}], "physical", "resampled"),
         ([{"stage": "snow", "rate_mm_h": 1.0}], "resampled", "only a sensor stage"),
-        ([{"stage": "sensor", "target": "hdl32e"}, {"stage": "snow", "rate_mm_h": 1.0}],
-         "resampled", "must come first"),
+        (
+            [{"stage": "sensor", "target": "hdl32e"}, {"stage": "snow", "rate_mm_h": 1.0}],
+            "resampled",
+            "must come first",
+        ),
         ([{"stage": "sensor", "target": "no-such-lidar"}], "resampled", "no-such-lidar"),
         ([{"stage": "sensor", "target": "hdl32e", "neighbours": -1}], "resampled", "0..200"),
     ],
-)  # fmt: skip
+)
 def test_bad_sensor_pipelines_are_refused_by_name(stages, points, message):
     data = {"schema_version": 1, "variant": "x", "stages": stages, "writer": {"points": points}}
     with pytest.raises(ConfigError, match=message):
@@ -187,14 +213,16 @@ def test_further_per_point_arrays_follow_the_return_each_beam_hit(street: Path):
     reader = get_reader("semantickitti", street)
     items = reader.items()[:2]
     frames = [reader.read(it) for it in items]
-    frames = [replace(f, extra_labels={"row": np.arange(len(f.points), dtype=np.uint32)})
-              for f in frames]  # fmt: skip
+    frames = [
+        replace(f, extra_labels={"row": np.arange(len(f.points), dtype=np.uint32)}) for f in frames
+    ]
     poses = reader.sensor_poses(items)
     stage = stages_for(pipeline_for("semantickitti", "sensor-hdl32e"))[0]
     parts = [stage.prepare(f) for f in frames]
     window = tuple(it.relpath for it in items)
-    out = stage.call_window(frames[0], parts, [poses[r] for r in window], 0, window,
-                            np.random.default_rng(0))  # fmt: skip
+    out = stage.call_window(
+        frames[0], parts, [poses[r] for r in window], 0, window, np.random.default_rng(0)
+    )
     assert (out.extra_labels["row"] == out.source_index).all()
     assert set(np.unique(out.source_scan)) == {0, 1}
 
@@ -212,8 +240,15 @@ def test_a_nuscenes_dataroot_transfers_with_its_ego_poses(tmp_path):
     poses = reader.sensor_poses(items)
     assert not np.allclose(poses[items[0].relpath], poses[items[2].relpath])  # it drives
     out = tmp_path / "out"
-    report = run_build("nuscenes", src, out, pipeline_for("nuscenes", "sensor-hdl64e"), jobs=1,
-                       progress=False, figures=False)  # fmt: skip
+    report = run_build(
+        "nuscenes",
+        src,
+        out,
+        pipeline_for("nuscenes", "sensor-hdl64e"),
+        jobs=1,
+        progress=False,
+        figures=False,
+    )
     assert report.complete, report.failed
     check = verify_tree(out, src, regenerate=1, seed=0)
     assert check.ok, [f"{p.kind} {p.path}: {p.message}" for p in check.problems]
@@ -228,8 +263,12 @@ def test_a_nuscenes_dataroot_transfers_with_its_ego_poses(tmp_path):
 def test_a_learned_intensity_may_follow_the_transfer():
     stages = [{"stage": "sensor", "target": "hdl32e"},
               {"stage": "intensity", "model": "synth-to-nuscenes"}]  # fmt: skip
-    data = {"schema_version": 1, "variant": "x", "stages": stages,
-            "writer": {"points": "resampled"}}  # fmt: skip
+    data = {
+        "schema_version": 1,
+        "variant": "x",
+        "stages": stages,
+        "writer": {"points": "resampled"},
+    }
     pipeline = parse_pipeline(data, "test.yaml")
     assert [s.stage for s in pipeline.stages] == ["sensor", "intensity"]
     assert pipeline.output_sensor("hdl64e") == "hdl32e"
@@ -241,8 +280,17 @@ def test_weather_on_a_transferred_tree_uses_the_target_sensor(built: Path, tmp_p
 
     pipeline = pipeline_for("semantickitti", "snow").with_overrides(intensity="physics")
     out = tmp_path / "snow"
-    report = run_build("semantickitti", built, out, pipeline, reader_options={"sensor": "hdl32e"},
-                       jobs=1, progress=False, figures=False, limit=2)  # fmt: skip
+    report = run_build(
+        "semantickitti",
+        built,
+        out,
+        pipeline,
+        reader_options={"sensor": "hdl32e"},
+        jobs=1,
+        progress=False,
+        figures=False,
+        limit=2,
+    )
     assert report.complete, report.failed
     assert json.loads((out / "run.json").read_text())["sensor"] == "hdl32e"
     frame = get_reader("semantickitti", built, sensor="hdl32e").read(

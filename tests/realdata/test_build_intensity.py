@@ -22,8 +22,9 @@ def test_intensity_kitti_keeps_geometry_order_and_labels_and_replaces_intensity(
     src = real_semantickitti(tmp_path / "src")
     pipeline = load_pipeline(find_pipeline("semantickitti", "intensity-kitti"))
     out = tmp_path / "out"
-    report = run_build("semantickitti", src, out, pipeline, jobs=1, progress=False, limit=1,
-                       figures=False)  # fmt: skip
+    report = run_build(
+        "semantickitti", src, out, pipeline, jobs=1, progress=False, limit=1, figures=False
+    )
     assert report.complete
     rel = "sequences/00/velodyne/000000.bin"
     before, after = _scan(src / rel), _scan(out / rel)
@@ -47,8 +48,9 @@ def test_the_prediction_never_reads_the_input_intensity(tmp_path):
     (scrambled / rel).write_bytes(pts.astype("<f4").tobytes())
     pipeline = load_pipeline(find_pipeline("semantickitti", "intensity-kitti"))
     for root, out in ((src, tmp_path / "a"), (scrambled, tmp_path / "b")):
-        run_build("semantickitti", root, out, pipeline, jobs=1, progress=False, limit=1,
-                  figures=False)  # fmt: skip
+        run_build(
+            "semantickitti", root, out, pipeline, jobs=1, progress=False, limit=1, figures=False
+        )
     assert (tmp_path / "a" / rel).read_bytes() == (tmp_path / "b" / rel).read_bytes()
 
 
@@ -70,8 +72,9 @@ def test_missing_weights_stop_the_build_before_any_frame(tmp_path):
         intensity=str(tmp_path / "missing.pt")
     )
     with pytest.raises(LadsError, match="missing.pt"):
-        run_build("semantickitti", src, tmp_path / "out", pipeline, jobs=1, progress=False,
-                  figures=False)  # fmt: skip
+        run_build(
+            "semantickitti", src, tmp_path / "out", pipeline, jobs=1, progress=False, figures=False
+        )
     assert not any((tmp_path / "out").rglob("*.bin"))
 
 
@@ -80,8 +83,9 @@ def test_voxelscape_sensor_adaptation_writes_nuscenes_integers(tmp_path):
     write_synthetic_dataset(src, frames=1, layout="voxelscape", seed=2, azimuth_bins=512)
     pipeline = load_pipeline(find_pipeline("voxelscape", "intensity-nuscenes"))
     out = tmp_path / "out"
-    report = run_build("voxelscape", src, out, pipeline, jobs=1, progress=False, limit=1,
-                       figures=False)  # fmt: skip
+    report = run_build(
+        "voxelscape", src, out, pipeline, jobs=1, progress=False, limit=1, figures=False
+    )
     assert report.complete
     scans = sorted(out.rglob("velodyne/*.bin"))
     values = _scan(scans[0])[:, 3]
@@ -93,8 +97,9 @@ def test_snow_uses_the_weather_generator_in_the_source_encoding(tmp_path):
     learned, physics = tmp_path / "learned", tmp_path / "physics"
     snow = load_pipeline(find_pipeline("semantickitti", "snow"))
     for pipeline, out in ((snow, learned), (snow.with_overrides(intensity="physics"), physics)):
-        report = run_build("semantickitti", src, out, pipeline, jobs=1, progress=False,
-                           limit=1, figures=False)  # fmt: skip
+        report = run_build(
+            "semantickitti", src, out, pipeline, jobs=1, progress=False, limit=1, figures=False
+        )
         assert report.complete
     rel = "sequences/00/velodyne/000000.bin"
     a, b = _scan(learned / rel), _scan(physics / rel)

@@ -40,8 +40,10 @@ def gain_only(design) -> Fit:
 
 
 def scans(root: Path) -> dict[str, np.ndarray]:
-    return {p.relative_to(root).as_posix(): np.fromfile(p, dtype="<f4").reshape(-1, 4)
-            for p in sorted(root.rglob("velodyne/*.bin"))}  # fmt: skip
+    return {
+        p.relative_to(root).as_posix(): np.fromfile(p, dtype="<f4").reshape(-1, 4)
+        for p in sorted(root.rglob("velodyne/*.bin"))
+    }
 
 
 @pytest.fixture(scope="module")
@@ -86,8 +88,7 @@ def test_an_unpaired_corrected_tree_corrects_every_simulated_return(
     sim_table, real_table = unpaired_tables(pair)
     design = unpaired_design(sim_table, real_table)
     out = tmp_path / "corrected"
-    write_corrected(pair, real_table, design, gain_only(design), out, seed=0,
-                    sim_table=sim_table)  # fmt: skip
+    write_corrected(pair, real_table, design, gain_only(design), out, seed=0, sim_table=sim_table)
     sim, corrected = scans(trees / "sim"), scans(out)
     assert sim.keys() == corrected.keys()
     for rel in sim:

@@ -34,8 +34,15 @@ def test_a_concealed_attenuation_is_named_and_fitted_within_its_ci(
 ) -> None:
     truth = json.loads((k2 / "truth.json").read_text())
     alpha = truth["effects"][0]["params"]["alpha_per_m"]
-    doc = diagnose(k2 / "sim", k2 / "real", "semantickitti", tmp_path / "out", seed=0,
-                   settings=FAST, write_corrected_to=tmp_path / "corrected")  # fmt: skip
+    doc = diagnose(
+        k2 / "sim",
+        k2 / "real",
+        "semantickitti",
+        tmp_path / "out",
+        seed=0,
+        settings=FAST,
+        write_corrected_to=tmp_path / "corrected",
+    )
     fitted = {e["id"]: e for e in doc["effects"]}
     assert "C5" in fitted or any("C5" in s["ids"] for s in doc["ambiguity_sets"])
     if "C5" in fitted:
@@ -64,8 +71,14 @@ def test_a_concealed_attenuation_is_named_and_fitted_within_its_ci(
 
 def test_a_null_case_claims_no_physics(tmp_path: Path) -> None:
     generate_case("K18", "semantickitti", 5, tmp_path / "case", mode="M1", max_points=12000)
-    doc = diagnose(tmp_path / "case" / "sim", tmp_path / "case" / "real", "semantickitti",
-                   tmp_path / "out", seed=0, settings=FAST)  # fmt: skip
+    doc = diagnose(
+        tmp_path / "case" / "sim",
+        tmp_path / "case" / "real",
+        "semantickitti",
+        tmp_path / "out",
+        seed=0,
+        settings=FAST,
+    )
     claimed = [e["id"] for e in doc["effects"] if e["status"] == "claimed"]
     assert claimed == []
     assert doc["verdict"] == "no_missing_physics"
@@ -78,9 +91,20 @@ def test_trees_that_do_not_correspond_are_refused_with_exit_code_2(
     shutil.copytree(k2 / "real", real)
     victim = sorted(real.rglob("*.bin"))[0]
     victim.rename(victim.with_name("999999.bin"))
-    result = CliRunner().invoke(main, ["diagnose", "--sim", str(k2 / "sim"), "--real",
-                                       str(real), "--source", "semantickitti", "--out",
-                                       str(tmp_path / "out")])  # fmt: skip
+    result = CliRunner().invoke(
+        main,
+        [
+            "diagnose",
+            "--sim",
+            str(k2 / "sim"),
+            "--real",
+            str(real),
+            "--source",
+            "semantickitti",
+            "--out",
+            str(tmp_path / "out"),
+        ],
+    )
     assert result.exit_code == 2
     assert "999999" in result.output or "relative" in result.output.lower()
 
@@ -99,5 +123,10 @@ def test_constant_intensities_are_refused(k2: Path, tmp_path: Path) -> None:
 def test_too_few_points_are_refused(tmp_path: Path) -> None:
     generate_case("K18", "semantickitti", 1, tmp_path / "case", mode="M1", max_points=200)
     with pytest.raises(DiagnoseError, match="comparable beams"):
-        diagnose(tmp_path / "case" / "sim", tmp_path / "case" / "real", "semantickitti",
-                 tmp_path / "out", settings=FAST)  # fmt: skip
+        diagnose(
+            tmp_path / "case" / "sim",
+            tmp_path / "case" / "real",
+            "semantickitti",
+            tmp_path / "out",
+            settings=FAST,
+        )

@@ -54,7 +54,7 @@ from tests.reference.equivalence import (
     fine_kitti_profile,
     run_brute,
     run_fast,
-)  # fmt: skip
+)
 
 pytestmark = pytest.mark.realdata
 
@@ -111,8 +111,15 @@ def test_comparison_rejects_a_brute_force_with_doubled_particle_reflectivity(sam
     rho_p = RAIN_DEFAULTS.particle_reflectivity
     for i in FRAMES:
         xyz, intensity = fine_frame(*kitti_frame(i))
-        run_brute(xyz, intensity, *case, 99 + i, wrong, fine_kitti_profile(),
-                  particle_reflectivity=2 * rho_p)  # fmt: skip
+        run_brute(
+            xyz,
+            intensity,
+            *case,
+            99 + i,
+            wrong,
+            fine_kitti_profile(),
+            particle_reflectivity=2 * rho_p,
+        )
     result = compare(fast, wrong)
     print(f"\nrho_p x 2: {result}")
     assert result["particle"]["p"] < P_VALUE_FLOOR
@@ -164,9 +171,15 @@ def test_fog_outcomes_match_direct_waveform_integration_beam_by_beam(kitti_frame
     assert (brute["strongest"] == PARTICLE).any() and (brute["strongest"] != PARTICLE).any()
     for mode in ("strongest", "last"):
         # Beam by beam needs a deterministic rule: the frame-calibrated hard threshold.
-        result = fog(xyz, intensity, visibility_m=visibility_m, sensor=profile, mode=mode,
-                     params=dataclasses.replace(FOG_DEFAULTS, detection_threshold="frame"),
-                     rng=np.random.default_rng(0))  # fmt: skip
+        result = fog(
+            xyz,
+            intensity,
+            visibility_m=visibility_m,
+            sensor=profile,
+            mode=mode,
+            params=dataclasses.replace(FOG_DEFAULTS, detection_threshold="frame"),
+            rng=np.random.default_rng(0),
+        )
         fast = np.full(len(xyz), LOST, dtype=np.uint8)
         fast[result.source_index] = result.outcome
         differ = (fast[chosen] != brute[mode]) & ~ties
@@ -184,15 +197,24 @@ def test_fog_outcomes_match_direct_waveform_integration_beam_by_beam(kitti_frame
         # sigma = dR / sqrt(2 SNR) * kappa_pulse / kappa_fog; allow 5 sigma.
         kappa_pulse = 2.0 * np.pi**2 / params.pulse_length_m**2
         snr = table_power[is_fog] / p_min
-        sigma = (profile.range_accuracy_m / np.sqrt(2.0 * snr)
-                 * np.minimum(kappa_pulse / np.maximum(curvature[is_fog], 1e-12), 1e6))  # fmt: skip
+        sigma = (
+            profile.range_accuracy_m
+            / np.sqrt(2.0 * snr)
+            * np.minimum(kappa_pulse / np.maximum(curvature[is_fog], 1e-12), 1e6)
+        )
         assert np.all(np.abs(fog_range - expected) <= 0.02 + 5.0 * sigma)
     # Dual: the first return of every beam is the strongest's; a second follows where the fog
     # echo is first and the target still detected (the target), or where the target is both
     # strongest and last and the echo is detected (the echo, Velodyne's second strongest).
-    dual = fog(xyz, intensity, visibility_m=visibility_m, sensor=profile, mode="dual",
-               params=dataclasses.replace(FOG_DEFAULTS, detection_threshold="frame"),
-               rng=np.random.default_rng(0))  # fmt: skip
+    dual = fog(
+        xyz,
+        intensity,
+        visibility_m=visibility_m,
+        sensor=profile,
+        mode="dual",
+        params=dataclasses.replace(FOG_DEFAULTS, detection_threshold="frame"),
+        rng=np.random.default_rng(0),
+    )
     first = np.r_[True, np.diff(dual.source_index) != 0]
     fast = np.full(len(xyz), LOST, dtype=np.uint8)
     fast[dual.source_index[first]] = dual.outcome[first]

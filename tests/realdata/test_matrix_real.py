@@ -66,8 +66,16 @@ def test_default_pipeline_builds_verifies_and_reads_back(
     src = source_trees[tree]
     pipeline = pipeline_for(rs.reader, variant)
     out = tmp_path / "out"
-    report = run_build(rs.reader, src, out, pipeline, reader_options=rs.options, jobs=1,
-                       progress=False, figures=False)  # fmt: skip
+    report = run_build(
+        rs.reader,
+        src,
+        out,
+        pipeline,
+        reader_options=rs.options,
+        jobs=1,
+        progress=False,
+        figures=False,
+    )
     assert report.complete, report.failed
     check = verify_tree(out, src, regenerate=1, seed=0)
     assert check.ok, [f"{p.kind} {p.path}: {p.message}" for p in check.problems]

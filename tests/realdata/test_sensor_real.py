@@ -53,8 +53,16 @@ def test_real_kitti_frames_to_the_hdl32e(shared_data, tmp_path):
     src = _kitti_tree(tmp_path / "src")
     pipeline = pipeline_for("semantickitti", "sensor-hdl32e")
     out = tmp_path / "seq00"
-    report = run_build("semantickitti", src, out, pipeline, reader_options={"sequences": ["00"]},
-                       jobs=2, progress=False, figures=True)  # fmt: skip
+    report = run_build(
+        "semantickitti",
+        src,
+        out,
+        pipeline,
+        reader_options={"sequences": ["00"]},
+        jobs=2,
+        progress=False,
+        figures=True,
+    )
     assert report.complete, report.failed
     check = verify_tree(out, src, regenerate=1, seed=0)
     assert check.ok, [f"{p.kind} {p.path}: {p.message}" for p in check.problems]
@@ -66,8 +74,9 @@ def test_real_kitti_frames_to_the_hdl32e(shared_data, tmp_path):
         assert _on_target_beams(frame.xyz, target) < 0.05
         window, _ = provenance.read_source_scan(out, item.relpath)
         # 000000-000002 lend each other surfaces; the others are seconds apart: alone.
-        assert len(window) == (3 if item.relpath.endswith(("00000.bin", "00001.bin", "00002.bin"))
-                               else 1)  # fmt: skip
+        assert len(window) == (
+            3 if item.relpath.endswith(("00000.bin", "00001.bin", "00002.bin")) else 1
+        )
     assert (out / "figures" / "preview.png").is_file()
 
 
@@ -75,13 +84,29 @@ def test_a_sequence_without_poses_fails_by_name_and_builds_alone(shared_data, tm
     src = _kitti_tree(tmp_path / "src")
     pipeline = pipeline_for("semantickitti", "sensor-hdl32e")
     options = {"sequences": ["90"]}
-    report = run_build("semantickitti", src, tmp_path / "a", pipeline, reader_options=options,
-                       jobs=1, progress=False, figures=False)  # fmt: skip
+    report = run_build(
+        "semantickitti",
+        src,
+        tmp_path / "a",
+        pipeline,
+        reader_options=options,
+        jobs=1,
+        progress=False,
+        figures=False,
+    )
     assert len(report.failed) == len(KITTI_SEQ90)
     assert all("poses.txt" in message for _, message in report.failed)
     out = tmp_path / "alone"
-    report = run_build("semantickitti", src, out, pipeline.with_overrides(neighbours=0),
-                       reader_options=options, jobs=1, progress=False, figures=False)  # fmt: skip
+    report = run_build(
+        "semantickitti",
+        src,
+        out,
+        pipeline.with_overrides(neighbours=0),
+        reader_options=options,
+        jobs=1,
+        progress=False,
+        figures=False,
+    )
     assert report.complete, report.failed
     check = verify_tree(out, src, regenerate=1, seed=0)
     assert check.ok, [f"{p.kind} {p.path}: {p.message}" for p in check.problems]
@@ -92,8 +117,7 @@ def test_real_nuscenes_keyframes_to_a_64_beam_sensor(shared_data, tmp_path, targ
     src = real_nuscenes_kitti(tmp_path / "src")
     out = tmp_path / "out"
     pipeline = pipeline_for("nuscenes-kitti", f"sensor-{target}")
-    report = run_build("nuscenes-kitti", src, out, pipeline, jobs=2, progress=False,
-                       figures=False)  # fmt: skip
+    report = run_build("nuscenes-kitti", src, out, pipeline, jobs=2, progress=False, figures=False)
     assert report.complete, report.failed
     check = verify_tree(out, src, regenerate=1, seed=0)
     assert check.ok, [f"{p.kind} {p.path}: {p.message}" for p in check.problems]

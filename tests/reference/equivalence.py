@@ -95,9 +95,14 @@ def run_fast(xyz, intensity, weather, rate, mode, detection, seed, sample, profi
     simulate, params = WEATHER[weather][0], params_for(weather, detection)
     t = time.perf_counter()
     result = simulate(
-        xyz, intensity, rate_mm_h=rate, sensor=profile, mode=mode, params=params,
+        xyz,
+        intensity,
+        rate_mm_h=rate,
+        sensor=profile,
+        mode=mode,
+        params=params,
         rng=np.random.default_rng(seed),
-    )  # fmt: skip
+    )
     sample.seconds += time.perf_counter() - t
     first = np.r_[True, np.diff(result.source_index) != 0]
     outcome = np.full(len(xyz), LOST, dtype=np.uint8)

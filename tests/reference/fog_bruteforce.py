@@ -73,8 +73,13 @@ def soft_return(r: float, r0: float, c: FogConstants) -> float:
     breaks = [p for p in (c.overlap_full_m,) if low < p < high]
     value, _ = quad(
         lambda s: math.sin(math.pi * (r - s) / length) ** 2 * c.g(s),
-        low, high, points=breaks or None, epsabs=0.0, epsrel=1e-10, limit=200,
-    )  # fmt: skip
+        low,
+        high,
+        points=breaks or None,
+        epsabs=0.0,
+        epsrel=1e-10,
+        limit=200,
+    )
     return math.pi * c.beta_per_m_sr * value
 
 
@@ -89,9 +94,11 @@ def soft_return_peak(r0: float, c: FogConstants) -> tuple[float, float]:
     k = int(np.argmax(values))
     lo, hi = grid[max(k - 1, 0)], grid[min(k + 1, grid.size - 1)]
     best = minimize_scalar(
-        lambda r: -soft_return(r, r0, c), bounds=(lo, hi), method="bounded",
+        lambda r: -soft_return(r, r0, c),
+        bounds=(lo, hi),
+        method="bounded",
         options={"xatol": 1e-6},
-    )  # fmt: skip
+    )
     if -best.fun >= values[k]:
         return float(best.x), float(-best.fun)
     return float(grid[k]), float(values[k])

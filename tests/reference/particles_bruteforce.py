@@ -213,9 +213,12 @@ def simulate(
         if not beams.active[i]:
             continue
         strongest, last, best, k = beam_returns(
-            float(beams.range_m[i]), float(beams.reflectivity[i]), float(rho_out[i]),
-            constants, rng,
-        )  # fmt: skip
+            float(beams.range_m[i]),
+            float(beams.reflectivity[i]),
+            float(rho_out[i]),
+            constants,
+            rng,
+        )
         first = last if mode == "last" else strongest
         outcome[i], range_m[i], refl[i] = first
         if mode == "dual" and last != strongest and last[0] != LOST:

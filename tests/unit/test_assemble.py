@@ -22,11 +22,15 @@ def _frame(profile_name: str, n: int = 5000, seed: int = 0):
     outcome = rng.integers(0, 4, n).astype(np.uint8)
     range_m = beams.range_m * rng.uniform(0.3, 1.0, n)
     # Half-step values, zeros, negatives and far beyond the top level: the rounding edges.
-    reflectivity = np.concatenate([
-        rng.random(n // 2) * 3.0,
-        (np.arange(n - n // 2) % 300 + 0.5) * profile.intensity.step
-        / profile.intensity.reflectivity_full_scale - 0.02,
-    ])  # fmt: skip
+    reflectivity = np.concatenate(
+        [
+            rng.random(n // 2) * 3.0,
+            (np.arange(n - n // 2) % 300 + 0.5)
+            * profile.intensity.step
+            / profile.intensity.reflectivity_full_scale
+            - 0.02,
+        ]
+    )
     return profile, beams, outcome, range_m, reflectivity
 
 
@@ -36,8 +40,9 @@ def _expected(profile, beams, outcome, range_m, reflectivity):
     keep = np.flatnonzero(outcome != Outcome.LOST)
     moved = (outcome[keep] != Outcome.KEPT) & (range_m[keep] != beams.range_m[keep])
     ratio = np.where(moved, range_m[keep] / beams.range_m[keep], 1.0)
-    xyz = np.where(moved[:, None], (beams.xyz[keep] * ratio[:, None]).astype(np.float32),
-                   beams.xyz[keep])  # fmt: skip
+    xyz = np.where(
+        moved[:, None], (beams.xyz[keep] * ratio[:, None]).astype(np.float32), beams.xyz[keep]
+    )
     intensity = beams.intensity[keep].copy()
     enc = outcome[keep] != Outcome.KEPT
     intensity[enc] = profile.intensity.from_reflectivity(reflectivity[keep][enc])
@@ -47,8 +52,15 @@ def _expected(profile, beams, outcome, range_m, reflectivity):
 @pytest.mark.parametrize("profile_name", ["hdl64e", "hdl32e", "wads64"])
 def test_single_assembly_matches_the_numpy_rules_bit_for_bit(profile_name):
     profile, beams, outcome, range_m, reflectivity = _frame(profile_name)
-    res = assemble(beams, profile, outcome=outcome, range_m=range_m, reflectivity=reflectivity,
-                   extinction_per_m=0.01, detection_threshold=1e-5)  # fmt: skip
+    res = assemble(
+        beams,
+        profile,
+        outcome=outcome,
+        range_m=range_m,
+        reflectivity=reflectivity,
+        extinction_per_m=0.01,
+        detection_threshold=1e-5,
+    )
     keep, xyz, intensity = _expected(profile, beams, outcome, range_m, reflectivity)
     assert np.array_equal(res.source_index, keep)
     assert np.array_equal(res.outcome, outcome[keep])
@@ -62,8 +74,9 @@ def test_dual_assembly_interleaves_the_two_single_assemblies():
     _, _, second, range2, refl2 = _frame("hdl64e", seed=2)
     second[second == Outcome.KEPT] = Outcome.LOST  # a second return is never the input's
     common = {"extinction_per_m": 0.01, "detection_threshold": 1e-5}
-    res = assemble_dual(beams, profile, first=(first, range1, refl1),
-                        second=(second, range2, refl2), **common)  # fmt: skip
+    res = assemble_dual(
+        beams, profile, first=(first, range1, refl1), second=(second, range2, refl2), **common
+    )
     a = assemble(beams, profile, outcome=first, range_m=range1, reflectivity=refl1, **common)
     b = assemble(beams, profile, outcome=second, range_m=range2, reflectivity=refl2, **common)
     order = np.argsort(np.concatenate([a.source_index, b.source_index]), kind="stable")

@@ -74,18 +74,33 @@ def test_validation_split_of_sequence_08(tmp_path):
 
 @pytest.mark.parametrize(
     ("n", "category"),
-    [(0, "n<1K"), (3, "n<1K"), (999, "n<1K"), (1000, "1K<n<10K"), (23201, "10K<n<100K"),
-     (43552, "10K<n<100K"), (100_000, "100K<n<1M"), (10**13, "n>1T")],
-)  # fmt: skip
+    [
+        (0, "n<1K"),
+        (3, "n<1K"),
+        (999, "n<1K"),
+        (1000, "1K<n<10K"),
+        (23201, "10K<n<100K"),
+        (43552, "10K<n<100K"),
+        (100_000, "100K<n<1M"),
+        (10**13, "n>1T"),
+    ],
+)
 def test_size_category(n, category):
     assert size_category(n) == category
 
 
 def test_sections_and_generation_facts(out):
     text = render_card(out)
-    for section in ("Dataset Details", "Uses", "Dataset Structure", "Generation",
-                    "Physical model and limitations", "Verification",
-                    "Bias, Risks, and Limitations", "Citation"):  # fmt: skip
+    for section in (
+        "Dataset Details",
+        "Uses",
+        "Dataset Structure",
+        "Generation",
+        "Physical model and limitations",
+        "Verification",
+        "Bias, Risks, and Limitations",
+        "Citation",
+    ):
         assert f"\n## {section}\n" in text
     run = read_run(out)
     assert run["config_hash"] in text and run["git_commit"] in text
@@ -98,10 +113,12 @@ def test_sections_and_generation_facts(out):
 
 @pytest.mark.parametrize(
     ("source", "licence", "dataset"),
-    [("nuscenes", "cc-by-nc-sa-4.0", "extended|nuscenes"),
-     ("wads", "cc-by-nc-sa-4.0", "extended|wads"),
-     ("voxelscape", "other", "extended|voxelscape")],
-)  # fmt: skip
+    [
+        ("nuscenes", "cc-by-nc-sa-4.0", "extended|nuscenes"),
+        ("wads", "cc-by-nc-sa-4.0", "extended|wads"),
+        ("voxelscape", "other", "extended|voxelscape"),
+    ],
+)
 def test_licence_is_inherited(out, source, licence, dataset):
     text = render_card(with_source(out, source))
     meta = front_matter(text)
@@ -152,17 +169,19 @@ def test_missing_tree_metadata_raises(tmp_path):
 
 @pytest.mark.parametrize(
     ("edit", "complaint"),
-    [(("license: cc-by-nc-sa-4.0", "license: cc-by-nc-sa"), "Hub licence id"),
-     (("- n<1K", "- tiny"), "size_categories"),
-     (("- semantic-segmentation", "- depth-estimation"), "task_ids"),
-     (("- expert-generated", "- experts"), "annotations_creators"),
-     (("- extended|semantic_kitti", "- derived from kitti"), "source_datasets"),
-     (("pretty_name:", "prettyname:"), "unknown front-matter key"),
-     (("num_examples: 3", "num_examples: 3000"), "size_categories"),
-     (("name: train", "name: train split"), "bad split"),
-     (("## Citation", "## Cite"), "Citation"),
-     (("license_name: cc-by-nc-sa-4.0", "license_name: CC BY NC"), "license_name")],
-)  # fmt: skip
+    [
+        (("license: cc-by-nc-sa-4.0", "license: cc-by-nc-sa"), "Hub licence id"),
+        (("- n<1K", "- tiny"), "size_categories"),
+        (("- semantic-segmentation", "- depth-estimation"), "task_ids"),
+        (("- expert-generated", "- experts"), "annotations_creators"),
+        (("- extended|semantic_kitti", "- derived from kitti"), "source_datasets"),
+        (("pretty_name:", "prettyname:"), "unknown front-matter key"),
+        (("num_examples: 3", "num_examples: 3000"), "size_categories"),
+        (("name: train", "name: train split"), "bad split"),
+        (("## Citation", "## Cite"), "Citation"),
+        (("license_name: cc-by-nc-sa-4.0", "license_name: CC BY NC"), "license_name"),
+    ],
+)
 def test_validate_card_catches_bad_values(out, edit, complaint):
     text = render_card(out)
     assert edit[0] in text
@@ -181,9 +200,11 @@ def test_pipeline_stage_shapes():
                     {"snow": {"rate_mm_h": 2}}, "intensity"]}
     )  # fmt: skip
     assert pipeline_stages(text) == [
-        ("fog", {"visibility_m": 50}), ("rain", {"r": 1}), ("snow", {"rate_mm_h": 2}),
+        ("fog", {"visibility_m": 50}),
+        ("rain", {"r": 1}),
+        ("snow", {"rate_mm_h": 2}),
         ("intensity", {}),
-    ]  # fmt: skip
+    ]
     assert pipeline_stages("not: [valid") == []
 
 

@@ -51,9 +51,18 @@ def test_weather_command_writes_scan_and_labels_that_follow_their_beams(tmp_path
     out = tmp_path / "out" / "scan.bin"
     result = CliRunner().invoke(
         main,
-        ["weather", str(path), str(out), "--sensor", "hdl64e", "--snow", "10",
-         "--labels", str(tmp_path / "scan.label")],
-    )  # fmt: skip
+        [
+            "weather",
+            str(path),
+            str(out),
+            "--sensor",
+            "hdl64e",
+            "--snow",
+            "10",
+            "--labels",
+            str(tmp_path / "scan.label"),
+        ],
+    )
     assert result.exit_code == 0, result.output
     written = np.fromfile(out, dtype=np.float32).reshape(-1, 4)
     written_labels = np.fromfile(out.with_suffix(".label"), dtype=np.uint32)

@@ -107,11 +107,13 @@ def _hard_cases(n, rng):
     survivals within 1e-12 of 1 (clear or almost clear paths), some exactly 1."""
     limit = 4e-5
     clear = limit * np.exp(rng.uniform(0.0, 6.0, n))
-    two_way_ln = -np.concatenate([
-        rng.uniform(0.0, 3.0, n // 2),
-        10.0 ** rng.uniform(-14, -2, n - n // 2 - 20),
-        np.zeros(20),
-    ])  # fmt: skip
+    two_way_ln = -np.concatenate(
+        [
+            rng.uniform(0.0, 3.0, n // 2),
+            10.0 ** rng.uniform(-14, -2, n - n // 2 - 20),
+            np.zeros(20),
+        ]
+    )
     active = rng.random(n) < 0.95
     return clear, two_way_ln, active
 
@@ -143,10 +145,15 @@ def test_the_phi_table_keeps_its_error_bound():
     z = rng.uniform(0.0, 12.0, 400_000)
     z_weather = z - rng.uniform(0.0, 20.0, z.size) ** 2 / 20
     q, state = survival_screen(
-        z, z_weather, np.ones(z.size, dtype=bool), detection._phi_table(),
-        detection.PHI_TABLE_START, detection.PHI_STEPS_PER_UNIT, detection.CERTAIN_Z,
+        z,
+        z_weather,
+        np.ones(z.size, dtype=bool),
+        detection._phi_table(),
+        detection.PHI_TABLE_START,
+        detection.PHI_STEPS_PER_UNIT,
+        detection.CERTAIN_Z,
         detection.SCREEN_TOLERANCE,
-    )  # fmt: skip
+    )
     shown = state == APPROX
     exact = detection._survival_ratio(z[shown], z_weather[shown])
     assert np.abs(q[shown] - exact).max() < detection.SCREEN_TOLERANCE / 5

@@ -34,13 +34,26 @@ WALL_INSTANCE = 7
 SCAN0, SCAN1 = "sequences/00/velodyne/000000.bin", "sequences/00/velodyne/000001.bin"
 LEVELS = (np.arange(100, dtype=np.float64) * 0.01).astype(np.float32)  # KITTI 0.00..0.99
 DTYPES = {
-    "scan": np.int32, "group": np.int64, "ring": np.int16, "azimuth_deg": np.float32,
-    "elevation_deg": np.float32, "range_m": np.float32, "cos_incidence": np.float32,
-    "normal_ok": np.bool_, "class_id": np.int32, "is_ground": np.bool_, "height_m": np.float32,
-    "edge_beams": np.float32, "edge_span_beams": np.float32, "i_sim": np.float32,
-    "i_real": np.float32, "ret_sim": np.bool_, "ret_real": np.bool_, "sim_index": np.int64,
+    "scan": np.int32,
+    "group": np.int64,
+    "ring": np.int16,
+    "azimuth_deg": np.float32,
+    "elevation_deg": np.float32,
+    "range_m": np.float32,
+    "cos_incidence": np.float32,
+    "normal_ok": np.bool_,
+    "class_id": np.int32,
+    "is_ground": np.bool_,
+    "height_m": np.float32,
+    "edge_beams": np.float32,
+    "edge_span_beams": np.float32,
+    "i_sim": np.float32,
+    "i_real": np.float32,
+    "ret_sim": np.bool_,
+    "ret_real": np.bool_,
+    "sim_index": np.int64,
     "real_index": np.int64,
-}  # fmt: skip
+}
 
 
 def scene(wall_x_m: float = WALL_X_M, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
@@ -254,9 +267,13 @@ def test_extra_real_points_are_real_only_rows(sim_tree, tmp_path):
     rng = np.random.default_rng(4)
     n_extra = 200
     flakes = np.column_stack(  # in mid-air between the sensor and the wall: far from surfaces
-        [rng.uniform(2, 8, n_extra), rng.uniform(-1, 1, n_extra), rng.uniform(-0.5, 0.5, n_extra),
-         LEVELS[rng.integers(0, 100, n_extra)]]
-    ).astype(np.float32)  # fmt: skip
+        [
+            rng.uniform(2, 8, n_extra),
+            rng.uniform(-1, 1, n_extra),
+            rng.uniform(-0.5, 0.5, n_extra),
+            LEVELS[rng.integers(0, 100, n_extra)],
+        ]
+    ).astype(np.float32)
     scans[SCAN0] = (np.vstack([points, flakes]), np.concatenate([labels, np.full(n_extra, 1)]))
     real = write_kitti(tmp_path / "real", scans)
     table = paired_table(open_trees(sim_tree, real, "semantickitti", paired=True))

@@ -17,8 +17,14 @@ def ring_ground(
     rng = np.random.default_rng(seed)
     elev = np.radians(np.linspace(-24.0, -1.2, n_rings))
     az = rng.uniform(0, 2 * np.pi, (n_rings, per_ring))
-    d = np.stack([np.cos(elev)[:, None] * np.cos(az), np.cos(elev)[:, None] * np.sin(az),
-                  np.broadcast_to(np.sin(elev)[:, None], az.shape)], axis=-1)  # fmt: skip
+    d = np.stack(
+        [
+            np.cos(elev)[:, None] * np.cos(az),
+            np.cos(elev)[:, None] * np.sin(az),
+            np.broadcast_to(np.sin(elev)[:, None], az.shape),
+        ],
+        axis=-1,
+    )
     # Ray r d meets z = slope x - h where r (d_z - slope d_x) = -h.
     r = -SENSOR_HEIGHT_M / (d[..., 2] - slope * d[..., 0])
     pts = (d * r[..., None]).reshape(-1, 3)

@@ -34,11 +34,17 @@ def surfaces(seed: int, point_sd, *, surface_sd: float = 0.3, n_scans: int = 6) 
     h = base.sensor.half_step
     # The simulation stored its value rounded; reality follows the unrounded one.
     unrounded = np.maximum(base.i_sim + rng.uniform(-h, h, n), 0.0)
-    ln_real = (np.log(unrounded + h) + rng.normal(0.0, surface_sd, n_groups)[g]
-               + rng.normal(0.0, 1.0, n) * point_sd(range_m))  # fmt: skip
+    ln_real = (
+        np.log(unrounded + h)
+        + rng.normal(0.0, surface_sd, n_groups)[g]
+        + rng.normal(0.0, 1.0, n) * point_sd(range_m)
+    )
     # Stored as a sensor stores it: rounded to the encoding's step.
-    i_real = np.where(base.ret_sim & np.isfinite(base.i_real),
-                      np.round((np.exp(ln_real) - h) / (2 * h)) * (2 * h), base.i_real)  # fmt: skip
+    i_real = np.where(
+        base.ret_sim & np.isfinite(base.i_real),
+        np.round((np.exp(ln_real) - h) / (2 * h)) * (2 * h),
+        base.i_real,
+    )
     return dataclasses.replace(
         base,
         ring=(g % 64).astype(np.int16),

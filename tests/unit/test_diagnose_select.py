@@ -101,8 +101,7 @@ def test_held_out_improvement_is_reported_with_its_standard_error(ring_case):
 
 def test_the_diagnosis_does_not_depend_on_the_number_of_jobs(ring_case):
     design, _, serial = ring_case
-    parallel = diagnose_design(design, np.random.default_rng(0),
-                               dataclasses.replace(QUICK, jobs=2))  # fmt: skip
+    parallel = diagnose_design(design, np.random.default_rng(0), dataclasses.replace(QUICK, jobs=2))
     assert parallel.frequencies == serial.frequencies
     assert np.array_equal(parallel.final.theta, serial.final.theta)
     for a, b in zip(parallel.effects, serial.effects, strict=True):
@@ -172,8 +171,9 @@ def with_weak_rings(table: BeamTable, rings: list[int], ln_gain: float) -> BeamT
     g[rings] = ln_gain
     h = table.sensor.half_step
     scale = np.exp(g[table.ring.astype(np.int64)])
-    i_real = np.where(table.ret_sim & np.isfinite(table.i_real),
-                      (table.i_real + h) * scale - h, table.i_real)  # fmt: skip
+    i_real = np.where(
+        table.ret_sim & np.isfinite(table.i_real), (table.i_real + h) * scale - h, table.i_real
+    )
     return dataclasses.replace(table, i_real=i_real.astype(np.float32))
 
 
@@ -216,8 +216,9 @@ def test_point_noise_that_grows_with_range_is_a_noise_model_not_an_effect():
     # sigma rises from ~0.05 at 5 m to ~0.5 at 100 m, zero mean in ln I: no bias to name.
     sd = 0.05 * (table.range_m / 5.0) ** 0.8
     scale = np.exp(rng.normal(0.0, 1.0, len(table)) * sd)
-    i_real = np.where(table.ret_sim & np.isfinite(table.i_real),
-                      (table.i_real + h) * scale - h, table.i_real)  # fmt: skip
+    i_real = np.where(
+        table.ret_sim & np.isfinite(table.i_real), (table.i_real + h) * scale - h, table.i_real
+    )
     noisy = dataclasses.replace(table, i_real=i_real.astype(np.float32))
     dg = diagnose_design(paired_design(noisy), np.random.default_rng(0), QUICK)
     assert dg.noise_model["kind"] == "heteroscedastic"
@@ -248,8 +249,10 @@ def _sums(design, ws, extra):
 def test_restricted_parts_keep_row_order_and_weights():
     design = paired_design(make_table(7, n_scans=2))
     rng = np.random.default_rng(0)
-    ws = [np.where(rng.random(len(design)) < 0.1, rng.integers(1, 3, len(design)), 0).astype(float)
-          for _ in range(3)]  # fmt: skip
+    ws = [
+        np.where(rng.random(len(design)) < 0.1, rng.integers(1, 3, len(design)), 0).astype(float)
+        for _ in range(3)
+    ]
     extra = np.sort(rng.choice(len(design), 40, replace=False))
     part, part_ws, part_extra = restrict(design, ws, extra)
     assert np.all(np.diff(part.rows) > 0)
@@ -330,8 +333,9 @@ def with_bright_signs(table: BeamTable, ln_gain: float, seed: int) -> BeamTable:
     brighter = np.minimum((table.i_real + h) * gain - h, table.sensor.max_value)
     i_real = np.where(sign & np.isfinite(table.i_real), brighter, table.i_real)
     names = {**table.class_names, 81: "traffic-sign"}
-    return dataclasses.replace(table, class_id=class_id, class_names=names,
-                               i_real=i_real.astype(np.float32))  # fmt: skip
+    return dataclasses.replace(
+        table, class_id=class_id, class_names=names, i_real=i_real.astype(np.float32)
+    )
 
 
 def test_a_bright_rare_class_is_found_from_its_own_rows():
@@ -427,8 +431,9 @@ def test_a_class_confined_gain_passes_on_its_rows_only_with_enough_consistent_gr
 
 def test_an_effect_is_accepted_on_its_directional_score_and_a_gain_above_the_floor():
     """The score's z is the test; the NLL gain must only beat the floor, whatever its z."""
-    weak_gain = Comparison(delta=0.01, se=0.005, delta_bic=0.0, groups=100, score=0.04,
-                           score_se=0.01)  # fmt: skip
+    weak_gain = Comparison(
+        delta=0.01, se=0.005, delta_bic=0.0, groups=100, score=0.04, score_se=0.01
+    )
     assert weak_gain.z == pytest.approx(4.0)
     assert _passes(weak_gain, False, Z_ACCEPT, 0.005)
     assert not _passes(weak_gain, False, Z_ACCEPT, 0.02)  # gain below the floor
@@ -673,8 +678,10 @@ def test_resamples_that_swap_a_selected_effect_for_another_make_an_ambiguity_set
     assert [s["ids"] for s in sets] == [["C1", "C5"]]
     assert "50%" in sets[0]["reason"]
     # Chosen instead in 2 of 10: the selected effect is stable, no set.
-    assert resample_swaps(["C2", "C1"], [["C2", "C1"]] * 8 + [["C2", "C5"]] * 2, pool,
-                          family, []) == []  # fmt: skip
+    assert (
+        resample_swaps(["C2", "C1"], [["C2", "C1"]] * 8 + [["C2", "C5"]] * 2, pool, family, [])
+        == []
+    )
     # Together in fewer than 7 of 10: the mismatch itself is unstable, not its form.
     sparse = [["C1"]] * 3 + [["C5"]] * 3 + [[]] * 4
     assert resample_swaps(["C1"], sparse, pool, family, []) == []

@@ -18,8 +18,27 @@ from lads.physics.result import Outcome
 DR, P_MIN, LENGTH, MIN_RANGE = 0.02, 4e-5, 1.2, 1e-3
 
 
-def _numpy_rule(mode, n, idx, r0, rho, t2, p_target, p_clear, target_ok, fog_ok, grid, unit,
-                peak_range, curvature, scale, r1, shift, noise, noise_second):  # fmt: skip
+def _numpy_rule(
+    mode,
+    n,
+    idx,
+    r0,
+    rho,
+    t2,
+    p_target,
+    p_clear,
+    target_ok,
+    fog_ok,
+    grid,
+    unit,
+    peak_range,
+    curvature,
+    scale,
+    r1,
+    shift,
+    noise,
+    noise_second,
+):
     """The fog returns as numpy expressions (docs/physics.md §7): which returns each beam
     gives, the targets' SNR range noise and rho T^2, the echoes' timing noise and P_f r^2."""
     p_fog = scale * np.interp(r0, grid, unit)
@@ -51,8 +70,9 @@ def _numpy_rule(mode, n, idx, r0, rho, t2, p_target, p_clear, target_ok, fog_ok,
     extra_var = 0.5 * DR**2 * P_MIN * (1.0 / p_target[target] - 1.0 / p_clear[target])
     t_range = np.zeros(n)
     t_refl = np.zeros(n)
-    t_range[idx[target]] = np.maximum(r0[target] + np.sqrt(np.maximum(extra_var, 0.0)) * noise[:k],
-                                      MIN_RANGE)  # fmt: skip
+    t_range[idx[target]] = np.maximum(
+        r0[target] + np.sqrt(np.maximum(extra_var, 0.0)) * noise[:k], MIN_RANGE
+    )
     t_refl[idx[target]] = rho[target] * t2[target]
     range1, refl1 = t_range.copy(), t_refl.copy()
     range1[idx[fog]], refl1[idx[fog]] = echo(fog, noise[k:])
@@ -65,8 +85,11 @@ def _numpy_rule(mode, n, idx, r0, rho, t2, p_target, p_clear, target_ok, fog_ok,
     codes2[idx[fog & target]] = Outcome.ATTENUATED
     codes2[idx[second_echo]] = Outcome.PARTICLE
     # Returns the compiled path leaves unset (LOST) are not compared.
-    return (codes1, range1, refl1, codes2, t_range, t_refl), (k, int(fog.sum()),
-                                                              int(second_echo.sum()))  # fmt: skip
+    return (codes1, range1, refl1, codes2, t_range, t_refl), (
+        k,
+        int(fog.sum()),
+        int(second_echo.sum()),
+    )
 
 
 @pytest.mark.parametrize("mode", ["strongest", "last", "dual"])
@@ -80,10 +103,12 @@ def test_fog_loops_match_the_numpy_rule_bit_for_bit(mode):
     curvature = rng.uniform(0.0, 40.0, grid.size)
     curvature[:3] = 0.0  # the curvature floor
     curvature[10:12] = 1e-9  # the ratio cap
-    r0 = np.concatenate([
-        rng.uniform(0.5, 12.0, active - 300),  # below, inside and beyond the table
-        grid[rng.integers(0, grid.size, 300)],  # exactly on grid points
-    ])  # fmt: skip
+    r0 = np.concatenate(
+        [
+            rng.uniform(0.5, 12.0, active - 300),  # below, inside and beyond the table
+            grid[rng.integers(0, grid.size, 300)],  # exactly on grid points
+        ]
+    )
     rho = rng.random(active)
     t2 = np.exp(-2 * 0.06 * r0)
     p_clear = rho / r0**2 + 1e-7
@@ -91,17 +116,51 @@ def test_fog_loops_match_the_numpy_rule_bit_for_bit(mode):
     target_ok, fog_ok = rng.random(active) < 0.7, rng.random(active) < 0.6
     scale, r1, shift = 0.3, 3.25, 0.5 * LENGTH
     p_fog, reported, kappa = echo_lookup(r0, grid, unit, peak_range, curvature, scale, r1, shift)
-    choice, counts = fog_choices(MODE_CODES[mode], target_ok, fog_ok, p_target, p_fog, r0,
-                                 reported, LENGTH)  # fmt: skip
+    choice, counts = fog_choices(
+        MODE_CODES[mode], target_ok, fog_ok, p_target, p_fog, r0, reported, LENGTH
+    )
     noise = rng.standard_normal(int(counts[0] + counts[1])) * 50  # both clip bounds reached
     noise_second = rng.standard_normal(int(counts[2])) * 50
-    constants = np.array([0.5 * DR**2 * P_MIN, P_MIN, 2 * np.pi**2 / LENGTH**2, DR,
-                          0.5 * LENGTH, MIN_RANGE])  # fmt: skip
-    got = fog_returns(n, idx, choice, r0, rho, t2, p_target, p_clear, p_fog, reported, kappa,
-                      noise, noise_second, constants)  # fmt: skip
-    want, want_counts = _numpy_rule(mode, n, idx, r0, rho, t2, p_target, p_clear, target_ok,
-                                    fog_ok, grid, unit, peak_range, curvature, scale, r1, shift,
-                                    noise, noise_second)  # fmt: skip
+    constants = np.array(
+        [0.5 * DR**2 * P_MIN, P_MIN, 2 * np.pi**2 / LENGTH**2, DR, 0.5 * LENGTH, MIN_RANGE]
+    )
+    got = fog_returns(
+        n,
+        idx,
+        choice,
+        r0,
+        rho,
+        t2,
+        p_target,
+        p_clear,
+        p_fog,
+        reported,
+        kappa,
+        noise,
+        noise_second,
+        constants,
+    )
+    want, want_counts = _numpy_rule(
+        mode,
+        n,
+        idx,
+        r0,
+        rho,
+        t2,
+        p_target,
+        p_clear,
+        target_ok,
+        fog_ok,
+        grid,
+        unit,
+        peak_range,
+        curvature,
+        scale,
+        r1,
+        shift,
+        noise,
+        noise_second,
+    )
     assert tuple(counts) == want_counts
     np.testing.assert_array_equal(got[0], want[0])
     np.testing.assert_array_equal(got[3], want[3])

@@ -85,16 +85,28 @@ def make_frame(
         labels[far] = cls
     label_set = "semantickitti" if labelled else None
     bare = EvalFrame(
-        name, xyz, np.zeros(len(xyz), np.float32), profile,
-        labels if labelled else None, label_set, ring, extinction_per_m=extinction_per_m,
-    )  # fmt: skip
+        name,
+        xyz,
+        np.zeros(len(xyz), np.float32),
+        profile,
+        labels if labelled else None,
+        label_set,
+        ring,
+        extinction_per_m=extinction_per_m,
+    )
     physics = physics_image(bare).physics.astype(np.float64)
     rng = np.random.default_rng(seed + 1000)
     refl = K_TRUE * physics * np.exp(noise * rng.standard_normal(len(xyz)))
     return EvalFrame(
-        name, xyz, profile.intensity.from_reflectivity(refl), profile, bare.labels, label_set,
-        ring, extinction_per_m=extinction_per_m,
-    )  # fmt: skip
+        name,
+        xyz,
+        profile.intensity.from_reflectivity(refl),
+        profile,
+        bare.labels,
+        label_set,
+        ring,
+        extinction_per_m=extinction_per_m,
+    )
 
 
 def perfect(frame: EvalFrame) -> np.ndarray:
@@ -220,8 +232,9 @@ def test_physics_rescaled_recovers_k_from_data_made_as_k_times_physics():
     np.testing.assert_allclose(
         FINE.intensity.to_reflectivity(prediction),
         np.minimum(K_TRUE * fi.physics, FINE.intensity.max_value),
-        rtol=0.01, atol=1e-4,
-    )  # fmt: skip
+        rtol=0.01,
+        atol=1e-4,
+    )
 
 
 def test_physics_rescaled_uses_the_range_exponent():
@@ -307,9 +320,14 @@ def test_retro_contrast_follows_the_label_set_materials_not_a_class_number():
     # SemanticKITTI: the same labelled points are retro-reflectors in one set only.
     kitti = make_frame("cones", 15, sign=False, relabel=(256, 200))
     voxelscape = EvalFrame(
-        "cones", kitti.xyz, kitti.intensity, kitti.profile, kitti.labels, "voxelscape",
+        "cones",
+        kitti.xyz,
+        kitti.intensity,
+        kitti.profile,
+        kitti.labels,
+        "voxelscape",
         kitti.ring,
-    )  # fmt: skip
+    )
     as_kitti = evaluate([kitti], {"perfect": perfect}).pooled["perfect"]
     as_voxelscape = evaluate([voxelscape], {"perfect": perfect}).pooled["perfect"]
     assert np.isnan(as_kitti["retro_contrast_real"])
@@ -374,9 +392,11 @@ def test_evaluate_rejects_a_method_output_of_the_wrong_shape(heldout):
 
 def test_write_report_writes_json_and_a_markdown_table(result, tmp_path):
     paths = write_report(
-        result, tmp_path / "report", title="synth-to-kitti on 2 frames",
+        result,
+        tmp_path / "report",
+        title="synth-to-kitti on 2 frames",
         context={"model": "synth-to-kitti", "split": "held-out", "root": tmp_path},
-    )  # fmt: skip
+    )
     assert [p.name for p in paths] == ["eval.json", "eval.md"]
     data = json.loads(paths[0].read_text())
     assert data["context"]["root"] == str(tmp_path)
@@ -393,7 +413,10 @@ def test_write_report_writes_json_and_a_markdown_table(result, tmp_path):
     assert "## Targets" in md and "- mae_vs_median: met, " in md
     assert "- mae_vs_fitted_law: MISSED, " in md
     assert [r["target"] for r in data["summary"]["targets"]][:3] == [
-        "mae_vs_median", "mae_vs_fitted_law", "cell_w1"]  # fmt: skip
+        "mae_vs_median",
+        "mae_vs_fitted_law",
+        "cell_w1",
+    ]
 
 
 def test_to_json_rounds_floats_and_writes_missing_values_as_null(result):
@@ -424,8 +447,13 @@ def test_histograms_write_pngs_for_a_frame_and_for_pooled_values(result, heldout
     )
     real, preds, classes = result.pooled_values()
     pooled = eval_figures.histograms(
-        real, preds, tmp_path / "pooled_hist.png", classes=classes,
-        class_names=result.class_names, profile=HDL64, title="pooled",
-    )  # fmt: skip
+        real,
+        preds,
+        tmp_path / "pooled_hist.png",
+        classes=classes,
+        class_names=result.class_names,
+        profile=HDL64,
+        title="pooled",
+    )
     for path in (one, pooled):
         assert path.read_bytes()[:8] == PNG_SIGNATURE

@@ -29,8 +29,12 @@ def law_data(n: int, seed: int, noise: float = 0.05):
     r = rng.uniform(3, 70, n)
     cos = rng.uniform(0.05, 1.0, n)
     a = np.array([TRUE["a"][g] for g in group])
-    ln = (a + TRUE["b1"] * np.log(r) + TRUE["b2"] * r / 10
-          + np.log(fitted_physics.oren_nayar(cos, TRUE["sigma"])))  # fmt: skip
+    ln = (
+        a
+        + TRUE["b1"] * np.log(r)
+        + TRUE["b2"] * r / 10
+        + np.log(fitted_physics.oren_nayar(cos, TRUE["sigma"]))
+    )
     refl = np.exp(ln + rng.laplace(0, noise, n)) - 0.005
     return group, r, cos, np.maximum(refl, 0)
 
@@ -59,9 +63,11 @@ def test_rare_groups_take_the_pooled_intercept():
     law = fitted_physics.fit(group, r, cos, refl, floor=0.005)
     assert 999 not in law.intercepts
     assert law.ln_predict([999], [10.0], [0.5])[0] == pytest.approx(
-        law.pooled_intercept + law.b1 * np.log(10) + law.b2
+        law.pooled_intercept
+        + law.b1 * np.log(10)
+        + law.b2
         + np.log(fitted_physics.oren_nayar(np.array([0.5]), law.sigma_rad))[0]
-    )  # fmt: skip
+    )
     # Unknown, negative (no material) and fitted groups side by side.
     known = next(iter(law.intercepts))
     a = law.intercept_of(np.array([-1, known, 999, 10**6]))
@@ -83,10 +89,17 @@ def test_the_torch_law_equals_the_numpy_law_on_a_frame():
     raw = torch.from_numpy(fi.inputs)[None]
     torch_ln = TorchLaw.of(law, names).ln_reference(raw, torch.zeros(1))[0, 0].numpy()
     occ = fi.inputs[names.index("mask")] > 0
-    x = {n: fi.inputs[names.index(n)][occ]
-         for n in ("ln_range", "cos_incidence", "material", "elevation")}  # fmt: skip
-    numpy_ln = law.ln_predict(np.rint(x["material"]).astype(int) - 1, np.exp(x["ln_range"]),
-                              x["cos_incidence"], 0.0, x["elevation"] * 30.0)  # fmt: skip
+    x = {
+        n: fi.inputs[names.index(n)][occ]
+        for n in ("ln_range", "cos_incidence", "material", "elevation")
+    }
+    numpy_ln = law.ln_predict(
+        np.rint(x["material"]).astype(int) - 1,
+        np.exp(x["ln_range"]),
+        x["cos_incidence"],
+        0.0,
+        x["elevation"] * 30.0,
+    )
     assert np.allclose(torch_ln[occ], numpy_ln, atol=1e-4)
 
 
@@ -166,9 +179,12 @@ def test_a_merged_view_links_every_root_and_refuses_collisions(tmp_path: Path):
 LASERS_DEG = np.array([-20.0, -12.0, -6.0, -2.0, 1.0])
 # Each laser's own calibration: a gain, and a bend near or far (ln-intensity deviation).
 LASER_DEVIATION = {
-    0: lambda r: 0.3 + 0.0 * r, 1: lambda r: -0.25 + 0.0 * r, 2: lambda r: 0.2 * np.log(r / 10),
-    3: lambda r: -0.3 * np.exp(-r / 6), 4: lambda r: 0.0 * r,
-}  # fmt: skip
+    0: lambda r: 0.3 + 0.0 * r,
+    1: lambda r: -0.25 + 0.0 * r,
+    2: lambda r: 0.2 * np.log(r / 10),
+    3: lambda r: -0.3 * np.exp(-r / 6),
+    4: lambda r: 0.0 * r,
+}
 
 
 def laser_data(n: int, seed: int):
@@ -179,8 +195,13 @@ def laser_data(n: int, seed: int):
     for k, fn in LASER_DEVIATION.items():
         deviation[laser == k] = fn(r[laser == k])
     a = np.array([TRUE["a"][g] for g in group])
-    ln = (a + TRUE["b1"] * np.log(r) + TRUE["b2"] * r / 10 + deviation
-          + np.log(fitted_physics.oren_nayar(cos, TRUE["sigma"])))  # fmt: skip
+    ln = (
+        a
+        + TRUE["b1"] * np.log(r)
+        + TRUE["b2"] * r / 10
+        + deviation
+        + np.log(fitted_physics.oren_nayar(cos, TRUE["sigma"]))
+    )
     refl = np.maximum(np.exp(ln + rng.laplace(0, 0.05, n)) - 0.005, 0)
     return group, r, cos, refl, LASERS_DEG[laser], deviation
 
@@ -203,12 +224,15 @@ def test_each_lasers_range_response_is_fitted_and_looked_up_by_elevation():
         )
         assert np.allclose(got, LASER_DEVIATION[k](probe), atol=0.06), k
     # A beam between two lasers takes the nearer one; no elevation, no laser term.
-    assert np.array_equal(fitted_physics.nearest_laser(LASERS_DEG, [-19.0, -9.5, 5.0, -30.0]),
-                          [0, 1, 4, 0])  # fmt: skip
+    assert np.array_equal(
+        fitted_physics.nearest_laser(LASERS_DEG, [-19.0, -9.5, 5.0, -30.0]), [0, 1, 4, 0]
+    )
     assert law.laser_term(probe, None).tolist() == [0.0, 0.0, 0.0]
     again = fitted_physics.FittedPhysics.from_json(law.to_json())
-    assert np.allclose(again.ln_predict(group, r, cos, elevation_deg=elevation),
-                       law.ln_predict(group, r, cos, elevation_deg=elevation))  # fmt: skip
+    assert np.allclose(
+        again.ln_predict(group, r, cos, elevation_deg=elevation),
+        law.ln_predict(group, r, cos, elevation_deg=elevation),
+    )
 
 
 def test_a_laser_with_too_few_points_keeps_the_shared_law():

@@ -31,10 +31,17 @@ def _meta(kind: str = "sensor", sensor: str = "hdl64e", **changes) -> ModelMeta:
         else {"kitti": TargetSpec(sensor, -1.5, 0.8, 0.005, 1.2)}
     )
     values = dict(
-        name="tiny", kind=kind, channels=channel_names(styles), feature_version=FEATURE_VERSION,
-        range_exponent=1.0, base=4, blocks=1, targets=targets,
-        calibration={"hdl64e": 1.2, "wads64": 0.5}, materials=material_names(),
-    )  # fmt: skip
+        name="tiny",
+        kind=kind,
+        channels=channel_names(styles),
+        feature_version=FEATURE_VERSION,
+        range_exponent=1.0,
+        base=4,
+        blocks=1,
+        targets=targets,
+        calibration={"hdl64e": 1.2, "wads64": 0.5},
+        materials=material_names(),
+    )
     values.update(changes)
     return ModelMeta(**values)
 
@@ -63,8 +70,14 @@ def street():
 
 
 def test_features_have_one_channel_per_name_and_zero_on_empty_pixels(street):
-    fi = frame_image(street.xyz, HDL64, labels=street.labels, label_set="semantickitti",
-                     ring=street.ring, intensity=street.intensity)  # fmt: skip
+    fi = frame_image(
+        street.xyz,
+        HDL64,
+        labels=street.labels,
+        label_set="semantickitti",
+        ring=street.ring,
+        intensity=street.intensity,
+    )
     assert fi.inputs.shape == (len(channel_names(False)), 64, HDL64.range_image_width)
     empty = ~fi.mask
     assert np.all(fi.inputs[:, empty] == 0)
@@ -73,10 +86,20 @@ def test_features_have_one_channel_per_name_and_zero_on_empty_pixels(street):
 
 
 def test_physics_reference_comes_from_materials_not_the_measured_intensity(street):
-    a = frame_image(street.xyz, HDL64, labels=street.labels, label_set="semantickitti",
-                    intensity=street.intensity)  # fmt: skip
-    b = frame_image(street.xyz, HDL64, labels=street.labels, label_set="semantickitti",
-                    intensity=np.zeros_like(street.intensity))  # fmt: skip
+    a = frame_image(
+        street.xyz,
+        HDL64,
+        labels=street.labels,
+        label_set="semantickitti",
+        intensity=street.intensity,
+    )
+    b = frame_image(
+        street.xyz,
+        HDL64,
+        labels=street.labels,
+        label_set="semantickitti",
+        intensity=np.zeros_like(street.intensity),
+    )
     assert np.array_equal(a.inputs, b.inputs)
 
 
@@ -84,8 +107,9 @@ def test_every_point_gets_a_value_and_sharers_follow_their_own_physics(tmp_path)
     # 3000 beams per ring in 2048 columns: about a third of the points share a pixel.
     dense = synth_frame("hdl64e", frames=1, seed=3, index=0, azimuth_bins=3000)
     model = load_model(tiny_model(tmp_path))
-    pred = predict_points(model, dense.xyz, HDL64, labels=dense.labels,
-                          label_set="semantickitti", ring=dense.ring)  # fmt: skip
+    pred = predict_points(
+        model, dense.xyz, HDL64, labels=dense.labels, label_set="semantickitti", ring=dense.ring
+    )
     n = len(dense.xyz)
     assert pred.reflectivity.shape == pred.encoded.shape == (n,)
     assert np.isfinite(pred.reflectivity).all()
@@ -94,8 +118,9 @@ def test_every_point_gets_a_value_and_sharers_follow_their_own_physics(tmp_path)
     sharers = np.flatnonzero(owner != np.arange(n))
     assert np.array_equal(pred.owner, owner == np.arange(n))
     assert sharers.size > n // 5
-    fi = frame_image(dense.xyz, HDL64, labels=dense.labels, label_set="semantickitti",
-                     ring=dense.ring)  # fmt: skip
+    fi = frame_image(
+        dense.xyz, HDL64, labels=dense.labels, label_set="semantickitti", ring=dense.ring
+    )
     f = model.meta.targets["kitti"].floor
     ln_ratio = np.log(fi.physics[sharers] + 1e-6) - np.log(fi.physics[owner[sharers]] + 1e-6)
     expected = np.log(pred.reflectivity[owner[sharers]] + f) + np.clip(
@@ -131,16 +156,31 @@ def test_with_a_fitted_law_sharers_take_the_law_at_their_own_inputs(tmp_path):
     elevations = tuple(float(v) for v in HDL64.elevation_deg)
     curves = tuple((0.1 * (k % 3), -0.05 * (k % 5), 0.0) for k in range(len(elevations)))
     law = fitted_physics.FittedPhysics(
-        {i: -1.5 + 0.2 * i for i in range(10)}, -1.4, 0.5, -0.3, 0.4, 0.005, 3.0, 80.0,
-        laser_elevation_deg=elevations, laser_knots_ln=tuple(np.log([3.0, 10.0, 80.0])),
+        {i: -1.5 + 0.2 * i for i in range(10)},
+        -1.4,
+        0.5,
+        -0.3,
+        0.4,
+        0.005,
+        3.0,
+        80.0,
+        laser_elevation_deg=elevations,
+        laser_knots_ln=tuple(np.log([3.0, 10.0, 80.0])),
         laser_curves=curves,
-    )  # fmt: skip
+    )
     spec = TargetSpec("hdl64e", -1.5, 0.8, 0.005, 1.2, law=law.to_json())
     save_model(tmp_path / "r.pt", _meta(targets={"kitti": spec}), build_generator(_meta()))
-    pred = predict_points(load_model(tmp_path / "r.pt"), dense.xyz, HDL64, labels=dense.labels,
-                          label_set="semantickitti", ring=dense.ring)  # fmt: skip
-    fi = frame_image(dense.xyz, HDL64, labels=dense.labels, label_set="semantickitti",
-                     ring=dense.ring)  # fmt: skip
+    pred = predict_points(
+        load_model(tmp_path / "r.pt"),
+        dense.xyz,
+        HDL64,
+        labels=dense.labels,
+        label_set="semantickitti",
+        ring=dense.ring,
+    )
+    fi = frame_image(
+        dense.xyz, HDL64, labels=dense.labels, label_set="semantickitti", ring=dense.ring
+    )
     ln_law = law.ln_predict(fi.material, fi.range_m, fi.cos_incidence, 0.0, fi.elevation_deg)
     owner = fi.image.index[fi.image.row, fi.image.col]
     sharers = np.flatnonzero(owner != np.arange(len(owner)))
@@ -164,14 +204,16 @@ def test_with_a_fitted_law_sharers_take_the_law_at_their_own_inputs(tmp_path):
 
 def test_output_is_in_the_target_encoding(tmp_path, street):
     kitti = load_model(tiny_model(tmp_path))
-    pred = predict_points(kitti, street.xyz, HDL64, labels=street.labels,
-                          label_set="semantickitti", ring=street.ring)  # fmt: skip
+    pred = predict_points(
+        kitti, street.xyz, HDL64, labels=street.labels, label_set="semantickitti", ring=street.ring
+    )
     steps = pred.encoded / 0.01
     assert np.allclose(steps, np.rint(steps), atol=1e-4) and pred.encoded.max() <= 0.99
     nusc_path = tiny_model(tmp_path / "n", sensor="hdl32e")
     nusc = load_model(nusc_path)
-    pred32 = predict_points(nusc, street.xyz, HDL64, labels=street.labels,
-                            label_set="semantickitti", ring=street.ring)  # fmt: skip
+    pred32 = predict_points(
+        nusc, street.xyz, HDL64, labels=street.labels, label_set="semantickitti", ring=street.ring
+    )
     assert np.array_equal(pred32.encoded, np.rint(pred32.encoded))
     assert pred32.encoded.max() <= 255
 
@@ -182,8 +224,9 @@ def test_the_output_head_reaches_the_top_of_the_encoding(tmp_path, street):
     model = load_model(path)
     with torch.no_grad():
         model.generator.linear.bias.fill_(50.0)
-    pred = predict_points(model, street.xyz, HDL64, labels=street.labels,
-                          label_set="semantickitti", ring=street.ring)  # fmt: skip
+    pred = predict_points(
+        model, street.xyz, HDL64, labels=street.labels, label_set="semantickitti", ring=street.ring
+    )
     assert pred.encoded.max() == pytest.approx(0.99)
 
 
@@ -261,8 +304,7 @@ def test_a_generator_learns_a_response_that_reflectance_alone_cannot_carry():
 
     def fitted_gap() -> float:
         torch.manual_seed(0)
-        g = Generator(names, NORMALISED_CHANNELS, base=4, blocks=1,
-                      materials=len(material_names()))  # fmt: skip
+        g = Generator(names, NORMALISED_CHANNELS, base=4, blocks=1, materials=len(material_names()))
         opt = torch.optim.Adam(g.parameters(), lr=0.01)
         for _ in range(150):
             opt.zero_grad()
@@ -355,8 +397,9 @@ def test_a_residual_generator_adds_its_correction_to_the_fitted_law(tmp_path, st
     ln(I + f) is the plain one's plus the law's (ln I_law + f) - log_mean."""
     from lads.intensity import fitted_physics
 
-    law = fitted_physics.FittedPhysics({i: -1.5 + 0.05 * i for i in range(10)}, -1.4, 0.5,
-                                       -0.3, 0.4, 0.005)  # fmt: skip
+    law = fitted_physics.FittedPhysics(
+        {i: -1.5 + 0.05 * i for i in range(10)}, -1.4, 0.5, -0.3, 0.4, 0.005
+    )
     spec = TargetSpec("hdl64e", -1.5, 0.8, 0.005, 1.2)
     torch.manual_seed(0)
     gen = build_generator(_meta())
@@ -366,15 +409,20 @@ def test_a_residual_generator_adds_its_correction_to_the_fitted_law(tmp_path, st
         meta = _meta(targets={"kitti": target})
         save_model(tmp_path / f"{name}.pt", meta, gen)
         models[name] = load_model(tmp_path / f"{name}.pt")
-    preds = {k: predict_points(m, street.xyz, HDL64, labels=street.labels,
-                               label_set="semantickitti", ring=street.ring)
-             for k, m in models.items()}  # fmt: skip
-    fi = frame_image(street.xyz, HDL64, labels=street.labels, label_set="semantickitti",
-                     ring=street.ring)  # fmt: skip
+    preds = {
+        k: predict_points(
+            m, street.xyz, HDL64, labels=street.labels, label_set="semantickitti", ring=street.ring
+        )
+        for k, m in models.items()
+    }
+    fi = frame_image(
+        street.xyz, HDL64, labels=street.labels, label_set="semantickitti", ring=street.ring
+    )
     material = np.rint(fi.inputs[channel_names(False).index("material")]).astype(int) - 1
     own = preds["plain"].owner
-    ln_law = law.ln_predict(material[fi.image.row[own], fi.image.col[own]], fi.range_m[own],
-                            fi.cos_incidence[own])  # fmt: skip
+    ln_law = law.ln_predict(
+        material[fi.image.row[own], fi.image.col[own]], fi.range_m[own], fi.cos_incidence[own]
+    )
     f = spec.floor
     shift = np.log(preds["residual"].reflectivity[own] + f) - np.log(
         preds["plain"].reflectivity[own] + f
@@ -412,18 +460,22 @@ def test_a_batch_of_frames_gives_each_frame_the_bytes_it_gets_alone(tmp_path, st
     from lads.intensity import fitted_physics
     from lads.intensity.predict import PointRequest, predict_points_batch
 
-    law = fitted_physics.FittedPhysics({i: -1.5 + 0.2 * i for i in range(10)}, -1.4, 0.5, -0.3,
-                                       0.4, 0.005, 3.0, 80.0)  # fmt: skip
+    law = fitted_physics.FittedPhysics(
+        {i: -1.5 + 0.2 * i for i in range(10)}, -1.4, 0.5, -0.3, 0.4, 0.005, 3.0, 80.0
+    )
     spec = TargetSpec("hdl64e", -1.5, 0.8, 0.005, 1.2, law=law.to_json())
     model = load_model(tiny_model(tmp_path, architecture=architecture, targets={"kitti": spec}))
     other = synth_frame("hdl64e", frames=2, seed=5, index=1, azimuth_bins=512)
     frames = [street, other, street]
-    requests = [PointRequest(f.xyz, HDL64, labels=f.labels, label_set="semantickitti",
-                             ring=f.ring) for f in frames]  # fmt: skip
+    requests = [
+        PointRequest(f.xyz, HDL64, labels=f.labels, label_set="semantickitti", ring=f.ring)
+        for f in frames
+    ]
     batched = predict_points_batch(model, requests)
     for f, b in zip(frames, batched, strict=True):
-        alone = predict_points(model, f.xyz, HDL64, labels=f.labels, label_set="semantickitti",
-                               ring=f.ring)  # fmt: skip
+        alone = predict_points(
+            model, f.xyz, HDL64, labels=f.labels, label_set="semantickitti", ring=f.ring
+        )
         np.testing.assert_array_equal(b.encoded, alone.encoded)
         np.testing.assert_array_equal(b.reflectivity, alone.reflectivity)
 
@@ -449,8 +501,9 @@ def test_a_pointwise_generator_answers_each_pixel_from_its_own_inputs_only():
     changed = (after != before)[0, 0]
     assert bool(changed[1, 2]) and int(changed.sum()) == 1
     # Pixels laid out as a column of points give the same values as the image.
-    points = gen(raw.reshape(1, len(names), 24, 1), mask.reshape(1, 1, 24, 1),
-                 law.reshape(1, 1, 24, 1))  # fmt: skip
+    points = gen(
+        raw.reshape(1, len(names), 24, 1), mask.reshape(1, 1, 24, 1), law.reshape(1, 1, 24, 1)
+    )
     torch.testing.assert_close(points.reshape(1, 1, 4, 6), before, rtol=0, atol=1e-6)
 
 
@@ -488,19 +541,22 @@ def test_a_pointwise_model_gives_every_point_its_own_value(tmp_path):
     from lads.intensity import fitted_physics
 
     dense = synth_frame("hdl64e", frames=1, seed=3, index=0, azimuth_bins=3000)
-    law = fitted_physics.FittedPhysics({i: -1.5 + 0.2 * i for i in range(10)}, -1.4, 0.5, -0.3,
-                                       0.4, 0.005, 3.0, 80.0)  # fmt: skip
+    law = fitted_physics.FittedPhysics(
+        {i: -1.5 + 0.2 * i for i in range(10)}, -1.4, 0.5, -0.3, 0.4, 0.005, 3.0, 80.0
+    )
     spec = TargetSpec("hdl64e", -1.5, 0.8, 0.005, 1.2, law=law.to_json())
-    path = tiny_model(tmp_path, architecture="pointwise", base=8, blocks=2,
-                      targets={"kitti": spec})  # fmt: skip
+    path = tiny_model(tmp_path, architecture="pointwise", base=8, blocks=2, targets={"kitti": spec})
     model = load_model(path)
-    pred = predict_points(model, dense.xyz, HDL64, labels=dense.labels,
-                          label_set="semantickitti", ring=dense.ring)  # fmt: skip
-    again = predict_points(model, dense.xyz, HDL64, labels=dense.labels,
-                           label_set="semantickitti", ring=dense.ring)  # fmt: skip
+    pred = predict_points(
+        model, dense.xyz, HDL64, labels=dense.labels, label_set="semantickitti", ring=dense.ring
+    )
+    again = predict_points(
+        model, dense.xyz, HDL64, labels=dense.labels, label_set="semantickitti", ring=dense.ring
+    )
     assert np.array_equal(pred.encoded, again.encoded)
-    fi = frame_image(dense.xyz, HDL64, labels=dense.labels, label_set="semantickitti",
-                     ring=dense.ring)  # fmt: skip
+    fi = frame_image(
+        dense.xyz, HDL64, labels=dense.labels, label_set="semantickitti", ring=dense.ring
+    )
     ln_law = law.ln_predict(fi.material, fi.range_m, fi.cos_incidence, 0.0, fi.elevation_deg)
     law_z = torch.from_numpy(((ln_law - spec.log_mean) / spec.log_std).astype(np.float32))
     with torch.no_grad():

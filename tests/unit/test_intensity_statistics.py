@@ -46,16 +46,26 @@ def _frame(rng: np.random.Generator, pair: str, role: str, h: int, w: int) -> Ca
 
 def _frames(seed: int, n: int, h: int, w: int) -> list[CachedFrame]:
     rng = np.random.default_rng(seed)
-    return [_frame(rng, pair, role, h, w)
-            for _ in range(n) for pair in SENSORS for role in ("source", "target")]  # fmt: skip
+    return [
+        _frame(rng, pair, role, h, w)
+        for _ in range(n)
+        for pair in SENSORS
+        for role in ("source", "target")
+    ]
 
 
 def _exact(frames: list[CachedFrame]) -> Statistics:
     """The reference: every occupied value of the whole data set concatenated in memory."""
     occ = [f.inputs[CHANNELS.index("mask")] > 0.5 for f in frames]
-    values = {c: np.concatenate([f.inputs[CHANNELS.index(c)][o].astype(np.float64)
-                                 for f, o in zip(frames, occ, strict=True)])
-              for c in NORMALISED_CHANNELS}  # fmt: skip
+    values = {
+        c: np.concatenate(
+            [
+                f.inputs[CHANNELS.index(c)][o].astype(np.float64)
+                for f, o in zip(frames, occ, strict=True)
+            ]
+        )
+        for c in NORMALISED_CHANNELS
+    }
     ratios: dict[str, list[np.ndarray]] = {}
     logs: dict[str, list[np.ndarray]] = {}
     for f, o in zip(frames, occ, strict=True):
@@ -75,11 +85,12 @@ def _exact(frames: list[CachedFrame]) -> Statistics:
         sensor = SENSORS[key]
         all_logs = np.concatenate(parts)
         targets[key] = {
-            "sensor": sensor, "log_mean": float(all_logs.mean()),
+            "sensor": sensor,
+            "log_mean": float(all_logs.mean()),
             "log_std": float(max(all_logs.std(), 1e-3)),
             "floor": load_profile(sensor).intensity.detection_floor,
             "log_k": calibration[sensor],
-        }  # fmt: skip
+        }
     mean = {c: float(v.mean()) for c, v in values.items()}
     std = {c: float(v.std()) for c, v in values.items()}
     return Statistics(mean, std, targets, calibration)
@@ -102,8 +113,7 @@ def _assert_matches(got: Statistics, want: Statistics) -> None:
         assert abs(stats["log_k"] - exact["log_k"]) <= LOG_RATIO_BIN
 
 
-@pytest.mark.parametrize(("seed", "n", "h", "w"), [(0, 1, 3, 5), (1, 3, 16, 64),
-                                                   (2, 6, 64, 256)])  # fmt: skip
+@pytest.mark.parametrize(("seed", "n", "h", "w"), [(0, 1, 3, 5), (1, 3, 16, 64), (2, 6, 64, 256)])
 def test_streamed_statistics_equal_the_exact_concatenated_ones(seed, n, h, w):
     frames = _frames(seed, n, h, w)
     _assert_matches(compute_statistics(iter(frames), CHANNELS, PAIRS), _exact(frames))
@@ -123,8 +133,16 @@ def _with_ratios(ratios: list[float]) -> CachedFrame:
     return CachedFrame("kitti", "target", "k", inputs, target, True, 0.0, "hdl64e")
 
 
-@pytest.mark.parametrize("ratios", [[0.0, 5.0], [0.1, 0.2, 0.3, 9.0], [0.3, 0.2, 60.0],
-                                    [-50.0, 0.1, 0.2], [-12.0, 0.0, 0.0, 0.0, 2e-5]])  # fmt: skip
+@pytest.mark.parametrize(
+    "ratios",
+    [
+        [0.0, 5.0],
+        [0.1, 0.2, 0.3, 9.0],
+        [0.3, 0.2, 60.0],
+        [-50.0, 0.1, 0.2],
+        [-12.0, 0.0, 0.0, 0.0, 2e-5],
+    ],
+)
 def test_the_median_is_within_one_bin_for_gaps_ties_and_values_beyond_the_range(ratios):
     # An even count takes the midpoint of two far-apart middle values (as np.median), and a
     # ratio beyond the histogram range still counts towards the median's rank.
@@ -169,14 +187,22 @@ def test_the_frames_are_consumed_once_and_never_held_together():
 
 def test_a_pair_without_target_frames_is_still_a_training_error():
     frames = (f for f in _frames(4, 2, 4, 8) if not (f.pair == "nusc" and f.role == "target"))
-    with pytest.raises(TrainingError, match=r"^pair nusc: no target frame with an intensity "
-                                            r"in the cache\.$"):  # fmt: skip
+    with pytest.raises(
+        TrainingError,
+        match=r"^pair nusc: no target frame with an intensity "
+        r"in the cache\.$",
+    ):
         compute_statistics(frames, CHANNELS, PAIRS)
 
 
 def test_target_frames_without_an_intensity_do_not_count_as_target_data():
-    frames = [CachedFrame(f.pair, f.role, f.frame, f.inputs, None, f.labelled,
-                          f.extinction_per_m, f.sensor) if f.pair == "nusc" else f
-              for f in _frames(6, 1, 4, 8)]  # fmt: skip
+    frames = [
+        CachedFrame(
+            f.pair, f.role, f.frame, f.inputs, None, f.labelled, f.extinction_per_m, f.sensor
+        )
+        if f.pair == "nusc"
+        else f
+        for f in _frames(6, 1, 4, 8)
+    ]
     with pytest.raises(TrainingError, match="pair nusc: no target frame with an intensity"):
         compute_statistics(iter(frames), CHANNELS, PAIRS)

@@ -207,10 +207,18 @@ def test_stored_statistics_round_trip_exactly_with_nan_infinities_and_ints():
     pairs = (PairSpec("snow", DomainSpec("synth", frames=1), DomainSpec("synth", frames=1)),)
     mean = {c: 0.1 + i / 3 for i, c in enumerate(NORMALISED_CHANNELS)}
     std = {c: float("nan") if i == 0 else 5e-324 for i, c in enumerate(NORMALISED_CHANNELS)}
-    targets = {"snow": {"sensor": "hdl64e", "log_mean": -1 / 7, "log_std": float("inf"),
-                        "floor": 0, "log_k": -float("inf")}}  # fmt: skip
-    facts = RunStatistics(Statistics(mean, std, targets, {"hdl64e": 1e300}), {"snow": False},
-                          {"snow": float("nan")})  # fmt: skip
+    targets = {
+        "snow": {
+            "sensor": "hdl64e",
+            "log_mean": -1 / 7,
+            "log_std": float("inf"),
+            "floor": 0,
+            "log_k": -float("inf"),
+        }
+    }
+    facts = RunStatistics(
+        Statistics(mean, std, targets, {"hdl64e": 1e300}), {"snow": False}, {"snow": float("nan")}
+    )
     text = json.dumps(facts.to_json(), allow_nan=False)  # strict JSON: no NaN literal
     back = RunStatistics.from_json(json.loads(text), "test", pairs)
     assert _as_text(back) == _as_text(facts)
@@ -224,8 +232,10 @@ def test_stored_statistics_round_trip_exactly_with_nan_infinities_and_ints():
 
 def _jobs(n: int) -> list[stats_module.CacheJob]:
     domain = DomainSpec("synth", frames=n)
-    return [stats_module.CacheJob("p", "source", domain, f"synth-{i:06d}", "sensor", 1.0)
-            for i in range(n)]  # fmt: skip
+    return [
+        stats_module.CacheJob("p", "source", domain, f"synth-{i:06d}", "sensor", 1.0)
+        for i in range(n)
+    ]
 
 
 def test_the_sampler_keeps_a_frequently_drawn_frame_and_drops_a_cold_one(tmp_path, monkeypatch):

@@ -25,16 +25,33 @@ def _config(target_root: Path, output: Path, **changes) -> dict:
         "output": str(output),
         "pairs": {
             "kitti": {
-                "source": {"dataset": "synth", "sensor": "hdl64e", "frames": 2, "seed": 4,
-                           "azimuth_bins": 256},  # fmt: skip
-                "target": {"dataset": "semantickitti", "root": str(target_root), "split": {
-                    "train": ["sequences/00/velodyne/00000[01].bin"],
-                    "validation": ["sequences/00/velodyne/000002.bin"]}},  # fmt: skip
+                "source": {
+                    "dataset": "synth",
+                    "sensor": "hdl64e",
+                    "frames": 2,
+                    "seed": 4,
+                    "azimuth_bins": 256,
+                },
+                "target": {
+                    "dataset": "semantickitti",
+                    "root": str(target_root),
+                    "split": {
+                        "train": ["sequences/00/velodyne/00000[01].bin"],
+                        "validation": ["sequences/00/velodyne/000002.bin"],
+                    },
+                },
             }
         },
-        "steps": 4, "batch": 2, "crop_width": 64, "base": 4, "blocks": 1, "disc_base": 4,
-        "checkpoint_every": 2, "workers": 1, "seed": 3,
-    }  # fmt: skip
+        "steps": 4,
+        "batch": 2,
+        "crop_width": 64,
+        "base": 4,
+        "blocks": 1,
+        "disc_base": 4,
+        "checkpoint_every": 2,
+        "workers": 1,
+        "seed": 3,
+    }
     raw.update(changes)
     return raw
 
@@ -42,8 +59,15 @@ def _config(target_root: Path, output: Path, **changes) -> dict:
 @pytest.fixture(scope="module")
 def target_tree(tmp_path_factory) -> Path:
     root = tmp_path_factory.mktemp("kitti-like")
-    write_synthetic_dataset(root, sensor="hdl64e", frames=3, layout="semantickitti", seed=9,
-                            progress=False, azimuth_bins=256)  # fmt: skip
+    write_synthetic_dataset(
+        root,
+        sensor="hdl64e",
+        frames=3,
+        layout="semantickitti",
+        seed=9,
+        progress=False,
+        azimuth_bins=256,
+    )
     return root
 
 
@@ -110,8 +134,9 @@ def test_an_interrupted_run_resumes_to_the_same_weights(target_tree, tmp_path):
     assert stopped["steps_done"] == 2 and not (tmp_path / "b.pt").exists()
     train(other, run_dir=tmp_path / "b", progress=False)
     a, b = load_model(tmp_path / "a.pt"), load_model(tmp_path / "b.pt")
-    for (name, ta), (_, tb) in zip(a.generator.state_dict().items(),
-                                   b.generator.state_dict().items(), strict=True):  # fmt: skip
+    for (name, ta), (_, tb) in zip(
+        a.generator.state_dict().items(), b.generator.state_dict().items(), strict=True
+    ):
         assert ta.equal(tb), name
 
 
@@ -153,10 +178,18 @@ def test_evaluation_fits_baselines_on_train_frames_and_scores_only_its_split(
         return real_fit(frames, **kwargs)
 
     monkeypatch.setattr(baselines, "fit_baselines", spy)
-    result = evaluate_pair(cfg, cfg.pairs[0], str(tmp_path / "w.pt"), tmp_path / "ev",
-                           split="validation", figures=False)  # fmt: skip
-    assert seen["reference"] == ["sequences/00/velodyne/000000.bin",
-                                 "sequences/00/velodyne/000001.bin"]  # fmt: skip
+    result = evaluate_pair(
+        cfg,
+        cfg.pairs[0],
+        str(tmp_path / "w.pt"),
+        tmp_path / "ev",
+        split="validation",
+        figures=False,
+    )
+    assert seen["reference"] == [
+        "sequences/00/velodyne/000000.bin",
+        "sequences/00/velodyne/000001.bin",
+    ]
     assert result["frames"] == ["sequences/00/velodyne/000002.bin"]
     assert "bound_in_sample" in result["methods"] and "per_class_median" in result["methods"]
     with pytest.raises(TrainingError, match="no test frame"):
@@ -226,10 +259,19 @@ def test_identity_points_are_occupied_pixels_of_the_training_frames(target_tree,
 def test_a_pointwise_run_trains_scores_its_law_alone_first_and_loads(target_tree, tmp_path):
     import json
 
-    cfg = parse_train_config(_config(target_tree, tmp_path / "w.pt", residual=True,
-                                     architecture="pointwise", identity_points=400,
-                                     point_width=8, point_layers=1, lr_decay_from=0.5),
-                             "t")  # fmt: skip
+    cfg = parse_train_config(
+        _config(
+            target_tree,
+            tmp_path / "w.pt",
+            residual=True,
+            architecture="pointwise",
+            identity_points=400,
+            point_width=8,
+            point_layers=1,
+            lr_decay_from=0.5,
+        ),
+        "t",
+    )
     summary = train(cfg, run_dir=tmp_path / "run", progress=False)
     record = json.loads((tmp_path / "run" / "selection.json").read_text())
     assert [h["step"] for h in record["history"]] == [0, 2, 4]  # step 0: the law alone

@@ -37,10 +37,16 @@ def _reference(xyz, query):
 
 def _cloud(seed: int) -> np.ndarray:
     rng = np.random.default_rng(seed)
-    ground = np.column_stack([rng.uniform(2, 12, 3000), rng.uniform(-5, 5, 3000),
-                              -1.7 + rng.normal(0, 0.01, 3000)])  # fmt: skip
-    wall = np.column_stack([np.full(1500, 8.0) + rng.normal(0, 0.01, 1500),
-                            rng.uniform(-5, 5, 1500), rng.uniform(-1.7, 1.0, 1500)])  # fmt: skip
+    ground = np.column_stack(
+        [rng.uniform(2, 12, 3000), rng.uniform(-5, 5, 3000), -1.7 + rng.normal(0, 0.01, 3000)]
+    )
+    wall = np.column_stack(
+        [
+            np.full(1500, 8.0) + rng.normal(0, 0.01, 1500),
+            rng.uniform(-5, 5, 1500),
+            rng.uniform(-1.7, 1.0, 1500),
+        ]
+    )
     scatter = rng.uniform([-30, -30, -2], [30, 30, 3], (500, 3))
     line = np.column_stack([np.linspace(15, 16, 12), np.zeros(12), np.zeros(12)])
     return np.concatenate([ground, wall, scatter, line])

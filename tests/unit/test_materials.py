@@ -165,19 +165,29 @@ def test_material_table_returns_a_copy():
 @pytest.mark.parametrize(
     ("edit", "message"),
     [
-        (lambda r: r["label_sets"]["wads"]["classes"].__setitem__(
-            110, {"name": "snow", "material": "powder"}), "unknown material 'powder'"),
+        (
+            lambda r: r["label_sets"]["wads"]["classes"].__setitem__(
+                110, {"name": "snow", "material": "powder"}
+            ),
+            "unknown material 'powder'",
+        ),
         (lambda r: r["materials"]["tar"].__setitem__("reflectance", 1.5), "0 <= rho <= 1.2"),
         (lambda r: r["materials"]["tar"].__setitem__("source", ""), "must cite"),
         (lambda r: r["label_sets"].pop("wads"), "label_sets must be exactly"),
         (lambda r: r.__setitem__("colour", 1), "unknown keys"),
-        (lambda r: r["label_sets"]["nuscenes"]["classes"].__setitem__(
-            70000, {"name": "x", "material": "tar"}), "outside"),
+        (
+            lambda r: r["label_sets"]["nuscenes"]["classes"].__setitem__(
+                70000, {"name": "x", "material": "tar"}
+            ),
+            "outside",
+        ),
         (lambda r: r["materials"]["tar"].__setitem__("finish", "matte"), "finish = 'matte'"),
-        (lambda r: r["label_sets"]["nuscenes"]["classes"][24].__setitem__("flat", True),
-         "drop `flat`"),
+        (
+            lambda r: r["label_sets"]["nuscenes"]["classes"][24].__setitem__("flat", True),
+            "drop `flat`",
+        ),
     ],
-)  # fmt: skip
+)
 def test_invalid_tables_raise_config_error_naming_the_file(edit, message):
     raw = copy.deepcopy(_raw_yaml())
     edit(raw)

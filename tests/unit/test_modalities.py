@@ -209,9 +209,14 @@ def test_physics_intensity_clamps_ranges_below_1_mm():
 
 @pytest.mark.parametrize(
     ("rho", "cos", "rng"),
-    [([-0.1], [0.5], [1.0]), ([0.5], [1.5], [1.0]), ([0.5], [0.5], [np.nan]),
-     ([0.5], [0.5], [-1.0]), ([0.5, 0.5], [0.5], [1.0])],
-)  # fmt: skip
+    [
+        ([-0.1], [0.5], [1.0]),
+        ([0.5], [1.5], [1.0]),
+        ([0.5], [0.5], [np.nan]),
+        ([0.5], [0.5], [-1.0]),
+        ([0.5, 0.5], [0.5], [1.0]),
+    ],
+)
 def test_physics_intensity_rejects_bad_inputs(rho, cos, rng):
     with pytest.raises(InvalidPointsError):
         physics_intensity(np.array(rho), np.array(cos), np.array(rng))

@@ -141,8 +141,11 @@ def test_a_severity_in_the_pipeline_file_fills_in_its_physical_value(weather, ke
     # Heavier weather: more rain or snow, less visibility.
     assert values == sorted(values, reverse=(key == "visibility_m"))
     for severity, value in zip(SEVERITIES, values, strict=True):
-        data = {"schema_version": 1, "variant": weather,
-                "stages": [{"stage": weather, "severity": severity}]}  # fmt: skip
+        data = {
+            "schema_version": 1,
+            "variant": weather,
+            "stages": [{"stage": weather, "severity": severity}],
+        }
         stage = parse_pipeline(data, "t").stages[0]
         assert stage.params == {"severity": severity, key: value}  # both recorded
 

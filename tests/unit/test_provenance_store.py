@@ -39,10 +39,15 @@ def test_an_item_group_reads_back_with_zarr(tmp_path):
     item = group[provenance.node_name("seq/a.bin")]
     np.testing.assert_array_equal(item["source_index"][:], source_index)
     np.testing.assert_array_equal(item["outcome"][:], outcome)
-    assert dict(item.attrs) == {"item_id": "kitti:seq/a.bin", "relpath": "seq/a.bin",
-                                "n_source": 5, "n_output": 4}  # fmt: skip
-    provenance.write_item(tmp_path, "seq/a.bin", "kitti:seq/a.bin", source_index[:0],
-                          outcome[:0], 5)  # fmt: skip
+    assert dict(item.attrs) == {
+        "item_id": "kitti:seq/a.bin",
+        "relpath": "seq/a.bin",
+        "n_source": 5,
+        "n_output": 4,
+    }
+    provenance.write_item(
+        tmp_path, "seq/a.bin", "kitti:seq/a.bin", source_index[:0], outcome[:0], 5
+    )
     again, _, attrs = provenance.read_item(tmp_path, "seq/a.bin")
     assert again.size == 0 and attrs["n_output"] == 0
 
@@ -50,8 +55,12 @@ def test_an_item_group_reads_back_with_zarr(tmp_path):
 def test_the_bytes_do_not_depend_on_the_writing_thread(tmp_path):
     """A build writes from a process's main thread (loky, --jobs 1) or from a worker thread
     (Dask); compressed chunks must be the same bytes either way, before zarr is imported."""
-    out = subprocess.run([sys.executable, "-c", WRITE_TWICE, str(tmp_path)], check=True,
-                         capture_output=True, text=True)  # fmt: skip
+    out = subprocess.run(
+        [sys.executable, "-c", WRITE_TWICE, str(tmp_path)],
+        check=True,
+        capture_output=True,
+        text=True,
+    )
     assert out.stdout.strip() == "False"  # the writer works without zarr loaded
     main = sorted(p for p in (tmp_path / "main").rglob("*") if p.is_file())
     thread = sorted(p for p in (tmp_path / "thread").rglob("*") if p.is_file())

@@ -74,9 +74,14 @@ def test_near_ground_share_counts_only_the_near_ground_channels():
 
     def ring(k: int, range_m: float, count: int) -> np.ndarray:
         a = az[:count]
-        return range_m * np.stack([np.cos(elevation[k]) * np.cos(a),
-                                   np.cos(elevation[k]) * np.sin(a),
-                                   np.full(count, np.sin(elevation[k]))], axis=1)  # fmt: skip
+        return range_m * np.stack(
+            [
+                np.cos(elevation[k]) * np.cos(a),
+                np.cos(elevation[k]) * np.sin(a),
+                np.full(count, np.sin(elevation[k])),
+            ],
+            axis=1,
+        )
 
     # Half the firings of every near-ground channel return from the road; the body (1 m) and
     # the horizon channel do not count.

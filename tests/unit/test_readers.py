@@ -72,9 +72,14 @@ def _first(reader, predicate=lambda it: True) -> Item:
 
 def test_readers_dict_has_exactly_the_seven_formats():
     assert set(READERS) == {
-        "semantickitti", "nuscenes", "nuscenes-kitti", "nuscenes-scans", "voxelscape", "wads",
+        "semantickitti",
+        "nuscenes",
+        "nuscenes-kitti",
+        "nuscenes-scans",
+        "voxelscape",
+        "wads",
         "radiate",
-    }  # fmt: skip
+    }
     for name, cls in READERS.items():
         assert cls.name == name
 
@@ -237,16 +242,19 @@ def test_nuscenes_kitti_items_labels_and_copied_poses(tree):
     reader, root = tree("nuscenes-kitti")
     items = reader.items()
     assert [it.relpath for it in items] == [
-        "train/0001/velodyne/000000.bin", "train/0001/velodyne/000001.bin",
-        "train/0002/velodyne/000000.bin", "val/0003/velodyne/000000.bin",
-    ]  # fmt: skip
+        "train/0001/velodyne/000000.bin",
+        "train/0001/velodyne/000001.bin",
+        "train/0002/velodyne/000000.bin",
+        "val/0003/velodyne/000000.bin",
+    ]
     assert items[0].label_relpath == "train/0001/sem_labels/000000.label"
     assert items[-1].label_relpath is None  # val/0003 has no sem_labels/
     frame = reader.read(items[0])
     assert frame.labels.dtype == np.uint8 and frame.columns == ("x", "y", "z", "intensity")
     assert (reader.sensor, reader.label_set, reader.particle_label) == ("hdl32e", "nuscenes", 0)
-    assert reader.copied_files() == [f"{s}/poses.txt" for s in ("train/0001", "train/0002",
-                                                                  "val/0003")]  # fmt: skip
+    assert reader.copied_files() == [
+        f"{s}/poses.txt" for s in ("train/0001", "train/0002", "val/0003")
+    ]
 
 
 def test_nuscenes_kitti_sequences_are_scene_folders(tree):

@@ -33,9 +33,13 @@ def _frame(n=6):
     points = np.arange(n * 5, dtype=np.float32).reshape(n, 5)
     points[:, 4] = np.arange(n) % 3  # a "ring" column
     return Frame.from_source(
-        Item("t", "a.bin"), "hdl32e", ("x", "y", "z", "intensity", "ring"), points,
-        np.arange(10, 10 + n, dtype=np.uint32), {"orig": np.arange(n, dtype=np.int32)},
-    )  # fmt: skip
+        Item("t", "a.bin"),
+        "hdl32e",
+        ("x", "y", "z", "intensity", "ring"),
+        points,
+        np.arange(10, 10 + n, dtype=np.uint32),
+        {"orig": np.arange(n, dtype=np.int32)},
+    )
 
 
 def _weathered(src):
@@ -49,9 +53,11 @@ def _weathered(src):
 def test_select_composes_provenance_across_stages():
     once = _weathered(_frame())
     twice = once.select(
-        np.array([1, 2]), outcome=np.array([Outcome.KEPT, Outcome.KEPT], np.uint8),
-        lost_rows=np.array([0, 3]), points=once.points[[1, 2]],
-    )  # fmt: skip
+        np.array([1, 2]),
+        outcome=np.array([Outcome.KEPT, Outcome.KEPT], np.uint8),
+        lost_rows=np.array([0, 3]),
+        points=once.points[[1, 2]],
+    )
     assert twice.source_index.tolist() == [2, 3]
     assert twice.outcome.tolist() == [Outcome.PARTICLE, Outcome.ATTENUATED]  # never milder
     assert twice.lost_index.tolist() == [0, 1, 4, 5]

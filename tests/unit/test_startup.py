@@ -25,8 +25,9 @@ print(sorted(m for m in ("torch", "scipy.integrate", "matplotlib.pyplot") if m i
 
 def test_a_physics_only_build_never_imports_torch():
     """torch costs 1.5 s of start-up; only a learned stage may pull it in."""
-    out = subprocess.run([sys.executable, "-c", CHECK_IMPORTS], capture_output=True, text=True,
-                         check=True)  # fmt: skip
+    out = subprocess.run(
+        [sys.executable, "-c", CHECK_IMPORTS], capture_output=True, text=True, check=True
+    )
     assert out.stdout.strip() == "[]"
 
 
@@ -63,11 +64,13 @@ def test_workers_started_with_malloc_tuning_get_heap_reuse_back():
     and maps every large array afresh); such a worker re-tunes, any other is left alone."""
     code = "from lads.worker import tune_allocator; print(tune_allocator())"
     env = {k: v for k, v in os.environ.items() if not k.startswith("MALLOC_")}
-    plain = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                           check=True, env=env)  # fmt: skip
+    plain = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True, env=env
+    )
     assert plain.stdout.strip() == "False"
     nanny_env = {**env, "MALLOC_TRIM_THRESHOLD_": "65536"}
-    dask_like = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                               check=True, env=nanny_env)  # fmt: skip
+    dask_like = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True, env=nanny_env
+    )
     expected = "True" if sys.platform.startswith("linux") else "False"
     assert dask_like.stdout.strip() == expected

@@ -354,8 +354,9 @@ def test_nuscenes_scans_are_the_frames_in_lidar_top_axes(nusc_tree, frames32):
         scan = np.fromfile(path, dtype="<f4").reshape(-1, 5)
         assert scan.shape[0] == frame.xyz.shape[0]
         # x right, y forward: x_n = -y, y_n = x, exactly
-        assert np.array_equal(scan[:, :3], np.column_stack([-frame.xyz[:, 1], frame.xyz[:, 0],
-                                                            frame.xyz[:, 2]]))  # fmt: skip
+        assert np.array_equal(
+            scan[:, :3], np.column_stack([-frame.xyz[:, 1], frame.xyz[:, 0], frame.xyz[:, 2]])
+        )
         ring, intensity = scan[:, 4], scan[:, 3]
         assert np.array_equal(ring, np.round(ring)) and np.array_equal(ring, frame.ring)
         assert 0 <= ring.min() and ring.max() <= channels - 1
@@ -379,8 +380,10 @@ def test_nuscenes_labels_map_semantickitti_ids_to_lidarseg_indices(nusc_tree, fr
     classes = lidarseg_classes()
     assert len(classes.categories) == 32 and classes.categories[31] == "vehicle.ego"
     assert classes.labels(np.array([(7 << 16) | 252, 48, 999], dtype=np.uint32)).tolist() == [
-        17, 26, 0,
-    ]  # fmt: skip
+        17,
+        26,
+        0,
+    ]
 
 
 def test_nuscenes_poses_put_points_where_the_frame_has_them(nusc_tree, frames32):
@@ -441,8 +444,9 @@ def test_nuscenes_same_seed_same_bytes_and_stale_files_refused(tmp_path):
     scans = [{k: v for k, v in t.items() if k.startswith("samples/")} for t in trees]
     assert scans[0].keys() == scans[2].keys() and scans[0] != scans[2]
     with pytest.raises(ConfigError, match="_lidarseg.bin"):  # another seed's label files
-        write_synthetic_dataset(tmp_path / "a", frames=2, seed=6, layout="nuscenes",
-                                azimuth_bins=256)  # fmt: skip
+        write_synthetic_dataset(
+            tmp_path / "a", frames=2, seed=6, layout="nuscenes", azimuth_bins=256
+        )
 
 
 def test_nuscenes_default_sensor_is_hdl32e_and_any_profile_works(tmp_path):

@@ -44,8 +44,15 @@ def wall_scan(profile, x_m: float, half_width_deg: float = 30.0, label: int = 50
 def test_a_wall_is_scanned_at_the_target_elevations_and_its_exact_range():
     xyz, inten, labels, ring = wall_scan(HDL64, 10.0)
     scan = WindowScan(xyz, inten, labels, ring, np.eye(4))
-    out = transfer_scan([scan], 0, HDL64, HDL32, np.random.default_rng(0),
-                        label_set="semantickitti", detector=_always)  # fmt: skip
+    out = transfer_scan(
+        [scan],
+        0,
+        HDL64,
+        HDL32,
+        np.random.default_rng(0),
+        label_set="semantickitti",
+        detector=_always,
+    )
     el = np.degrees(np.arctan2(out.xyz[:, 2], np.hypot(out.xyz[:, 0], out.xyz[:, 1])))
     want = np.asarray(HDL32.elevation_deg)[out.ring]
     assert np.abs(el - want).max() < 1e-3
@@ -74,8 +81,15 @@ def test_a_moving_instance_comes_from_the_centre_scan_only():
         return WindowScan(xyz, inten, labels, ring, np.eye(4))
 
     window = [scan(wall, car_before), scan(wall, car_now)]
-    out = transfer_scan(window, 1, HDL64, HDL32, np.random.default_rng(0),
-                        label_set="semantickitti", detector=_always)  # fmt: skip
+    out = transfer_scan(
+        window,
+        1,
+        HDL64,
+        HDL32,
+        np.random.default_rng(0),
+        label_set="semantickitti",
+        detector=_always,
+    )
     car = (out.labels >> 16) == 7
     assert car.any()
     assert np.abs(out.xyz[car, 0] - 8.0).max() < 0.01  # where it is now, not 2 m nearer
@@ -83,9 +97,15 @@ def test_a_moving_instance_comes_from_the_centre_scan_only():
     # Within the jitter of a parked car's centroid (0.2 m < MOVING_INSTANCE_M) the neighbour
     # lends it: its nearer surfels then win the beams.
     parked = wall_scan(HDL64, 7.8, half_width_deg=5.0, label=(7 << 16) | 10)
-    out2 = transfer_scan([scan(wall, parked), scan(wall, car_now)], 1, HDL64, HDL32,
-                         np.random.default_rng(0), label_set="semantickitti",
-                         detector=_always)  # fmt: skip
+    out2 = transfer_scan(
+        [scan(wall, parked), scan(wall, car_now)],
+        1,
+        HDL64,
+        HDL32,
+        np.random.default_rng(0),
+        label_set="semantickitti",
+        detector=_always,
+    )
     assert 0 in set(out2.source_frame[(out2.labels >> 16) == 7].tolist())
 
 
@@ -140,23 +160,48 @@ def test_on_a_synthetic_street_the_transfer_matches_the_direct_render_better_tha
     )  # the synthetic target's firing phase
     limit = detection_limit(HDL32)
     window = [WindowScan(f.xyz, f.intensity, f.labels, f.ring, f.pose) for f in src]
-    out = transfer_scan(window, centre, HDL64, HDL32, np.random.default_rng(1),
-                        label_set="semantickitti", azimuth_offset_rad=offset,
-                        detector=lambda a, c, r: a / (r * r) >= limit)  # fmt: skip
-    again = transfer_scan(window, centre, HDL64, HDL32, np.random.default_rng(1),
-                          label_set="semantickitti", azimuth_offset_rad=offset,
-                          detector=lambda a, c, r: a / (r * r) >= limit)  # fmt: skip
+    out = transfer_scan(
+        window,
+        centre,
+        HDL64,
+        HDL32,
+        np.random.default_rng(1),
+        label_set="semantickitti",
+        azimuth_offset_rad=offset,
+        detector=lambda a, c, r: a / (r * r) >= limit,
+    )
+    again = transfer_scan(
+        window,
+        centre,
+        HDL64,
+        HDL32,
+        np.random.default_rng(1),
+        label_set="semantickitti",
+        azimuth_offset_rad=offset,
+        detector=lambda a, c, r: a / (r * r) >= limit,
+    )
     assert np.array_equal(out.xyz, again.xyz) and np.array_equal(out.labels, again.labels)
     width = HDL32.range_image_width
-    reference = GridScan(ref.xyz, ref.ring, grid_column(ref.xyz, width, offset), ref.labels,
-                         ref.intensity)  # fmt: skip
+    reference = GridScan(
+        ref.xyz, ref.ring, grid_column(ref.xyz, width, offset), ref.labels, ref.intensity
+    )
     covered = covered_rings(HDL64.elevation_deg, HDL32.elevation_deg)
-    mine = compare_scans(GridScan(out.xyz, out.ring, out.column, out.labels, out.intensity),
-                         reference, 32, width, covered)  # fmt: skip
+    mine = compare_scans(
+        GridScan(out.xyz, out.ring, out.column, out.labels, out.intensity),
+        reference,
+        32,
+        width,
+        covered,
+    )
     c = src[centre]
     base = ring_drop(c.xyz, c.intensity, c.labels, c.ring, HDL64, HDL32, azimuth_offset_rad=offset)
-    theirs = compare_scans(GridScan(base.xyz, base.ring, base.column, base.labels,
-                                    base.intensity), reference, 32, width, covered)  # fmt: skip
+    theirs = compare_scans(
+        GridScan(base.xyz, base.ring, base.column, base.labels, base.intensity),
+        reference,
+        32,
+        width,
+        covered,
+    )
     assert mine["range_error_median_m"] < 0.03 < theirs["range_error_median_m"]
     assert mine["chamfer_m"] < theirs["chamfer_m"]
     assert mine["label_accuracy"] > 0.95 and mine["ring_count_error_mean"] < 0.05

@@ -98,8 +98,14 @@ def test_particle_returns_and_target_losses_rise_with_rate(street, weather):
     params = with_overrides(params, detection_threshold="frame")
     lost, particle = [], []
     for rate in (1.0, 5.0, 25.0, 100.0):
-        result = simulate(xyz, intensity, rate_mm_h=rate, sensor="hdl64e", params=params,
-                          rng=np.random.default_rng(1))  # fmt: skip
+        result = simulate(
+            xyz,
+            intensity,
+            rate_mm_h=rate,
+            sensor="hdl64e",
+            params=params,
+            rng=np.random.default_rng(1),
+        )
         lo, pa = outcome_fractions(result, len(xyz))
         lost.append(lo)
         particle.append(pa)
@@ -119,8 +125,9 @@ def test_with_the_sensor_limit_far_weak_targets_go_first_and_loss_rises_with_rat
     lost, far_share = [], []
     rates = (1.0, 5.0, 25.0, 100.0) if weather == "rain" else (0.5, 1.0, 2.5, 5.0)
     for rate in rates:
-        result = simulate(xyz, intensity, rate_mm_h=rate, sensor="hdl64e",
-                          rng=np.random.default_rng(1))  # fmt: skip
+        result = simulate(
+            xyz, intensity, rate_mm_h=rate, sensor="hdl64e", rng=np.random.default_rng(1)
+        )
         lost.append(result.lost_index.size / len(xyz))
         far_share.append(float((r[result.lost_index] > 40.0).mean()) if lost[-1] else 1.0)
     assert np.all(np.diff(lost) > 0), lost
@@ -142,8 +149,14 @@ def test_lost_fraction_rises_with_rate_at_lisa_fixed_threshold(street, weather, 
     params = with_overrides(params, detection_threshold=LISA_THRESHOLD)
     lost = []
     for rate in (1.0, 10.0, 25.0, 100.0):
-        result = simulate(xyz, intensity, rate_mm_h=rate, sensor="hdl64e", params=params,
-                          rng=np.random.default_rng(seed))  # fmt: skip
+        result = simulate(
+            xyz,
+            intensity,
+            rate_mm_h=rate,
+            sensor="hdl64e",
+            params=params,
+            rng=np.random.default_rng(seed),
+        )
         lost.append(outcome_fractions(result, len(xyz))[0])
     assert np.all(np.diff(lost) > 0), lost
 
@@ -153,12 +166,18 @@ def test_fog_returns_rise_as_visibility_falls(street):
     for mode in ("strongest", "last"):
         fog_share = [
             outcome_fractions(
-                fog(xyz, intensity, visibility_m=v, sensor="hdl64e", mode=mode,
-                    rng=np.random.default_rng(0)),
+                fog(
+                    xyz,
+                    intensity,
+                    visibility_m=v,
+                    sensor="hdl64e",
+                    mode=mode,
+                    rng=np.random.default_rng(0),
+                ),
                 len(xyz),
             )[1]
             for v in (2000.0, 500.0, 100.0, 50.0, 20.0)
-        ]  # fmt: skip
+        ]
         # Thin fog's echo stays below the sensor's limit; denser fog returns more often.
         assert fog_share[0] == 0.0, (mode, fog_share)
         assert np.all(np.diff(fog_share) >= 0) and fog_share[-1] > fog_share[2] > 0, fog_share
@@ -176,10 +195,11 @@ def test_dense_fog_loses_beams_whose_echo_the_sensor_misses(street):
     )
     above_limit = rho / range_m**2 / profile.detection.power
     lost = {
-        v: fog(xyz, intensity, visibility_m=v, sensor=profile,
-               rng=np.random.default_rng(0)).lost_index
+        v: fog(
+            xyz, intensity, visibility_m=v, sensor=profile, rng=np.random.default_rng(0)
+        ).lost_index
         for v in (2000.0, 20.0)
-    }  # fmt: skip
+    }
     dense, thin = lost[20.0], lost[2000.0]
     assert dense.size > 0.005 * len(xyz)
     assert above_limit[dense].max() > 10 and np.median(range_m[dense]) < 30
@@ -212,8 +232,14 @@ def test_rate_zero_returns_the_input_byte_for_byte(street, weather, mode):
 @pytest.mark.parametrize("mode", ["strongest", "last"])
 def test_infinite_visibility_returns_the_input_byte_for_byte(street, mode):
     xyz, intensity = street
-    result = fog(xyz, intensity, visibility_m=math.inf, sensor="hdl64e", mode=mode,
-                 rng=np.random.default_rng(0))  # fmt: skip
+    result = fog(
+        xyz,
+        intensity,
+        visibility_m=math.inf,
+        sensor="hdl64e",
+        mode=mode,
+        rng=np.random.default_rng(0),
+    )
     assert_unchanged(result, xyz, intensity)
 
 
@@ -255,8 +281,14 @@ def test_auto_threshold_loses_nothing_in_clear_air_unlike_lisa_fixed_threshold(s
     assert light.lost_index.size <= at_threshold <= 10
     # ... while the fixed threshold loses several per mille of the frame.
     lisa_params = with_overrides(RAIN_DEFAULTS, detection_threshold=LISA_THRESHOLD)
-    lisa = rain(xyz, intensity, rate_mm_h=rate, sensor=profile, rng=np.random.default_rng(0),
-                params=lisa_params)  # fmt: skip
+    lisa = rain(
+        xyz,
+        intensity,
+        rate_mm_h=rate,
+        sensor=profile,
+        rng=np.random.default_rng(0),
+        params=lisa_params,
+    )
     assert lisa.lost_index.size > 0.003 * len(xyz)
 
 

@@ -221,8 +221,14 @@ def byte_twin(profile_name="hdl64e"):
 
 
 def fog_share(xyz, intensity, sensor, visibility_m, mode="strongest"):
-    result = fog(xyz, intensity, visibility_m=visibility_m, sensor=sensor, mode=mode,
-                 rng=np.random.default_rng(0))  # fmt: skip
+    result = fog(
+        xyz,
+        intensity,
+        visibility_m=visibility_m,
+        sensor=sensor,
+        mode=mode,
+        rng=np.random.default_rng(0),
+    )
     return result.counts()["particle"] / len(xyz)
 
 
@@ -232,8 +238,9 @@ def test_fog_does_not_depend_on_the_intensity_encoding(kitti_like, visibility_m)
     intensities as if 0-255: on [0, 1] data 86-99.8 % of points became fog)."""
     xyz, intensity = kitti_like
     twin = byte_twin()
-    as_bytes = twin.intensity.from_reflectivity(load_profile("hdl64e").intensity.to_reflectivity(
-        intensity))  # fmt: skip
+    as_bytes = twin.intensity.from_reflectivity(
+        load_profile("hdl64e").intensity.to_reflectivity(intensity)
+    )
     unit_share = fog_share(xyz, intensity, "hdl64e", visibility_m)
     byte_share = fog_share(xyz, as_bytes, twin, visibility_m)
     assert unit_share == pytest.approx(byte_share, abs=0.002)
@@ -274,8 +281,14 @@ def test_lisa_settings_drop_a_weak_clear_air_return_that_lads_keeps_in_light_wea
     kept_ours = kept_lisa = 0
     for seed in range(20):
         for params, counter in ((settings_for(weather, "lads"), "ours"), (lisa, "lisa")):
-            result = simulate(xyz, intensity, rate_mm_h=0.01, sensor="hdl64e", params=params,
-                              rng=np.random.default_rng(seed))  # fmt: skip
+            result = simulate(
+                xyz,
+                intensity,
+                rate_mm_h=0.01,
+                sensor="hdl64e",
+                params=params,
+                rng=np.random.default_rng(seed),
+            )
             kept = len(xyz) - 1 not in result.lost_index
             if counter == "ours":
                 kept_ours += kept
@@ -331,5 +344,8 @@ def test_dual_mode_is_refused_with_aligned_points():
     from lads.config import PipelineConfig, StageConfig
 
     with pytest.raises(ConfigError, match="aligned tree keeps one row per source beam"):
-        PipelineConfig(variant="x", stages=(StageConfig("snow", {"rate_mm_h": 1.0,
-                       "mode": "dual"}),), points="aligned")  # fmt: skip
+        PipelineConfig(
+            variant="x",
+            stages=(StageConfig("snow", {"rate_mm_h": 1.0, "mode": "dual"}),),
+            points="aligned",
+        )

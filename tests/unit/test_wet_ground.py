@@ -78,8 +78,12 @@ def test_wet_ratio_follows_its_equation_and_its_limits():
     t = np.full(3, 1.0)
     r = fresnel_unpolarised(cos_i, N)
     cos_t = np.sqrt(1 - (1 - cos_i**2) / N**2)
-    expected = ((1 - r) ** 2 / N**2 / (1 - 0.1 * internal_diffuse_reflectance(N))
-                * np.exp(-2 * params.absorption_per_m * 1e-3 / cos_t))  # fmt: skip
+    expected = (
+        (1 - r) ** 2
+        / N**2
+        / (1 - 0.1 * internal_diffuse_reflectance(N))
+        * np.exp(-2 * params.absorption_per_m * 1e-3 / cos_t)
+    )
     np.testing.assert_allclose(wet_ratio(cos_i, albedo, t, params), expected, rtol=1e-12)
     # A film half the texture depth covers half the surface; no film changes nothing.
     half = wet_ratio(cos_i, albedo, np.full(3, 2.0), params)
@@ -91,8 +95,15 @@ def test_wet_ratio_follows_its_equation_and_its_limits():
 
 def test_only_ground_classes_get_wet_and_other_points_keep_their_bytes():
     xyz, intensity, labels = _scene()
-    res = wet_ground(xyz, intensity, labels, "semantickitti", sensor="hdl64e",
-                     rng=np.random.default_rng(0), params=WetGroundParams(1.2))  # fmt: skip
+    res = wet_ground(
+        xyz,
+        intensity,
+        labels,
+        "semantickitti",
+        sensor="hdl64e",
+        rng=np.random.default_rng(0),
+        params=WetGroundParams(1.2),
+    )
     wall = np.flatnonzero(labels == BUILDING)
     pos = np.searchsorted(res.source_index, wall)
     assert np.all(res.outcome[pos] == Outcome.KEPT)
@@ -110,8 +121,15 @@ def test_only_ground_classes_get_wet_and_other_points_keep_their_bytes():
 def test_no_film_and_no_ground_change_nothing():
     xyz, intensity, labels = _scene()
     for params, lab in ((WetGroundParams(0.0), labels), (WetGroundParams(1.0), labels * 0 + 50)):
-        res = wet_ground(xyz, intensity, lab, "semantickitti", sensor="hdl64e",
-                         rng=np.random.default_rng(0), params=params)  # fmt: skip
+        res = wet_ground(
+            xyz,
+            intensity,
+            lab,
+            "semantickitti",
+            sensor="hdl64e",
+            rng=np.random.default_rng(0),
+            params=params,
+        )
         assert res.lost_index.size == 0 and np.all(res.outcome == Outcome.KEPT)
         assert res.intensity.tobytes() == intensity.tobytes()
 
@@ -127,7 +145,7 @@ def test_the_same_generator_gives_the_same_bytes():
             sensor="hdl64e",
             rng=np.random.default_rng(7),
             params=WetGroundParams(0.5),
-        )  # fmt: skip
+        )
         for _ in range(2)
     ]
     assert runs[0].xyz.tobytes() == runs[1].xyz.tobytes()
@@ -151,8 +169,12 @@ def test_loss_matches_a_per_point_brute_force_with_latent_receiver_noise():
         theta = math.acos(-p[2] / r)
         theta_t = math.asin(math.sin(theta) / N)
         transmit = 1 - _snell_fresnel(theta, 1.0, N)
-        g = (transmit**2 / N**2 / (1 - 0.10 * internal_diffuse_reflectance(N))
-             * math.exp(-2 * params.absorption_per_m * 1.2e-3 / math.cos(theta_t)))  # fmt: skip
+        g = (
+            transmit**2
+            / N**2
+            / (1 - 0.10 * internal_diffuse_reflectance(N))
+            * math.exp(-2 * params.absorption_per_m * 1.2e-3 / math.cos(theta_t))
+        )
         p_eff = max(float(rho) / r**2, limit)
         while True:
             e = s * rng.standard_normal()
@@ -160,11 +182,21 @@ def test_loss_matches_a_per_point_brute_force_with_latent_receiver_noise():
                 break
         brute_lost += math.log(p_eff * g) + e < math.log(limit)
     runs = 20
-    fast_lost = sum(
-        wet_ground(xyz, intensity, labels, "semantickitti", sensor=profile,
-                   rng=np.random.default_rng(k), params=params).lost_index.size
-        for k in range(runs)
-    ) / runs  # fmt: skip
+    fast_lost = (
+        sum(
+            wet_ground(
+                xyz,
+                intensity,
+                labels,
+                "semantickitti",
+                sensor=profile,
+                rng=np.random.default_rng(k),
+                params=params,
+            ).lost_index.size
+            for k in range(runs)
+        )
+        / runs
+    )
     n_road = int((labels == ROAD).sum())
     p_brute, p_fast = brute_lost / n_road, fast_lost / n_road
     assert 0.05 < p_brute < 0.95

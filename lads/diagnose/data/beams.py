@@ -52,13 +52,26 @@ _TILE_OFFSET = 500  # tiles -500..499 (+-5 km at 10 m tiles) map to 0..999 per a
 _TILE_BASE = 1000
 
 _DTYPES: dict[str, type] = {
-    "scan": np.int32, "group": np.int64, "ring": np.int16, "azimuth_deg": np.float32,
-    "elevation_deg": np.float32, "range_m": np.float32, "cos_incidence": np.float32,
-    "normal_ok": np.bool_, "class_id": np.int32, "is_ground": np.bool_, "height_m": np.float32,
-    "edge_beams": np.float32, "edge_span_beams": np.float32, "i_sim": np.float32,
-    "i_real": np.float32, "ret_sim": np.bool_, "ret_real": np.bool_, "sim_index": np.int64,
+    "scan": np.int32,
+    "group": np.int64,
+    "ring": np.int16,
+    "azimuth_deg": np.float32,
+    "elevation_deg": np.float32,
+    "range_m": np.float32,
+    "cos_incidence": np.float32,
+    "normal_ok": np.bool_,
+    "class_id": np.int32,
+    "is_ground": np.bool_,
+    "height_m": np.float32,
+    "edge_beams": np.float32,
+    "edge_span_beams": np.float32,
+    "i_sim": np.float32,
+    "i_real": np.float32,
+    "ret_sim": np.bool_,
+    "ret_real": np.bool_,
+    "sim_index": np.int64,
     "real_index": np.int64,
-}  # fmt: skip
+}
 _FEATURES = (
     "group", "ring", "azimuth_deg", "elevation_deg", "range_m", "cos_incidence", "normal_ok",
     "class_id", "is_ground", "height_m", "edge_beams", "edge_span_beams",
@@ -144,8 +157,9 @@ def unpaired_tables(pair: TreePair, *, progress: bool = False) -> tuple[BeamTabl
     """
     tables = []
     trees: tuple[tuple[Tree, tuple[str, ...]], ...] = (
-        ("sim", pair.sim_scans), ("real", pair.real_scans)
-    )  # fmt: skip
+        ("sim", pair.sim_scans),
+        ("real", pair.real_scans),
+    )
     for tree, scans in trees:
         parts = []
         for i, relpath in enumerate(_bar(scans, progress, f"{tree} beam table")):

@@ -117,11 +117,13 @@ def edge_distance(
     period = 2.0 * math.pi / step
     stride = 4.0 * period + 4.0 * cap
     pos = azimuth[order] / step + _dense_rank(ring_sorted) * stride
-    edges = np.concatenate([
-        pos[jump] + 0.5 * gap[jump],
-        pos[missing] + 0.5 * spacing[missing],
-        pos[missing] + gap[missing] - 0.5 * spacing[missing],
-    ])  # fmt: skip
+    edges = np.concatenate(
+        [
+            pos[jump] + 0.5 * gap[jump],
+            pos[missing] + 0.5 * spacing[missing],
+            pos[missing] + gap[missing] - 0.5 * spacing[missing],
+        ]
+    )
     width = np.maximum(np.concatenate([gap[jump], spacing[missing], spacing[missing]]) - 1.0, 0.0)
     if edges.size == 0:
         return out, span_out

@@ -58,9 +58,17 @@ def local_ground_cos(
     x, y, z = p[:, 0], p[:, 1], p[:, 2]
     terms = (np.ones_like(x), x, y, z, x * x, x * y, y * y, x * z, y * z)
     # np.bincount sums float64 weights in float64 (its stub says intp whatever the weights).
-    moments = np.stack([_box3(cast(npt.NDArray[np.float64],
-                                   np.bincount(flat, weights=t, minlength=shape[0] * shape[1]))
-                              .reshape(shape)) for t in terms])  # fmt: skip
+    moments = np.stack(
+        [
+            _box3(
+                cast(
+                    npt.NDArray[np.float64],
+                    np.bincount(flat, weights=t, minlength=shape[0] * shape[1]),
+                ).reshape(shape)
+            )
+            for t in terms
+        ]
+    )
     m = moments[:, cell[:, 0], cell[:, 1]]  # (9, P) support moments of each point's tile
     count, sx, sy, sz, sxx, sxy, syy, sxz, syz = m
     with np.errstate(invalid="ignore", divide="ignore"):

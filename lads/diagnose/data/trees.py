@@ -191,9 +191,16 @@ def open_trees(
         label_set=source if labelled else None,
     )
     pair = TreePair(
-        source, sim.root, real.root, profile, sensor, sim_scans, real_scans, paired,
+        source,
+        sim.root,
+        real.root,
+        profile,
+        sensor,
+        sim_scans,
+        real_scans,
+        paired,
         {"sim": sim, "real": real},
-    )  # fmt: skip
+    )
     pair.read_scan("sim", sim_scans[0])
     pair.read_scan("real", real_scans[0])
     return pair

@@ -15,5 +15,8 @@ def candidates(offer: Offer) -> list[Effect]:
     """One candidate on designs of at least MIN_SCANS scans."""
     if offer.d.n_scans < MIN_SCANS:
         return []
-    return [entry(INFOS[0], ("beta",), [[0.3]], offer.d,
-                  ln_term=lambda th, dd: -th[0] * dd.scan_ln_mean)]  # fmt: skip
+    return [
+        entry(
+            INFOS[0], ("beta",), [[0.3]], offer.d, ln_term=lambda th, dd: -th[0] * dd.scan_ln_mean
+        )
+    ]

@@ -39,12 +39,22 @@ def candidates(offer: Offer) -> list[Effect]:
         offset = np.remainder(dd.azimuth_deg.numpy() - th[0], 360.0)
         return offset < th[1]
 
-    eff = entry(INFOS[0], ("start_deg", "width_deg", "a", "drop_fraction"),
-                [[start, width, 0.3, 0.05]], d, scalar=[False, True, True, False],
-                ln_term=term, log_survival=survival if d.paired else None, domain=sector,
-                exporter=lambda th: {"start_deg": float(th[0] % 360.0),
-                                     "width_deg": float(th[1]), "a": float(th[2]),
-                                     "drop_fraction": float(th[3])})  # fmt: skip
+    eff = entry(
+        INFOS[0],
+        ("start_deg", "width_deg", "a", "drop_fraction"),
+        [[start, width, 0.3, 0.05]],
+        d,
+        scalar=[False, True, True, False],
+        ln_term=term,
+        log_survival=survival if d.paired else None,
+        domain=sector,
+        exporter=lambda th: {
+            "start_deg": float(th[0] % 360.0),
+            "width_deg": float(th[1]),
+            "a": float(th[2]),
+            "drop_fraction": float(th[3]),
+        },
+    )
     # The sector's edges lie between two azimuth samples, and every bootstrap resample has
     # the same samples: its spread cannot show that, so the CI is never narrower than one
     # sample spacing either side (verdict/intervals.py ci95).

@@ -18,5 +18,12 @@ def candidates(offer: Offer) -> list[Effect]:
     """One candidate on every design."""
     d = offer.d
     ln_r_ref = float(d.ln_range.mean())
-    return [entry(INFOS[0], ("delta_n",), [[0.0]], d,
-                  ln_term=lambda th, dd: -th[0] * (dd.ln_range - ln_r_ref))]  # fmt: skip
+    return [
+        entry(
+            INFOS[0],
+            ("delta_n",),
+            [[0.0]],
+            d,
+            ln_term=lambda th, dd: -th[0] * (dd.ln_range - ln_r_ref),
+        )
+    ]

@@ -21,7 +21,10 @@ def candidates(offer: Offer) -> list[Effect]:
     """C2 on every design, from three overlap distances."""
     return [
         entry(
-            INFOS[0], ("r0_m", "k"), [[1.5, 3.0], [3.0, 3.0], [6.0, 3.0]], offer.d,
+            INFOS[0],
+            ("r0_m", "k"),
+            [[1.5, 3.0], [3.0, 3.0], [6.0, 3.0]],
+            offer.d,
             ln_term=lambda th, dd: -torch.log1p((th[0] / dd.range_m.clamp_min(0.1)) ** th[1]),
         )
-    ]  # fmt: skip
+    ]

@@ -69,13 +69,29 @@ def _specular(d: Design, ci: int, cname: str) -> Effect:
         lobe = torch.log1p(th[0] * cos ** (th[1] - 1.0))
         return torch.where((dd.class_index == ci) & dd.normal_ok, lobe, torch.zeros_like(cos))
 
-    return entry(C3S, ("k_s", "m"), [[1.0, 20.0], [1.0, 80.0]], d, label=f"C3s[{cname}]",
-                 class_index=ci, class_name=cname, ln_term=term)  # fmt: skip
+    return entry(
+        C3S,
+        ("k_s", "m"),
+        [[1.0, 20.0], [1.0, 80.0]],
+        d,
+        label=f"C3s[{cname}]",
+        class_index=ci,
+        class_name=cname,
+        ln_term=term,
+    )
 
 
 def _retro(d: Design, ci: int, cname: str) -> Effect:
     def term(th: Tensor, dd: Design) -> Tensor:
         return torch.where(dd.class_index == ci, th[0] - dd.ln_cos, torch.zeros_like(dd.ln_cos))
 
-    return entry(C3R, ("ln_gain",), [[1.0]], d, label=f"C3r[{cname}]", class_index=ci,
-                 class_name=cname, ln_term=term)  # fmt: skip
+    return entry(
+        C3R,
+        ("ln_gain",),
+        [[1.0]],
+        d,
+        label=f"C3r[{cname}]",
+        class_index=ci,
+        class_name=cname,
+        ln_term=term,
+    )

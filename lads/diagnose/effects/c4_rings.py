@@ -48,12 +48,16 @@ def candidates(offer: Offer) -> list[Effect]:
         return []
     out = [
         entry(
-            C4, ring_vector("ln_gain_by_ring", n), [[0.0] * n], d, scalar=[False] * n,
+            C4,
+            ring_vector("ln_gain_by_ring", n),
+            [[0.0] * n],
+            d,
+            scalar=[False] * n,
             ln_term=lambda th, dd: th[dd.ring],
             penalty=lambda th: 10.0 * th.sum() ** 2,
             exporter=lambda th: {"ln_gain_by_ring": [float(v) for v in th - th.mean()]},
         )
-    ]  # fmt: skip
+    ]
     few = _few_ring_gains(d, odd_rings(d, offer.train_rows))
     if few is not None:
         out.append(few)
@@ -68,12 +72,17 @@ def _offsets(d: Design) -> Effect:
     # left free here it let 64 ring offsets stand in for a global offset (half the
     # rings of the real KITTI fit sat at the bound) or for a range falloff.
     return entry(
-        C4O, ring_vector("offset_by_ring", n), [[0.0] * n], d, scalar=[False] * n,
+        C4O,
+        ring_vector("offset_by_ring", n),
+        [[0.0] * n],
+        d,
+        scalar=[False] * n,
         penalty=lambda th: 10.0 * (th.sum() / off) ** 2,
         transfer=lambda th, dd, mu: torch.log(
-            (torch.exp(mu) - dd.half_step + th[dd.ring]).clamp_min(0.0) + dd.half_step),
+            (torch.exp(mu) - dd.half_step + th[dd.ring]).clamp_min(0.0) + dd.half_step
+        ),
         exporter=lambda th: {"offset_by_ring": [float(v) for v in th]},
-    )  # fmt: skip
+    )
 
 
 def _few_ring_gains(d: Design, rings: list[int]) -> Effect | None:
@@ -95,11 +104,16 @@ def _few_ring_gains(d: Design, rings: list[int]) -> Effect | None:
         return {"ln_gain_by_ring": [float(v) for v in full - full.mean()], "rings": list(rings)}
 
     return entry(
-        C4, tuple(f"ln_gain_by_ring[{r}]" for r in rings), [[0.0] * k], d,
-        label="C4[few_rings]", scalar=[False] * k,
+        C4,
+        tuple(f"ln_gain_by_ring[{r}]" for r in rings),
+        [[0.0] * k],
+        d,
+        label="C4[few_rings]",
+        scalar=[False] * k,
         ln_term=lambda th, dd: torch.cat([th, th.new_zeros(1)])[lookup[dd.ring]],
-        exporter=export, domain=lambda th, dd: np.isin(dd.ring.numpy(), rings),
-    )  # fmt: skip
+        exporter=export,
+        domain=lambda th, dd: np.isin(dd.ring.numpy(), rings),
+    )
 
 
 def odd_rings(d: Design, train_rows: npt.NDArray[np.int64] | None) -> list[int]:
@@ -146,8 +160,9 @@ def ring_z(
     ref = np.ones(len(ring), dtype=bool) if reference is None else reference[ring]
     _, inv = np.unique(cell, return_inverse=True)
     ref_n = np.bincount(inv, weights=ref.astype(np.float64))
-    mean = np.divide(np.bincount(inv, weights=r * ref), ref_n, out=np.zeros_like(ref_n),
-                     where=ref_n > 0)  # fmt: skip
+    mean = np.divide(
+        np.bincount(inv, weights=r * ref), ref_n, out=np.zeros_like(ref_n), where=ref_n > 0
+    )
     dev = np.where(ref_n[inv] > 0, r - mean[inv], 0.0)  # no reference: nothing to compare
     _, by = np.unique(ring * (int(d.group.max()) + 1) + d.group[rows], return_inverse=True)
     sums = np.bincount(by, weights=dev)

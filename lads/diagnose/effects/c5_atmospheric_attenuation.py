@@ -12,5 +12,12 @@ INFOS = (
 
 def candidates(offer: Offer) -> list[Effect]:
     """One candidate on every design."""
-    return [entry(INFOS[0], ("alpha_per_m",), [[0.001]], offer.d,
-                  ln_term=lambda th, dd: -2.0 * th[0] * dd.range_m)]  # fmt: skip
+    return [
+        entry(
+            INFOS[0],
+            ("alpha_per_m",),
+            [[0.001]],
+            offer.d,
+            ln_term=lambda th, dd: -2.0 * th[0] * dd.range_m,
+        )
+    ]

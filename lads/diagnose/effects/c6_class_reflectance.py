@@ -42,8 +42,15 @@ def _class_scale(d: Design, frequent: list[int]) -> Effect:
         padded = torch.cat([th, torch.zeros(1, dtype=th.dtype)])
         return padded[idx]
 
-    return entry(C6, names, [[0.0] * len(names)], d, scalar=[False] * len(names),
-                 ln_term=term, penalty=lambda th: RIDGE * (th**2).sum())  # fmt: skip
+    return entry(
+        C6,
+        names,
+        [[0.0] * len(names)],
+        d,
+        scalar=[False] * len(names),
+        ln_term=term,
+        penalty=lambda th: RIDGE * (th**2).sum(),
+    )
 
 
 def one_class_scale(d: Design, ci: int, cname: str) -> Effect:
@@ -52,5 +59,13 @@ def one_class_scale(d: Design, ci: int, cname: str) -> Effect:
     def term(th: Tensor, dd: Design) -> Tensor:
         return torch.where(dd.class_index == ci, th[0].expand_as(dd.cos), torch.zeros_like(dd.cos))
 
-    return entry(C6, (f"ln_scale_{cname}",), [[0.0]], d, label=f"C6[{cname}]",
-                 class_index=ci, class_name=cname, ln_term=term)  # fmt: skip
+    return entry(
+        C6,
+        (f"ln_scale_{cname}",),
+        [[0.0]],
+        d,
+        label=f"C6[{cname}]",
+        class_index=ci,
+        class_name=cname,
+        ln_term=term,
+    )

@@ -59,16 +59,25 @@ def _wet(d: Design, wet: list[int]) -> Effect:
         return torch.where(dd.normal_ok, kept, torch.zeros_like(kept))
 
     def export(th: npt.NDArray[np.float64]) -> dict[str, Any]:
-        out: dict[str, Any] = {"f": float(th[0]), "theta_c_deg": float(th[1]),
-                               "cos_softness": float(th[2])}  # fmt: skip
+        out: dict[str, Any] = {
+            "f": float(th[0]),
+            "theta_c_deg": float(th[1]),
+            "cos_softness": float(th[2]),
+        }
         out.update({n: float(v) for n, v in zip(names, th[3:], strict=True)})
         return out
 
     k = len(wet)
-    eff = entry(INFOS[0], ("f", "theta_c_deg", "cos_softness", *names),
-                [[0.3, 75.0, 0.03] + [0.5] * k, [0.5, 60.0, 0.03] + [0.9] * k], d,
-                scalar=[True, True, False] + [False] * k, ln_term=term,
-                log_survival=survival, exporter=export)  # fmt: skip
+    eff = entry(
+        INFOS[0],
+        ("f", "theta_c_deg", "cos_softness", *names),
+        [[0.3, 75.0, 0.03] + [0.5] * k, [0.5, 60.0, 0.03] + [0.9] * k],
+        d,
+        scalar=[True, True, False] + [False] * k,
+        ln_term=term,
+        log_survival=survival,
+        exporter=export,
+    )
     eff.extra["classes"] = [d.class_names[ci] for ci in wet]
     eff.extra["wet_share_names"] = names
     return eff

@@ -16,8 +16,15 @@ INFOS = (
 
 def candidates(offer: Offer) -> list[Effect]:
     """One candidate on every design."""
-    return [entry(INFOS[0], ("a", "e0_beams"), [[0.3, 1.0]], offer.d,
-                  ln_term=lambda th, dd: torch.log1p(-th[0] * edge_cover(dd, th[1])))]  # fmt: skip
+    return [
+        entry(
+            INFOS[0],
+            ("a", "e0_beams"),
+            [[0.3, 1.0]],
+            offer.d,
+            ln_term=lambda th, dd: torch.log1p(-th[0] * edge_cover(dd, th[1])),
+        )
+    ]
 
 
 def edge_cover(d: Design, e0: Tensor) -> Tensor:

@@ -46,8 +46,7 @@ def _encoding(d: Design) -> Effect:
             out["i_max"] = clip
         return out
 
-    eff = entry(INFOS[0], ("gamma", "offset"), [[1.0, 0.0]], d, transfer=transfer,
-                exporter=export)  # fmt: skip
+    eff = entry(INFOS[0], ("gamma", "offset"), [[1.0, 0.0]], d, transfer=transfer, exporter=export)
     if clip is not None:
         eff.extra["ci_floor"] = {"i_max": 0.5 * d.step}
     return eff

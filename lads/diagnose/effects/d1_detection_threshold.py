@@ -25,8 +25,12 @@ def candidates(offer: Offer) -> list[Effect]:
     ln_tau0 = float(np.quantile(d.ln_sim.numpy(), 0.02)) - 0.5
     # latent_share (likelihood.py: the share of y - mu the detector sees) lives on [0, 1] and its
     # ends are the two textbook models, so sitting there says nothing against the effect.
-    d1 = entry(INFOS[0], ("ln_tau", "s", "latent_share"),
-               [[ln_tau0, 0.5, 0.1], [ln_tau0, 0.5, 0.9]], d,
-               scalar=[True, True, False])  # fmt: skip
+    d1 = entry(
+        INFOS[0],
+        ("ln_tau", "s", "latent_share"),
+        [[ln_tau0, 0.5, 0.1], [ln_tau0, 0.5, 0.9]],
+        d,
+        scalar=[True, True, False],
+    )
     d1.extra["threshold"] = True
     return [d1]

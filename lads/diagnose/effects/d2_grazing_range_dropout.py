@@ -20,8 +20,12 @@ def candidates(offer: Offer) -> list[Effect]:
         return []
     return [
         entry(
-            INFOS[0], ("cos_c", "s_cos"), [[0.1, 0.05]], offer.d,
+            INFOS[0],
+            ("cos_c", "s_cos"),
+            [[0.1, 0.05]],
+            offer.d,
             log_survival=lambda th, dd: torch.where(
-                dd.normal_ok, phi_log((dd.cos - th[0]) / th[1]), torch.zeros_like(dd.cos)),
+                dd.normal_ok, phi_log((dd.cos - th[0]) / th[1]), torch.zeros_like(dd.cos)
+            ),
         )
-    ]  # fmt: skip
+    ]

@@ -24,7 +24,11 @@ def candidates(offer: Offer) -> list[Effect]:
     n = d.n_rings
     return [
         entry(
-            INFOS[0], ring_vector("p_drop_by_ring", n), [[0.0] * n], d, scalar=[False] * n,
+            INFOS[0],
+            ring_vector("p_drop_by_ring", n),
+            [[0.0] * n],
+            d,
+            scalar=[False] * n,
             log_survival=lambda th, dd: torch.log1p(-th[dd.ring]),
             penalty=lambda th: RIDGE * th.sum(),
             exporter=lambda th: {
@@ -33,4 +37,4 @@ def candidates(offer: Offer) -> list[Effect]:
                 "p_drop_by_ring": [float(v) for v in th],
             },
         )
-    ]  # fmt: skip
+    ]

@@ -117,8 +117,14 @@ class Design:
         rows = torch.nonzero(self.censor > 0).squeeze(1)
         censor = self.censor[rows]
         one_sided = censor >= 2
-        return CensoredRows(rows, censor, self.y_lo[rows], self.y_hi[rows], one_sided,
-                            torch.nonzero(~one_sided).squeeze(1))  # fmt: skip
+        return CensoredRows(
+            rows,
+            censor,
+            self.y_lo[rows],
+            self.y_hi[rows],
+            one_sided,
+            torch.nonzero(~one_sided).squeeze(1),
+        )
 
     @functools.cached_property
     def group_index(self) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.float64]]:
@@ -136,8 +142,9 @@ class Design:
         """`subset(idx)`, remembered for the last SUBSET_CACHE row sets: every candidate of
         a selection step, and every start of a fit, trains on the same rows, and cutting
         them out again was 3 % of a diagnosis."""
-        key = hashlib.blake2b(np.ascontiguousarray(idx, dtype=np.int64).tobytes(),
-                              digest_size=16).digest()  # fmt: skip
+        key = hashlib.blake2b(
+            np.ascontiguousarray(idx, dtype=np.int64).tobytes(), digest_size=16
+        ).digest()
         cache = self._subsets
         if key in cache:
             cache.move_to_end(key)

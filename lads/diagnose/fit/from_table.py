@@ -54,8 +54,9 @@ def paired_design(table: BeamTable) -> Design:
     zero = i_sim < 0.5 * step
     low = i_sim < (ZERO_FIT_STEPS + 0.5) * step
     sim_mean[low] = _low_power(t, i_sim, low, step, h)
-    return _design(t, rows, i_real, t.ret_real.copy(), ln_sim, True, sim_var, ~zero,
-                   sim_mean - ln_sim)  # fmt: skip
+    return _design(
+        t, rows, i_real, t.ret_real.copy(), ln_sim, True, sim_var, ~zero, sim_mean - ln_sim
+    )
 
 
 def saturated_rows(table: BeamTable) -> npt.NDArray[np.int64]:
@@ -85,8 +86,18 @@ def prediction_design(table: BeamTable, rows: npt.NDArray[np.int64], like: Desig
     sim_mean, sim_var = _sim_log_moments(i_sim, step, h)
     ln_sim = np.log(i_sim + h)
     n = len(rows)
-    return _design(t, rows, np.zeros(n), np.zeros(n, dtype=bool), ln_sim, like.paired, sim_var,
-                   i_sim >= 0.5 * step, sim_mean - ln_sim, like=like)  # fmt: skip
+    return _design(
+        t,
+        rows,
+        np.zeros(n),
+        np.zeros(n, dtype=bool),
+        ln_sim,
+        like.paired,
+        sim_var,
+        i_sim >= 0.5 * step,
+        sim_mean - ln_sim,
+        like=like,
+    )
 
 
 def clip_level(i_real: npt.ArrayLike, step: float, max_value: float) -> float | None:
@@ -171,8 +182,9 @@ def _tobit(
         nll.backward()
         return float(nll.detach()), th.grad.numpy().copy()  # type: ignore[union-attr]
 
-    res = scipy.optimize.minimize(loss, np.r_[start, math.log(spread0)], jac=True,
-                                  method="L-BFGS-B")  # fmt: skip
+    res = scipy.optimize.minimize(
+        loss, np.r_[start, math.log(spread0)], jac=True, method="L-BFGS-B"
+    )
     return res.x[:-1], max(float(math.exp(res.x[-1])), 1e-3)
 
 
@@ -230,9 +242,17 @@ def unpaired_design(sim: BeamTable, real: BeamTable, *, min_cell_rows: int = 5) 
     t = real.take(rows)
     i_real = t.i_real.astype(np.float64)
     # A cell mean over >= min_cell_rows values: its rounding error is averaged away.
-    return _design(t, rows, i_real, np.ones(len(rows), dtype=bool), means[pos[rows]], False,
-                   np.zeros(len(rows)), np.ones(len(rows), dtype=bool),
-                   np.zeros(len(rows)))  # fmt: skip
+    return _design(
+        t,
+        rows,
+        i_real,
+        np.ones(len(rows), dtype=bool),
+        means[pos[rows]],
+        False,
+        np.zeros(len(rows)),
+        np.ones(len(rows), dtype=bool),
+        np.zeros(len(rows)),
+    )
 
 
 def _cell_key(t: BeamTable) -> npt.NDArray[np.int64]:

@@ -82,8 +82,9 @@ class Model:
         return frozenset(e.label for e in self.effects)
 
     def with_effect(self, effect: Effect) -> Model:
-        return Model(self.effects + [effect], self.ln_range_ref, self.ln_sim_ref,
-                     self.heteroscedastic)  # fmt: skip
+        return Model(
+            self.effects + [effect], self.ln_range_ref, self.ln_sim_ref, self.heteroscedastic
+        )
 
     def without(self, label: str) -> Model:
         kept = [e for e in self.effects if e.label != label]
@@ -108,8 +109,11 @@ class Model:
                 threshold = th
         for e, th in transfers:
             mu = e.transfer(th, d, mu)  # type: ignore[misc]
-        ln_sigma = (theta[1] + theta[2] * (d.ln_range - self.ln_range_ref)
-                    + theta[3] * (d.ln_sim - self.ln_sim_ref))  # fmt: skip
+        ln_sigma = (
+            theta[1]
+            + theta[2] * (d.ln_range - self.ln_range_ref)
+            + theta[3] * (d.ln_sim - self.ln_sim_ref)
+        )
         # The real value's noise plus the simulated value's own rounding (Design.sim_var).
         sigma = torch.sqrt(torch.exp(2.0 * ln_sigma) + d.sim_var)
         return mu, sigma, log_surv, threshold
@@ -159,9 +163,12 @@ class RowTerms:
                 return None
             return a + step * (b - a)
 
-        return RowTerms(mix(self.mu, other.mu), mix(self.ln_sigma, other.ln_sigma),  # type: ignore[arg-type]
-                        mix(self.ln_p_given, other.ln_p_given),
-                        mix(self.ln_p_ret, other.ln_p_ret))  # fmt: skip
+        return RowTerms(
+            mix(self.mu, other.mu),
+            mix(self.ln_sigma, other.ln_sigma),  # type: ignore[arg-type]
+            mix(self.ln_p_given, other.ln_p_given),
+            mix(self.ln_p_ret, other.ln_p_ret),
+        )
 
     def nll(self, d: Design) -> npt.NDArray[np.float64]:
         """(N,) negative log-likelihood of every row (`nll_from_terms`, no gradient)."""
@@ -229,8 +236,10 @@ def log_detect(
     conditional, marginal = _threshold_widths(threshold, sigma, d)
     centre = mu + d.sim_shift
     latent = centre + threshold[2] * (d.y - centre)
-    return (torch.special.log_ndtr((centre - threshold[0]) / marginal),
-            torch.special.log_ndtr((latent - threshold[0]) / conditional))  # fmt: skip
+    return (
+        torch.special.log_ndtr((centre - threshold[0]) / marginal),
+        torch.special.log_ndtr((latent - threshold[0]) / conditional),
+    )
 
 
 def _interval_nll(c: CensoredRows, mu: torch.Tensor, sigma: torch.Tensor) -> torch.Tensor:

@@ -121,8 +121,10 @@ class Fit:
         for e, sl in zip(self.model.effects, self.model.slices(), strict=True):
             width = e.upper - e.lower
             for j in np.flatnonzero(e.scalar & np.isfinite(width)):
-                changes = [abs(loss(self._moved(e, sl.start + j, j, sign * BOUND_NUDGE * width[j]))
-                               - here) for sign in (1.0, -1.0)]  # fmt: skip
+                changes = [
+                    abs(loss(self._moved(e, sl.start + j, j, sign * BOUND_NUDGE * width[j])) - here)
+                    for sign in (1.0, -1.0)
+                ]
                 if max(changes) < FLAT_LOSS:
                     out.setdefault(e.label, []).append(e.names[j])
         return out
@@ -220,8 +222,9 @@ def fit(
         for lo, hi in zip(lower, upper, strict=True)
     ]
     options = {"maxiter": max_iter, "ftol": FTOL, "maxcor": MAXCOR}
-    res = scipy.optimize.minimize(objective, x0, jac=True, method="L-BFGS-B", bounds=bounds,
-                                  options=options)  # fmt: skip
+    res = scipy.optimize.minimize(
+        objective, x0, jac=True, method="L-BFGS-B", bounds=bounds, options=options
+    )
     value, _ = objective(res.x)
     return Fit(model, res.x, value, bool(res.success))
 

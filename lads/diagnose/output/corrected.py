@@ -55,8 +55,9 @@ def write_corrected(
     out_root = Path(out_root)
     for root in (pair.sim_root, pair.real_root):
         if out_root.resolve() == Path(root).resolve():
-            raise DiagnoseError(f"--write-corrected {out_root}: that is an input tree; "
-                                "pick a new folder.")  # fmt: skip
+            raise DiagnoseError(
+                f"--write-corrected {out_root}: that is an input tree; pick a new folder."
+            )
     _clear_previous(out_root, Path(pair.sim_root))
     shutil.copytree(pair.sim_root, out_root)
     if design.paired:
@@ -66,8 +67,10 @@ def write_corrected(
             parts.append(prediction_design(table, saturated, design))
     else:
         if sim_table is None:
-            raise DiagnoseError("an unpaired corrected tree needs the simulated tree's table "
-                                "(write_corrected(..., sim_table=...)).")  # fmt: skip
+            raise DiagnoseError(
+                "an unpaired corrected tree needs the simulated tree's table "
+                "(write_corrected(..., sim_table=...))."
+            )
         table = sim_table
         rows = np.flatnonzero(table.ret_sim & np.isfinite(table.i_sim))
         parts = [prediction_design(table, rows, design)]
@@ -77,8 +80,9 @@ def write_corrected(
     intensity = np.exp(mu) - design.half_step
     # Without any dropout effect the constant return rate is the sensor's random loss, which
     # the simulation is not asked to reproduce: only fitted dropout mechanisms remove beams.
-    has_dropout = design.paired and any(e.log_survival is not None or e.extra.get("threshold")
-                                        for e in fit.model.effects)  # fmt: skip
+    has_dropout = design.paired and any(
+        e.log_survival is not None or e.extra.get("threshold") for e in fit.model.effects
+    )
     base_rate = 1.0 / (1.0 + np.exp(-fit.theta[4]))
     table_rows = np.concatenate([part.rows for part in parts])
     scan_of_row = table.scan[table_rows]
@@ -88,8 +92,16 @@ def write_corrected(
         sel = scan_of_row == s
         if not sel.any():
             continue
-        _rewrite(pair, out_root, relpath, sim_index[sel], intensity[sel],
-                 (p[sel] / base_rate) if has_dropout else None, seed, table.sensor)  # fmt: skip
+        _rewrite(
+            pair,
+            out_root,
+            relpath,
+            sim_index[sel],
+            intensity[sel],
+            (p[sel] / base_rate) if has_dropout else None,
+            seed,
+            table.sensor,
+        )
         written += 1
     return written
 
@@ -104,8 +116,9 @@ def _clear_previous(out_root: Path, sim_root: Path) -> None:
     if not out_root.exists():
         return
     if not out_root.is_dir():
-        raise DiagnoseError(f"--write-corrected {out_root}: exists and is not a folder; pick a "
-                            "new folder.")  # fmt: skip
+        raise DiagnoseError(
+            f"--write-corrected {out_root}: exists and is not a folder; pick a new folder."
+        )
     theirs = {p.relative_to(out_root).as_posix() for p in out_root.rglob("*")}
     ours = {p.relative_to(sim_root).as_posix() for p in sim_root.rglob("*")}
     if theirs and theirs != ours:

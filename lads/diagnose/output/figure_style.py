@@ -30,8 +30,16 @@ def profile(ax: Any, p: FeatureProfile, colour: str, label: str, shift: float) -
         ax.fill_between(x[ok], lo[ok], hi[ok], color=colour, alpha=0.25, linewidth=0)
     else:
         err = np.vstack([np.clip(s.mean - lo, 0, None), np.clip(hi - s.mean, 0, None)])[:, ok]
-        ax.errorbar(x[ok] + shift, s.mean[ok], yerr=err, fmt="o", color=colour, markersize=3,
-                    elinewidth=0.8, label=label)  # fmt: skip
+        ax.errorbar(
+            x[ok] + shift,
+            s.mean[ok],
+            yerr=err,
+            fmt="o",
+            color=colour,
+            markersize=3,
+            elinewidth=0.8,
+            label=label,
+        )
 
 
 def ticks(ax: Any, labels: Sequence[str], axis: str = "x") -> None:
@@ -84,7 +92,13 @@ def save(fig: Any, path: Path, *, margins: bool = True, bottom_in: float = 0.9) 
     # Fixed margins in inches: tight_layout costs about a second per multi-panel figure.
     if margins:
         width, height = fig.get_figwidth(), fig.get_figheight()
-        fig.subplots_adjust(left=0.75 / width, right=1 - 0.2 / width, top=1 - 0.65 / height,
-                            bottom=bottom_in / height, wspace=0.35, hspace=0.75)  # fmt: skip
+        fig.subplots_adjust(
+            left=0.75 / width,
+            right=1 - 0.2 / width,
+            top=1 - 0.65 / height,
+            bottom=bottom_in / height,
+            wspace=0.35,
+            hspace=0.75,
+        )
     atomic_write_figure(fig, Path(path), dpi=DPI)
     return Path(path)

@@ -64,8 +64,9 @@ def residual_panels(loc_before: Localization, loc_after: Localization | None, pa
             style.profile(ax, loc_after.features[name], AFTER, "after", 0.15)
         ax.axhline(0.0, color="0.3", linewidth=0.8)
         q = before.intensity.q_value
-        ax.set_title(f"{before.title} (q = {q:.2g})" if math.isfinite(q) else before.title,
-                     fontsize=9)  # fmt: skip
+        ax.set_title(
+            f"{before.title} (q = {q:.2g})" if math.isfinite(q) else before.title, fontsize=9
+        )
         ax.set_xlabel(AXIS_LABELS.get(name, name), fontsize=8)
         ax.set_ylabel(R_LABEL, fontsize=8)
         style.ticks(ax, before.labels)
@@ -74,8 +75,9 @@ def residual_panels(loc_before: Localization, loc_after: Localization | None, pa
     for ax in axes[len(names) :]:
         ax.set_visible(False)
     after = " before (blue) and after (red) the fit" if loc_after is not None else ""
-    fig.suptitle(f"binned residual ln(I_real/I_sim) with 95% cluster-bootstrap CIs{after}",
-                 fontsize=10)  # fmt: skip
+    fig.suptitle(
+        f"binned residual ln(I_real/I_sim) with 95% cluster-bootstrap CIs{after}", fontsize=10
+    )
     return style.save(fig, path)
 
 
@@ -93,15 +95,23 @@ def heatmaps(loc: Localization, path: Path) -> Path:
         path.
     """
     maps = list(loc.heatmaps.values())
-    fig, axes = style.figure((5.4 * max(len(maps), 1) + 1.0, 5.2), 1, max(len(maps), 1),
-                        layout="constrained")  # fmt: skip
+    fig, axes = style.figure(
+        (5.4 * max(len(maps), 1) + 1.0, 5.2), 1, max(len(maps), 1), layout="constrained"
+    )
     finite = np.concatenate([m.mean[np.isfinite(m.mean)] for m in maps] + [np.zeros(1)])
     vmax = max(float(np.percentile(np.abs(finite), 99)), 1e-3)
     cmap = style.cmap("RdBu_r", bad="0.85")
     image = None
     for ax, m in zip(axes, maps, strict=False):
-        image = ax.imshow(m.mean, aspect="auto", origin="lower", cmap=cmap, vmin=-vmax,
-                          vmax=vmax, interpolation="nearest")  # fmt: skip
+        image = ax.imshow(
+            m.mean,
+            aspect="auto",
+            origin="lower",
+            cmap=cmap,
+            vmin=-vmax,
+            vmax=vmax,
+            interpolation="nearest",
+        )
         ax.set_xlabel(AXIS_LABELS.get(m.cols, m.cols), fontsize=8)
         ax.set_ylabel(AXIS_LABELS.get(m.rows, m.rows), fontsize=8)
         ax.set_title(f"{m.rows} x {m.cols}", fontsize=9)
@@ -135,8 +145,9 @@ def ring_gains(
     Returns:
         path.
     """
-    v, lo, hi = (np.asarray(a, dtype=np.float64).reshape(-1) for a in (values_by_ring, ci_low,
-                                                                      ci_high))  # fmt: skip
+    v, lo, hi = (
+        np.asarray(a, dtype=np.float64).reshape(-1) for a in (values_by_ring, ci_low, ci_high)
+    )
     fig, axes = style.figure((max(6.0, 0.16 * v.size + 2.0), 3.6), 1, 1)
     ax = axes[0]
     ring = np.arange(v.size)
@@ -228,10 +239,20 @@ def point_noise(noise: Mapping[str, Any], path: Path) -> Path:
     if bins:
         r = np.array([b["range_m"] for b in bins])
         seen = [(b["range_m"], b["sigma_ln_i"]) for b in bins if b["sigma_ln_i"] is not None]
-        ax.plot([x for x, _ in seen], [y for _, y in seen], "o", color="k",
-                label="neighbour differences (MAD, rounding removed)")  # fmt: skip
-        ax.plot(r, [b["fitted_sigma_ln_i"] for b in bins], "-", color=AFTER,
-                label="fitted law (Student t, as Gaussian sigma)")  # fmt: skip
+        ax.plot(
+            [x for x, _ in seen],
+            [y for _, y in seen],
+            "o",
+            color="k",
+            label="neighbour differences (MAD, rounding removed)",
+        )
+        ax.plot(
+            r,
+            [b["fitted_sigma_ln_i"] for b in bins],
+            "-",
+            color=AFTER,
+            label="fitted law (Student t, as Gaussian sigma)",
+        )
         ax.set_xscale("log")
         ax.legend(fontsize=7)
     else:
@@ -286,8 +307,9 @@ def bootstrap_histograms(samples: Mapping[str, npt.ArrayLike], path: Path) -> Pa
         ax.tick_params(labelsize=7)
     for ax in axes[len(series) :]:
         ax.set_visible(False)
-    fig.suptitle("cluster-bootstrap replicates: median (solid) and 95% interval (dashed)",
-                 fontsize=10)  # fmt: skip
+    fig.suptitle(
+        "cluster-bootstrap replicates: median (solid) and 95% interval (dashed)", fontsize=10
+    )
     return style.save(fig, path)
 
 
@@ -312,24 +334,42 @@ def selection_trace(steps: Sequence[Mapping[str, Any]], path: Path) -> Path:
         se = np.array([style.num(s.get("se")) for s in steps])
         accepted = [bool(s.get("accepted")) for s in steps]
         colours = ["C2" if a else "0.65" for a in accepted]
-        ax.bar(x, np.nan_to_num(delta), color=colours, edgecolor=["k" if a else "none"
-                                                                 for a in accepted])  # fmt: skip
+        ax.bar(
+            x,
+            np.nan_to_num(delta),
+            color=colours,
+            edgecolor=["k" if a else "none" for a in accepted],
+        )
         ax.errorbar(x, delta, yerr=np.nan_to_num(se), fmt="none", ecolor="0.2", lw=0.8)
         for xi, d, e, s in zip(x, delta, se, steps, strict=True):
             z = style.num(s.get("z"))
             if math.isfinite(z):
                 top = (d if math.isfinite(d) else 0.0) + (e if math.isfinite(e) else 0.0)
-                ax.annotate(f"z {z:.1f}", (xi, max(top, 0.0)), xytext=(0, 3),
-                            textcoords="offset points", fontsize=7, ha="center",
-                            va="bottom")  # fmt: skip
+                ax.annotate(
+                    f"z {z:.1f}",
+                    (xi, max(top, 0.0)),
+                    xytext=(0, 3),
+                    textcoords="offset points",
+                    fontsize=7,
+                    ha="center",
+                    va="bottom",
+                )
         ax.margins(y=0.15)
-        ax.set_xticks(x, [f"{s.get('step')}: {s.get('candidate')}" for s in steps],
-                      rotation=60, ha="right", fontsize=7)  # fmt: skip
+        ax.set_xticks(
+            x,
+            [f"{s.get('step')}: {s.get('candidate')}" for s in steps],
+            rotation=60,
+            ha="right",
+            fontsize=7,
+        )
     else:
         ax.text(0.5, 0.5, "no candidates evaluated", ha="center", va="center")
     ax.axhline(0.0, color="0.3", linewidth=0.8)
     ax.set_xlabel("step: candidate effect", fontsize=8)
     ax.set_ylabel("held-out loss reduction (nats per beam)", fontsize=8)
-    ax.set_title(f"forward selection (green: accepted; error bars 1 SE; z: directional score, "
-                 f"accepted above {Z_ACCEPT:.0f})", fontsize=10)  # fmt: skip
+    ax.set_title(
+        f"forward selection (green: accepted; error bars 1 SE; z: directional score, "
+        f"accepted above {Z_ACCEPT:.0f})",
+        fontsize=10,
+    )
     return style.save(fig, path)

@@ -29,14 +29,21 @@ def build_report(
     """The report.json document (JSON types only, no NaN)."""
     effects = []
     for r in dg.effects:
-        effects.append({
-            "id": r.effect.info.id, "key": r.effect.info.key, "name": r.effect.info.name,
-            "label": r.effect.label, "class": r.effect.class_name,
-            "params": r.params, "ci95": r.ci95,
-            "selection_frequency": r.selection_frequency, "status": r.status,
-            "unidentified_params": r.unidentified,
-            **({"classes": _classes(r)} if "classes" in r.effect.extra else {}),
-        })  # fmt: skip
+        effects.append(
+            {
+                "id": r.effect.info.id,
+                "key": r.effect.info.key,
+                "name": r.effect.info.name,
+                "label": r.effect.label,
+                "class": r.effect.class_name,
+                "params": r.params,
+                "ci95": r.ci95,
+                "selection_frequency": r.selection_frequency,
+                "status": r.status,
+                "unidentified_params": r.unidentified,
+                **({"classes": _classes(r)} if "classes" in r.effect.extra else {}),
+            }
+        )
     trace = [s.to_json() for s in dg.selection.trace]
     doc = {
         "schema_version": SCHEMA_VERSION,
@@ -57,7 +64,7 @@ def build_report(
                 "validation": int(len(dg.split.validation)),
                 "test": int(len(dg.split.test)),
             },
-        },  # fmt: skip
+        },
         "selection_trace": trace,
         # The held-out NLL gain (nats/row) an accepted effect had to beat (select.gain_floor).
         "gain_floor_nats": dg.selection.floor,
@@ -100,8 +107,10 @@ def markdown(doc: dict[str, Any]) -> str:
         f"- simulation: `{doc.get('sim_root')}`; real: `{doc.get('real_root')}`; "
         f"source {doc.get('source')}, {doc.get('mode')}, seed {doc.get('seed')}"
     )
-    lines.append(f"- beams: {doc.get('rows')}, scans: {doc.get('scans')}; sensor "
-                 f"{doc.get('sensor', {}).get('profile')}")  # fmt: skip
+    lines.append(
+        f"- beams: {doc.get('rows')}, scans: {doc.get('scans')}; sensor "
+        f"{doc.get('sensor', {}).get('profile')}"
+    )
     lines.append(
         f"- **verdict: {doc['verdict']}**"
         + (f" ({'; '.join(doc['verdict_reasons'])})" if doc["verdict_reasons"] else "")
@@ -113,67 +122,98 @@ def markdown(doc: dict[str, Any]) -> str:
         lines.append("- no feature shows a significant difference (BH q < 0.05)")
     lines += ["", "## Missing physics", ""]
     if not doc["effects"]:
-        lines.append("None: no catalogue effect improved the held-out fit by more than three "
-                     "cluster standard errors.")  # fmt: skip
+        lines.append(
+            "None: no catalogue effect improved the held-out fit by more than three "
+            "cluster standard errors."
+        )
     for e in doc["effects"]:
-        params = ", ".join(f"{k} = {_fmt(v)} {_fmt(e['ci95'].get(k))}"
-                           for k, v in e["params"].items())  # fmt: skip
+        params = ", ".join(
+            f"{k} = {_fmt(v)} {_fmt(e['ci95'].get(k))}" for k, v in e["params"].items()
+        )
         where = f" on {e['class']}" if e.get("class") else ""
         if e.get("unidentified_params"):
-            params += (f" (not informed by the data: {', '.join(e['unidentified_params'])}; "
-                       "the interval is the catalogue range)")  # fmt: skip
+            params += (
+                f" (not informed by the data: {', '.join(e['unidentified_params'])}; "
+                "the interval is the catalogue range)"
+            )
         lines.append(
             f"- **{e['id']} {e['name']}** (`{e['key']}`){where}: {params}; selected "
             f"in {e['selection_frequency']:.0%} of resamples ({e['status']})."
         )
     for p in doc.get("possible_effects", []):
-        lines.append(f"- possible: {p['id']} `{p['key']}` ({p['label']}), selected in "
-                     f"{p['selection_frequency']:.0%} of resamples")  # fmt: skip
+        lines.append(
+            f"- possible: {p['id']} `{p['key']}` ({p['label']}), selected in "
+            f"{p['selection_frequency']:.0%} of resamples"
+        )
     if doc["ambiguity_sets"] or doc["alternatives"]:
         lines += ["", "## Alternatives that fit as well", ""]
         for s in doc["ambiguity_sets"]:
             names = ", ".join(f"{i} {CATALOGUE[i].name}" for i in s["ids"])
             lines.append(f"- cannot be separated: {names} ({s['reason']})")
         for a in doc["alternatives"]:
-            lines.append(f"- {a['id']} `{a['key']}` instead of {', '.join(a['instead_of'])}: "
-                         f"held-out loss {a['delta_loss']:+.4f} (SE {a['se']:.4f}); separate "
-                         f"with {a['separating_data']}")  # fmt: skip
+            lines.append(
+                f"- {a['id']} `{a['key']}` instead of {', '.join(a['instead_of'])}: "
+                f"held-out loss {a['delta_loss']:+.4f} (SE {a['se']:.4f}); separate "
+                f"with {a['separating_data']}"
+            )
     nm = doc["noise_model"]
-    lines += ["", "## Noise model", "",
-              f"- {nm['kind']}: sigma(ln I) = {nm['sigma_ln_i']:.3f}, range slope "
-              f"{nm['range_slope']:+.3f}, level slope {nm['level_slope']:+.3f}; return "
-              f"probability {nm['return_probability']:.3f} (all residual spread: point "
-              "noise and each surface's own reflectance)"]  # fmt: skip
+    lines += [
+        "",
+        "## Noise model",
+        "",
+        f"- {nm['kind']}: sigma(ln I) = {nm['sigma_ln_i']:.3f}, range slope "
+        f"{nm['range_slope']:+.3f}, level slope {nm['level_slope']:+.3f}; return "
+        f"probability {nm['return_probability']:.3f} (all residual spread: point "
+        "noise and each surface's own reflectance)",
+    ]
     pn = nm.get("point_noise") or {}
     if "range_slope" in pn:
         z = pn["heldout_gain_nats"]["z"]
-        lines.append(f"- point noise ({pn['pairs']} neighbour pairs, differences within one "
-                     f"surface): {pn['kind']}, sigma(ln I) ~ {pn['sigma_ln_i_if_gaussian']:.3f}"
-                     f", range slope {pn['range_slope']:+.3f} {_interval(pn['range_slope_ci95'])}"
-                     f", level slope {pn['level_slope']:+.3f} "
-                     f"{_interval(pn['level_slope_ci95'])}; held-out z {z:.1f}")  # fmt: skip
+        lines.append(
+            f"- point noise ({pn['pairs']} neighbour pairs, differences within one "
+            f"surface): {pn['kind']}, sigma(ln I) ~ {pn['sigma_ln_i_if_gaussian']:.3f}"
+            f", range slope {pn['range_slope']:+.3f} {_interval(pn['range_slope_ci95'])}"
+            f", level slope {pn['level_slope']:+.3f} "
+            f"{_interval(pn['level_slope_ci95'])}; held-out z {z:.1f}"
+        )
     elif pn:
         lines.append(f"- point noise: {pn['kind']} ({pn.get('reason', '')})")
     h = doc["heldout"]
-    lines += ["", f"## Held-out test groups ({h['groups']} groups, {h['rows']} beams)", "",
-              "| model | RMSE ln I | MAE ln I | R² ln I | dropout Brier | dropout log-loss |",
-              "|---|---:|---:|---:|---:|---:|"]  # fmt: skip
+    lines += [
+        "",
+        f"## Held-out test groups ({h['groups']} groups, {h['rows']} beams)",
+        "",
+        "| model | RMSE ln I | MAE ln I | R² ln I | dropout Brier | dropout log-loss |",
+        "|---|---:|---:|---:|---:|---:|",
+    ]
     for name in ("simulation", "before", "after"):
         m = h.get(name) or {}
-        lines.append(f"| {name} | {_fmt(m.get('rmse_ln_i'))} | {_fmt(m.get('mae_ln_i'))} | "
-                     f"{_fmt(m.get('r2_ln_i'))} | {_fmt(m.get('dropout_brier'))} | "
-                     f"{_fmt(m.get('dropout_log_loss'))} |")  # fmt: skip
-    lines += ["", "`simulation`: ln I_sim as is; `before`: baseline (global gain, noise, "
-              "constant return rate); `after`: with the selected effects.", ""]  # fmt: skip
-    lines += ["## Selection trace", "",
-              "Δ held-out loss: mean NLL gain per beam on the validation groups, with its "
-              "cluster SE; z: the held-out directional score in SEs, the acceptance test.", "",
-              "| step | candidate | Δ held-out loss | SE | z | ΔBIC | at bound | accepted |",
-              "|---:|---|---:|---:|---:|---:|---|---|"]  # fmt: skip
+        lines.append(
+            f"| {name} | {_fmt(m.get('rmse_ln_i'))} | {_fmt(m.get('mae_ln_i'))} | "
+            f"{_fmt(m.get('r2_ln_i'))} | {_fmt(m.get('dropout_brier'))} | "
+            f"{_fmt(m.get('dropout_log_loss'))} |"
+        )
+    lines += [
+        "",
+        "`simulation`: ln I_sim as is; `before`: baseline (global gain, noise, "
+        "constant return rate); `after`: with the selected effects.",
+        "",
+    ]
+    lines += [
+        "## Selection trace",
+        "",
+        "Δ held-out loss: mean NLL gain per beam on the validation groups, with its "
+        "cluster SE; z: the held-out directional score in SEs, the acceptance test.",
+        "",
+        "| step | candidate | Δ held-out loss | SE | z | ΔBIC | at bound | accepted |",
+        "|---:|---|---:|---:|---:|---:|---|---|",
+    ]
     for s in doc["selection_trace"]:
-        lines.append(f"| {s['step']} | {s['candidate']} | {s['delta_loss']:.4f} | {s['se']:.4f}"
-                     f" | {s.get('z', float('nan')):.1f} | {s['delta_bic']:.1f} | {s['at_bound']}"
-                     f" | {s['accepted']} |")  # fmt: skip
+        lines.append(
+            f"| {s['step']} | {s['candidate']} | {s['delta_loss']:.4f} | {s['se']:.4f}"
+            f" | {s.get('z', float('nan')):.1f} | {s['delta_bic']:.1f} | {s['at_bound']}"
+            f" | {s['accepted']} |"
+        )
     if doc.get("figures"):
         lines += ["", "## Figures", ""] + [f"![{f}]({f})" for f in doc["figures"]]
     return "\n".join(lines) + "\n"

@@ -90,17 +90,26 @@ class Step:
         return cls(step, label, c.delta, c.se, c.delta_bic, at_bound, z=c.z, **kw)
 
     def to_json(self) -> dict[str, Any]:
-        out = {"step": self.step, "candidate": self.candidate, "delta_loss": self.delta_loss,
-               "se": self.se, "z": self.z, "delta_bic": self.delta_bic,
-               "at_bound": self.at_bound, "accepted": self.accepted,
-               "screened": self.screened}  # fmt: skip
+        out = {
+            "step": self.step,
+            "candidate": self.candidate,
+            "delta_loss": self.delta_loss,
+            "se": self.se,
+            "z": self.z,
+            "delta_bic": self.delta_bic,
+            "at_bound": self.at_bound,
+            "accepted": self.accepted,
+            "screened": self.screened,
+        }
         if self.support is not None:
-            out["class_rows"] = {"delta_loss": self.support.delta, "se": self.support.se,
-                                 "t": self.support.delta / max(self.support.se, 1e-300),
-                                 "groups": self.support.groups,
-                                 "statistic": "mean of group mean gains"
-                                 + (", held-out and cross-fitted training groups"
-                                    if self.crossfit else "")}  # fmt: skip
+            out["class_rows"] = {
+                "delta_loss": self.support.delta,
+                "se": self.support.se,
+                "t": self.support.delta / max(self.support.se, 1e-300),
+                "groups": self.support.groups,
+                "statistic": "mean of group mean gains"
+                + (", held-out and cross-fitted training groups" if self.crossfit else ""),
+            }
         return out
 
 
@@ -269,26 +278,31 @@ def forward_backward(
         results = []
         listed = list(remaining)
         if screen_w is not None and len(remaining) > SHORTLIST:
-            listed = _screen(step, remaining, current, d, screen_w, base, held_out, sel,
-                             assess, jobs, warm)  # fmt: skip
-        fits = fit_models([current.model.with_effect(c) for c in listed], d, weights, base,
-                          current, jobs, warm)  # fmt: skip
+            listed = _screen(
+                step, remaining, current, d, screen_w, base, held_out, sel, assess, jobs, warm
+            )
+        fits = fit_models(
+            [current.model.with_effect(c) for c in listed], d, weights, base, current, jobs, warm
+        )
         fold_refs: dict[bytes, Fit] = {}
         for cand, f in zip(listed, fits, strict=True):
             sel.fitted[f.model.key] = f
             c, support = assess(cand, f, n_fit, current, incumbent)
             bound = cand.label in f.binding_bounds(d, weights)
-            crossfit = (not _passes(c, bound, z_accept, floor, support)
-                        and worth_crossfit(c, support, cand))  # fmt: skip
+            crossfit = not _passes(c, bound, z_accept, floor, support) and worth_crossfit(
+                c, support, cand
+            )
             if crossfit:
                 class_sub = supports[cand.label]
                 if class_sub is None:  # a class-confined support is its class's held-out rows
                     raise DiagnoseError(f"{cand.label}: cross-fit without held-out class rows.")
-                support = crossfit_support(f, current, d, weights, class_sub,
-                                           cand.class_index, fold_refs)  # fmt: skip
+                support = crossfit_support(
+                    f, current, d, weights, class_sub, cand.class_index, fold_refs
+                )
             results.append((cand, f, c, bound, support))
-            sel.trace.append(Step.of(step, cand.label, c, bound, support=support,
-                                     crossfit=crossfit))  # fmt: skip
+            sel.trace.append(
+                Step.of(step, cand.label, c, bound, support=support, crossfit=crossfit)
+            )
             if step == 1:
                 sel.first_step[cand.label] = c
         # The best held-out gain, or a simpler effect within one SE of it.
@@ -322,8 +336,9 @@ def _screen(
     """The shortlist of one forward step: every candidate fitted on the screening rows and
     scored; the others are traced as screened out."""
     screened = []
-    fits = fit_models([current.model.with_effect(c) for c in remaining], d, screen_w,
-                      base, current, jobs, warm)  # fmt: skip
+    fits = fit_models(
+        [current.model.with_effect(c) for c in remaining], d, screen_w, base, current, jobs, warm
+    )
     # Against the incumbent refitted on the same screening rows: against the one fitted on
     # all rows, the base parameters' own sampling noise (the return rate) moved every
     # held-out group alike and could give every candidate the same gain, far beyond the z
@@ -332,14 +347,21 @@ def _screen(
     screen_inc = Incumbent.of(screen_ref, held_out)
     for cand, f in zip(remaining, fits, strict=True):
         sel.screened_fits[f.model.key] = f
-        screened.append((cand, f, *assess(cand, f, float(screen_w.sum()), screen_ref,
-                                          screen_inc)))  # fmt: skip
+        screened.append((cand, f, *assess(cand, f, float(screen_w.sum()), screen_ref, screen_inc)))
     shortlist = _shortlist(screened)
     for cand, f, c, support in screened:
         if cand.label in shortlist:
             continue
-        sel.trace.append(Step.of(step, cand.label, c, cand.label in f.binding_bounds(d, screen_w),
-                                 support=support, screened=True))  # fmt: skip
+        sel.trace.append(
+            Step.of(
+                step,
+                cand.label,
+                c,
+                cand.label in f.binding_bounds(d, screen_w),
+                support=support,
+                screened=True,
+            )
+        )
         if step == 1:
             sel.first_step[cand.label] = c
     return [c for c in remaining if c.label in shortlist]

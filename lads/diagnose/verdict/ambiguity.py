@@ -62,8 +62,9 @@ def swap_ambiguity(
                 swaps.append((e, cand, chosen.model.without(e.label).with_effect(cand)))
     # A swapped model the selection already fitted on these rows is not fitted again.
     todo = [m for _, _, m in swaps if m.key not in sel.fitted]
-    fits = dict(zip((m.key for m in todo),
-                    fit_models(todo, d, weights, base, chosen, jobs), strict=True))  # fmt: skip
+    fits = dict(
+        zip((m.key for m in todo), fit_models(todo, d, weights, base, chosen, jobs), strict=True)
+    )
     for e in chosen.model.effects:
         members = [e.info.id]
         for _, cand, m in (s for s in swaps if s[0] is e):
@@ -73,18 +74,28 @@ def swap_ambiguity(
             c = gain_on(chosen, swapped, held_out)
             if abs(c.delta) <= c.se:
                 members.append(cand.info.id)
-                alternatives.append({
-                    "id": cand.info.id, "key": cand.info.key, "label": cand.label,
-                    "ids": [cand.info.id], "keys": [cand.info.key],
-                    "instead_of": [e.info.id], "delta_loss": c.delta, "se": c.se,
-                    "separating_data": separating_data(e.info.id, cand.info.id),
-                })  # fmt: skip
+                alternatives.append(
+                    {
+                        "id": cand.info.id,
+                        "key": cand.info.key,
+                        "label": cand.label,
+                        "ids": [cand.info.id],
+                        "keys": [cand.info.key],
+                        "instead_of": [e.info.id],
+                        "delta_loss": c.delta,
+                        "se": c.se,
+                        "separating_data": separating_data(e.info.id, cand.info.id),
+                    }
+                )
         if len(members) > 1:
-            sets.append({
-                "ids": members, "keys": [CATALOGUE[i].key for i in members],
-                "reason": f"swapping {e.label} for any other member changes the held-out loss "
-                          "by less than one standard error",
-            })  # fmt: skip
+            sets.append(
+                {
+                    "ids": members,
+                    "keys": [CATALOGUE[i].key for i in members],
+                    "reason": f"swapping {e.label} for any other member changes the held-out loss "
+                    "by less than one standard error",
+                }
+            )
     return alternatives, sets
 
 
@@ -123,9 +134,14 @@ def resample_swaps(
             if ids[0] == ids[1] or any(set(ids) <= x for x in listed):
                 continue
             listed.append(set(ids))
-            out.append({"ids": ids, "keys": [CATALOGUE[i].key for i in ids],
-                        "reason": f"the resamples chose {u} instead of {s} in {instead:.0%} of "
-                                  f"them and one of the two in {either:.0%}"})  # fmt: skip
+            out.append(
+                {
+                    "ids": ids,
+                    "keys": [CATALOGUE[i].key for i in ids],
+                    "reason": f"the resamples chose {u} instead of {s} in {instead:.0%} of "
+                    f"them and one of the two in {either:.0%}",
+                }
+            )
     return out
 
 
@@ -133,14 +149,20 @@ def separating_data(a: str, b: str) -> str:
     """The data that would tell two confounded effects apart (docs/diagnose.md §2, §5.4)."""
     pair = {a, b}
     if pair == {"C1", "C5"}:
-        return ("returns beyond 60 m: attenuation curves ln I by -2 alpha R, the exponent by "
-                "-delta_n / R (d ln I / dR = -delta_n / R - 2 alpha)")  # fmt: skip
+        return (
+            "returns beyond 60 m: attenuation curves ln I by -2 alpha R, the exponent by "
+            "-delta_n / R (d ln I / dR = -delta_n / R - 2 alpha)"
+        )
     if pair == {"C1", "C3"}:
-        return ("non-ground surfaces (walls, vehicles, poles) where incidence and range vary "
-                "independently; on flat ground cos(theta) = h / R")  # fmt: skip
+        return (
+            "non-ground surfaces (walls, vehicles, poles) where incidence and range vary "
+            "independently; on flat ground cos(theta) = h / R"
+        )
     if pair & {"C4", "D3"} and pair & {"C1", "C2"}:
-        return ("non-ground returns on every ring: on the ground each ring meets one range, "
-                "R_k = h / sin|elevation_k|")  # fmt: skip
+        return (
+            "non-ground returns on every ring: on the ground each ring meets one range, "
+            "R_k = h / sin|elevation_k|"
+        )
     if pair == {"C1", "C2"}:
         return "many returns below 10 m and an exponent fitted beyond 15 m"
     if "C6" in pair:
@@ -161,9 +183,11 @@ def ground_only_rule(d: Design, sel: Selection, reasons: list[str]) -> list[dict
     off_ground = float(np.mean(~d.is_ground.numpy()[rows])) if rows.any() else 0.0
     if off_ground >= GROUND_ONLY_SHARE:
         return []
-    reasons.append(f"only {off_ground:.1%} of the returns lie off the ground: a range exponent, "
-                   "an incidence law, per-ring gains and an encoding gamma cannot be told "
-                   "apart there")  # fmt: skip
+    reasons.append(
+        f"only {off_ground:.1%} of the returns lie off the ground: a range exponent, "
+        "an incidence law, per-ring gains and an encoding gamma cannot be told "
+        "apart there"
+    )
     keys = [CATALOGUE[i].key for i in GROUND_IDENTITIES]
     reason = ("ground-only data: not separable from ground data (add walls, vehicles or poles, "
               "where incidence, range and ring vary independently)")  # fmt: skip
@@ -178,7 +202,14 @@ def range_band_rule(d: Design, sel: Selection, reasons: list[str]) -> list[dict[
     share = float(np.mean((r >= LONG_RANGE_BAND_M[0]) & (r <= LONG_RANGE_BAND_M[1])))
     if share >= LONG_RANGE_MIN_SHARE:
         return []
-    reasons.append(f"only {share:.1%} of returns lie at 30-120 m: attenuation and a range "
-                   "exponent cannot be told apart")  # fmt: skip
-    return [{"ids": ["C5", "C1"], "keys": ["atmospheric_attenuation", "range_exponent"],
-             "reason": "too few returns at 30-120 m (add returns beyond 60 m)"}]  # fmt: skip
+    reasons.append(
+        f"only {share:.1%} of returns lie at 30-120 m: attenuation and a range "
+        "exponent cannot be told apart"
+    )
+    return [
+        {
+            "ids": ["C5", "C1"],
+            "keys": ["atmospheric_attenuation", "range_exponent"],
+            "reason": "too few returns at 30-120 m (add returns beyond 60 m)",
+        }
+    ]

@@ -111,8 +111,9 @@ def _diagnose_design(
     w_all = fit_weights(len(d), fit_all, settings.fit_rows * 2, rng)
     base = initial_base(d, fit_all)
     final = fit_best(selection.fit.model, d, w_all, base, selection.fit)
-    boot = bootstrap_params(final, d, fit_all, settings.fit_rows, settings.bootstrap, rng,
-                            settings.jobs)  # fmt: skip
+    boot = bootstrap_params(
+        final, d, fit_all, settings.fit_rows, settings.bootstrap, rng, settings.jobs
+    )
     effects = _effect_reports(final, d, w_all, boot, stable.family_frequency)
     possible = _possible(pool, final, stable)
 
@@ -129,14 +130,29 @@ def _diagnose_design(
     noise = noise_model(final, d, boot, selection, weights, split)
     heldout = heldout_metrics(d, split.test, selection.baseline, final)
     beyond = _beyond_bounds(selection)
-    reasons += [f"{label} would improve the held-out fit by {z:.1f} SE but a parameter sits at "
-                "its catalogue bound: the mismatch it describes is larger than the catalogue "
-                "allows for it, or another effect is missing" for label, z in beyond]  # fmt: skip
+    reasons += [
+        f"{label} would improve the held-out fit by {z:.1f} SE but a parameter sits at "
+        "its catalogue bound: the mismatch it describes is larger than the catalogue "
+        "allows for it, or another effect is missing"
+        for label, z in beyond
+    ]
     test_gain = compare(final, selection.baseline, d, split.test, 1.0, 1.0)
     heldout["test_gain_nats"] = {"delta": test_gain.delta, "se": test_gain.se}
     verdict = _verdict(effects, possible, sets, test_gain, bool(beyond), reasons)
-    return Diagnosis(split, selection, final, effects, possible, alternatives, sets, noise,
-                     heldout, verdict, reasons, stable.frequency)  # fmt: skip
+    return Diagnosis(
+        split,
+        selection,
+        final,
+        effects,
+        possible,
+        alternatives,
+        sets,
+        noise,
+        heldout,
+        verdict,
+        reasons,
+        stable.frequency,
+    )
 
 
 def _effect_reports(
@@ -163,8 +179,9 @@ def _effect_reports(
             ci[n] = [float(e.lower[j]), float(e.upper[j])]
         f = fam_freq.get(e.label, 0.0)
         status = "claimed" if f >= CLAIM_FREQUENCY else "possible"
-        effects.append(EffectReport(e, params, ci, f, status, sample_arrays(params, samples),
-                                    unidentified))  # fmt: skip
+        effects.append(
+            EffectReport(e, params, ci, f, status, sample_arrays(params, samples), unidentified)
+        )
     return effects
 
 
@@ -176,8 +193,9 @@ def _possible(pool: list[Effect], final: Fit, stable: Stability) -> list[dict[st
         f = stable.family_frequency.get(e.label, 0.0)
         if stable.family[e.label] not in listed and f >= POSSIBLE_FREQUENCY:
             listed.add(stable.family[e.label])
-            possible.append({"id": e.info.id, "key": e.info.key, "label": e.label,
-                             "selection_frequency": f})  # fmt: skip
+            possible.append(
+                {"id": e.info.id, "key": e.info.key, "label": e.label, "selection_frequency": f}
+            )
     return possible
 
 
@@ -232,9 +250,11 @@ def claim_with_sets(
             hit = sum(1 for ids in chosen_ids if ids & group) / n
             if hit >= CLAIM_FREQUENCY:
                 r.status = "claimed"
-                reasons.append(f"{r.effect.label} is claimed with its ambiguity set "
-                               f"{sorted(group)}: one of them was chosen in {hit:.0%} of the "
-                               "resamples")  # fmt: skip
+                reasons.append(
+                    f"{r.effect.label} is claimed with its ambiguity set "
+                    f"{sorted(group)}: one of them was chosen in {hit:.0%} of the "
+                    "resamples"
+                )
                 break
     return reasons
 

@@ -60,8 +60,9 @@ def noise_model(
             lo, hi = interval95(boot[:, i])
             out[f"{name}_ci95"] = [float(lo), float(hi)]
     het = sel.fit
-    flat = Model(list(het.model.effects), het.model.ln_range_ref, het.model.ln_sim_ref,
-                 heteroscedastic=False)  # fmt: skip
+    flat = Model(
+        list(het.model.effects), het.model.ln_range_ref, het.model.ln_sim_ref, heteroscedastic=False
+    )
     start = het.theta.copy()
     start[2:4] = 0.0
     hom = fit(flat, d, weights, start)
@@ -74,8 +75,9 @@ def noise_model(
     mu = final.predictions(d)[0]
     fit_rows = np.concatenate([split.train, split.validation])
     refs = (final.model.ln_range_ref, final.model.ln_sim_ref)
-    out["point_noise"] = point_noise(d, mu, fit_rows, split.test, *refs, POINT_NOISE_MIN_SLOPE,
-                                     Z_ACCEPT)  # fmt: skip
+    out["point_noise"] = point_noise(
+        d, mu, fit_rows, split.test, *refs, POINT_NOISE_MIN_SLOPE, Z_ACCEPT
+    )
     # Either test may see it: the total sigma a noise that every surface's own reflectance
     # does not swamp, the neighbour differences one that it does (point_noise.py).
     hetero = total == "heteroscedastic" or out["point_noise"]["kind"] == "heteroscedastic"

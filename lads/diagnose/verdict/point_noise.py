@@ -176,8 +176,12 @@ def _sandwich(theta: npt.NDArray[np.float64], x: _Regressors, p: Pairs) -> npt.N
     hess = 0.5 * (hess + hess.T)
     _, inv = np.unique(p.group, return_inverse=True)
     k_groups = int(inv.max()) + 1
-    scores = np.stack([np.bincount(inv, weights=grad[:, c], minlength=k_groups)
-                       for c in range(3)], axis=1) / n  # fmt: skip
+    scores = (
+        np.stack(
+            [np.bincount(inv, weights=grad[:, c], minlength=k_groups) for c in range(3)], axis=1
+        )
+        / n
+    )
     meat = scores.T @ scores * k_groups / max(k_groups - 1, 1)
     h_inv = np.linalg.pinv(hess)
     return h_inv @ meat @ h_inv
@@ -218,8 +222,10 @@ def point_noise(
     }
     if len(train) < MIN_PAIRS or len(test) < MIN_PAIRS:
         out["kind"] = "undetermined"
-        out["reason"] = (f"{len(train)} fitting and {len(test)} test neighbour pairs; at least "
-                         f"{MIN_PAIRS} of each are needed")  # fmt: skip
+        out["reason"] = (
+            f"{len(train)} fitting and {len(test)} test neighbour pairs; at least "
+            f"{MIN_PAIRS} of each are needed"
+        )
         return out
     train = train.take(evenly_spaced(len(train), FIT_PAIRS))
     x = _Regressors.of(d, train, ln_range_ref, ln_sim_ref)
@@ -269,12 +275,21 @@ def by_range(
             continue
         mad = float(np.median(np.abs(p.d[sel]))) / 0.6745
         var = 0.5 * mad * mad - 0.5 * float(np.median(p.q[sel]))
-        ln_scale = (theta[0] + theta[1] * (float(np.median(ln_r[sel])) - ln_range_ref)
-                    + theta[2] * (float(np.median(ln_s[sel])) - ln_sim_ref))  # fmt: skip
-        out.append({"range_lo_m": float(edges[k]), "range_hi_m": float(edges[k + 1]),
-                    "range_m": float(np.median(r[sel])), "pairs": n,
-                    # None: the rounding is as large as the differences (integer
-                    # counts a few steps above 0, most neighbours stored alike).
-                    "sigma_ln_i": math.sqrt(var) if var > 0.0 else None,
-                    "fitted_sigma_ln_i": math.exp(ln_scale) / GAUSS_SCALE})  # fmt: skip
+        ln_scale = (
+            theta[0]
+            + theta[1] * (float(np.median(ln_r[sel])) - ln_range_ref)
+            + theta[2] * (float(np.median(ln_s[sel])) - ln_sim_ref)
+        )
+        out.append(
+            {
+                "range_lo_m": float(edges[k]),
+                "range_hi_m": float(edges[k + 1]),
+                "range_m": float(np.median(r[sel])),
+                "pairs": n,
+                # None: the rounding is as large as the differences (integer
+                # counts a few steps above 0, most neighbours stored alike).
+                "sigma_ln_i": math.sqrt(var) if var > 0.0 else None,
+                "fitted_sigma_ln_i": math.exp(ln_scale) / GAUSS_SCALE,
+            }
+        )
     return out

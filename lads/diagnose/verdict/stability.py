@@ -48,8 +48,11 @@ def stability(
     step (a score z > Z_RESAMPLE and a gain above the floor: the rest never win), and at most
     one step beyond the main selection: the resamples ask whether the same effects win, which
     costs a full selection each."""
-    strong = {s.candidate for s in selection.trace if not s.screened
-              and s.z > Z_RESAMPLE and s.delta_loss > selection.floor}  # fmt: skip
+    strong = {
+        s.candidate
+        for s in selection.trace
+        if not s.screened and s.z > Z_RESAMPLE and s.delta_loss > selection.floor
+    }
     contenders = [e for e in pool if e.label in strong or e.label in selection.labels]
     names = {e.label for e in contenders}
     k_resample = min(settings.k_max, len(selection.labels) + 1)
@@ -61,8 +64,17 @@ def stability(
     # them. Every k-th row keeps every group and surface; the resamples ask whether the
     # same effects win, which the main selection has already tested on all rows.
     scoring = split.validation[evenly_spaced(len(split.validation), settings.resample_rows)]
-    chosen_sets = map_fits(_resample_labels, d, ws, scoring, settings.jobs,
-                           contenders, k_resample, reference_levels(d), warm)  # fmt: skip
+    chosen_sets = map_fits(
+        _resample_labels,
+        d,
+        ws,
+        scoring,
+        settings.jobs,
+        contenders,
+        k_resample,
+        reference_levels(d),
+        warm,
+    )
     # Parametrisations of one effect (C3 as cos^p or as Oren-Nayar roughness) are one answer
     # to "is this effect there": a resample that picks the other form still selects it. Counted
     # apart, an incidence law chosen in every resample, in some as Oren-Nayar and in the others
@@ -106,7 +118,18 @@ def _resample_labels(
     resample's noisier fit of 64 ring gains pays more for its own noise in the gain, which
     then fell below the relative floor in 6 of 10 resamples of an effect at 9 score SEs."""
     with one_thread():
-        return [forward_backward(d, contenders, w, validation, k_max=k_max, refs=refs,
-                                 z_accept=Z_RESAMPLE, warm=warm, screen_rows=None,
-                                 floor=MIN_GAIN_NATS).labels
-                for w in ws]  # fmt: skip
+        return [
+            forward_backward(
+                d,
+                contenders,
+                w,
+                validation,
+                k_max=k_max,
+                refs=refs,
+                z_accept=Z_RESAMPLE,
+                warm=warm,
+                screen_rows=None,
+                floor=MIN_GAIN_NATS,
+            ).labels
+            for w in ws
+        ]

@@ -66,24 +66,29 @@ def _bin_range(t: BeamTable) -> Binning:
     edges = np.asarray(RANGE_EDGES_M)
     r = t.range_m.astype(np.float64)
     labels = tuple(f"{a:g}-{b:g} m" for a, b in zip(edges[:-1], edges[1:], strict=True))
-    return Binning(_edges_bin(r, edges, np.ones(r.size, bool)), labels,
-                   np.sqrt(edges[:-1] * edges[1:]), np.clip(r, edges[0], edges[-1]))  # fmt: skip
+    return Binning(
+        _edges_bin(r, edges, np.ones(r.size, bool)),
+        labels,
+        np.sqrt(edges[:-1] * edges[1:]),
+        np.clip(r, edges[0], edges[-1]),
+    )
 
 
 def _bin_cos(t: BeamTable) -> Binning:
     edges = np.linspace(0.0, 1.0, COS_BINS + 1)
     c = t.cos_incidence.astype(np.float64)
     labels = tuple(f"cos {a:.1f}-{b:.1f}" for a, b in zip(edges[:-1], edges[1:], strict=True))
-    return Binning(_edges_bin(c, edges, t.normal_ok), labels, 0.5 * (edges[:-1] + edges[1:]),
-                   c)  # fmt: skip
+    return Binning(_edges_bin(c, edges, t.normal_ok), labels, 0.5 * (edges[:-1] + edges[1:]), c)
 
 
-def _categorical(values: npt.NDArray[Any], ok: npt.NDArray[np.bool_], names: Callable[[int], str]
-                 ) -> Binning:  # fmt: skip
+def _categorical(
+    values: npt.NDArray[Any], ok: npt.NDArray[np.bool_], names: Callable[[int], str]
+) -> Binning:
     present = np.unique(values[ok])
     idx = np.where(ok, np.searchsorted(present, values), -1).astype(np.int64)
-    return Binning(idx, tuple(names(int(v)) for v in present),
-                   np.arange(present.size, dtype=np.float64), None)  # fmt: skip
+    return Binning(
+        idx, tuple(names(int(v)) for v in present), np.arange(present.size, dtype=np.float64), None
+    )
 
 
 def _bin_class(t: BeamTable) -> Binning | None:
@@ -102,8 +107,9 @@ def _bin_azimuth(t: BeamTable) -> Binning:
     az = np.mod(t.azimuth_deg.astype(np.float64), 360.0)
     idx = np.clip(np.floor(az / AZIMUTH_SECTOR_DEG), 0, n - 1)
     idx = np.where(np.isfinite(az), idx, -1).astype(np.int64)
-    labels = tuple(f"{i * AZIMUTH_SECTOR_DEG:g}-{(i + 1) * AZIMUTH_SECTOR_DEG:g} deg"
-                   for i in range(n))  # fmt: skip
+    labels = tuple(
+        f"{i * AZIMUTH_SECTOR_DEG:g}-{(i + 1) * AZIMUTH_SECTOR_DEG:g} deg" for i in range(n)
+    )
     return Binning(idx, labels, (np.arange(n) + 0.5) * AZIMUTH_SECTOR_DEG, None)
 
 
@@ -127,8 +133,9 @@ def _bin_edge(t: BeamTable) -> Binning:
 
 
 def _bin_ground(t: BeamTable) -> Binning:
-    return Binning(t.is_ground.astype(np.int64), ("non-ground", "ground"),
-                   np.array([0.0, 1.0]), None)  # fmt: skip
+    return Binning(
+        t.is_ground.astype(np.int64), ("non-ground", "ground"), np.array([0.0, 1.0]), None
+    )
 
 
 def _bin_scan(t: BeamTable) -> Binning:

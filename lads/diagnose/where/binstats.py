@@ -66,11 +66,13 @@ class GroupBootstrap:
         size = self.n_groups * k
         if size <= DENSE_CELLS:
             cells = np.flatnonzero(np.bincount(cell, minlength=size)).astype(np.int64)
-            return cells, [np.bincount(cell, c, minlength=size)[cells].astype(np.float64)
-                           for c in columns]  # fmt: skip
+            return cells, [
+                np.bincount(cell, c, minlength=size)[cells].astype(np.float64) for c in columns
+            ]
         cells, inv = np.unique(cell, return_inverse=True)
-        return cells, [np.bincount(inv, c, minlength=cells.size).astype(np.float64)
-                       for c in columns]  # fmt: skip
+        return cells, [
+            np.bincount(inv, c, minlength=cells.size).astype(np.float64) for c in columns
+        ]
 
     def replicate(self, cells: I64, k: int, values: F64) -> F64:
         """(k, B) per-bin totals of `values` (one per cell) under every replicate."""
@@ -79,9 +81,13 @@ class GroupBootstrap:
 
 
 def target_stats(
-    y_all: F64, order: I64 | None, ground: npt.NDArray[np.bool_], feature: Feature,
-    binning: Binning, boot: GroupBootstrap,
-) -> dict[str, Any]:  # fmt: skip
+    y_all: F64,
+    order: I64 | None,
+    ground: npt.NDArray[np.bool_],
+    feature: Feature,
+    binning: Binning,
+    boot: GroupBootstrap,
+) -> dict[str, Any]:
     """Binned statistics and tests of y_all; medians when `order` (argsort of y_all) is given."""
     k = len(binning.labels)
     rows = np.flatnonzero((binning.index >= 0) & np.isfinite(y_all)).astype(np.int64)
@@ -120,16 +126,31 @@ def target_stats(
     if feature.ordered:
         finite = [p for p in (p_trend, p_omnibus) if math.isfinite(p)]
         p_value = min(1.0, 2.0 * min(finite)) if finite else math.nan
-    effect, extremes, direction = _effect(mean, effect_bins, binning.labels, feature.ordered,
-                                          slope, p_trend)  # fmt: skip
+    effect, extremes, direction = _effect(
+        mean, effect_bins, binning.labels, feature.ordered, slope, p_trend
+    )
     agreement = None
     if feature.name in AGREEMENT_FEATURES:
         agreement = _agreement(y, bins, rows, ground[rows], k, boot)
-    return dict(count=count, n_groups=n_groups, mean=mean, mean_low=mean_low,
-                mean_high=mean_high, median=median, median_low=med_low, median_high=med_high,
-                p_value=p_value, p_trend=p_trend, p_omnibus=p_omnibus, effect_size=effect,
-                extreme_bins=extremes, slope=slope, slope_se=slope_se, direction=direction,
-                agreement=agreement)  # fmt: skip
+    return dict(
+        count=count,
+        n_groups=n_groups,
+        mean=mean,
+        mean_low=mean_low,
+        mean_high=mean_high,
+        median=median,
+        median_low=med_low,
+        median_high=med_high,
+        p_value=p_value,
+        p_trend=p_trend,
+        p_omnibus=p_omnibus,
+        effect_size=effect,
+        extreme_bins=extremes,
+        slope=slope,
+        slope_se=slope_se,
+        direction=direction,
+        agreement=agreement,
+    )
 
 
 def _sorted_by_bin(y_all: F64, order: I64, rows: I64, index: I64, k: int) -> F64:
@@ -267,9 +288,13 @@ def _cluster_slope(x: F64, y: F64, gid: I64, n_all: int) -> tuple[float, float, 
 
 
 def _effect(
-    mean: F64, eligible: I64, labels: tuple[str, ...], ordered: bool, slope: float,
+    mean: F64,
+    eligible: I64,
+    labels: tuple[str, ...],
+    ordered: bool,
+    slope: float,
     p_trend: float,
-) -> tuple[float, tuple[str, ...], str]:  # fmt: skip
+) -> tuple[float, tuple[str, ...], str]:
     if eligible.size < 2:
         return math.nan, (), "varies"
     m = mean[eligible]
@@ -294,9 +319,15 @@ def _agreement(
         point = np.bincount(split, y, minlength=2 * k) / count
         rep = boot.replicate(cells, 2 * k, s_cell) / boot.replicate(cells, 2 * k, n_cell)
     both = np.flatnonzero((count[:k] >= MIN_COMPARE_ROWS) & (count[k:] >= MIN_COMPARE_ROWS))
-    out: dict[str, Any] = {"compared_bins": int(both.size), "agreeing_bins": 0, "agree": None,
-                           "shape_agrees": None, "offset": math.nan, "offset_low": math.nan,
-                           "offset_high": math.nan}  # fmt: skip
+    out: dict[str, Any] = {
+        "compared_bins": int(both.size),
+        "agreeing_bins": 0,
+        "agree": None,
+        "shape_agrees": None,
+        "offset": math.nan,
+        "offset_low": math.nan,
+        "offset_high": math.nan,
+    }
     if both.size < 2:
         return out
     w = (count[both] + count[k + both]).astype(np.float64)
@@ -314,9 +345,14 @@ def _agreement(
     off_low, off_high = _percentiles(np.atleast_2d(offset_rep))
     shape_ok = agreeing >= AGREE_SHARE * both.size
     level_ok = bool(off_low[0] <= 0 <= off_high[0])
-    out.update(agreeing_bins=agreeing, shape_agrees=bool(shape_ok),
-               agree=bool(shape_ok and level_ok), offset=float(offset_point),
-               offset_low=float(off_low[0]), offset_high=float(off_high[0]))  # fmt: skip
+    out.update(
+        agreeing_bins=agreeing,
+        shape_agrees=bool(shape_ok),
+        agree=bool(shape_ok and level_ok),
+        offset=float(offset_point),
+        offset_low=float(off_low[0]),
+        offset_high=float(off_high[0]),
+    )
     return out
 
 

@@ -234,34 +234,67 @@ def localize(
     features = {}
     for name, (feature, binning) in binnings.items():
         per = {t: BinStats(**raw[name, t], q_value=qs[name, t]) for t in TARGETS}
-        features[name] = FeatureProfile(feature.name, feature.title, feature.unit,
-                                        feature.ordered, binning.labels, binning.centres,
-                                        per["intensity"], per["dropout"])  # fmt: skip
+        features[name] = FeatureProfile(
+            feature.name,
+            feature.title,
+            feature.unit,
+            feature.ordered,
+            binning.labels,
+            binning.centres,
+            per["intensity"],
+            per["dropout"],
+        )
     heatmaps = {
         key: _heatmap(r, binnings[a][1], binnings[b][1], a, b)
         for key, a, b in HEATMAPS
         if a in binnings and b in binnings
     }
-    return Localization(features, _statements(features, max_statements), heatmaps, n,
-                        n_groups, n_boot, residual is not None)  # fmt: skip
+    return Localization(
+        features,
+        _statements(features, max_statements),
+        heatmaps,
+        n,
+        n_groups,
+        n_boot,
+        residual is not None,
+    )
 
 
 def to_json(loc: Localization) -> dict[str, Any]:
     """The localization as JSON types only (NaN and inf become None)."""
     features = {}
     for name, p in loc.features.items():
-        entry: dict[str, Any] = {"title": p.title, "unit": p.unit, "ordered": p.ordered,
-                                 "labels": list(p.labels), "centres": p.centres}  # fmt: skip
+        entry: dict[str, Any] = {
+            "title": p.title,
+            "unit": p.unit,
+            "ordered": p.ordered,
+            "labels": list(p.labels),
+            "centres": p.centres,
+        }
         for target in TARGETS:
             s: BinStats = getattr(p, target)
             entry[target] = {f.name: getattr(s, f.name) for f in fields(s)}
         features[name] = entry
-    heatmaps = {k: {"rows": h.rows, "cols": h.cols, "row_labels": list(h.row_labels),
-                    "col_labels": list(h.col_labels), "mean": h.mean, "count": h.count}
-                for k, h in loc.heatmaps.items()}  # fmt: skip
-    out = {"n_rows": loc.n_rows, "n_groups": loc.n_groups, "n_boot": loc.n_boot,
-           "residual_given": loc.residual_given, "features": features,
-           "statements": loc.statements, "heatmaps": heatmaps}  # fmt: skip
+    heatmaps = {
+        k: {
+            "rows": h.rows,
+            "cols": h.cols,
+            "row_labels": list(h.row_labels),
+            "col_labels": list(h.col_labels),
+            "mean": h.mean,
+            "count": h.count,
+        }
+        for k, h in loc.heatmaps.items()
+    }
+    out = {
+        "n_rows": loc.n_rows,
+        "n_groups": loc.n_groups,
+        "n_boot": loc.n_boot,
+        "residual_given": loc.residual_given,
+        "features": features,
+        "statements": loc.statements,
+        "heatmaps": heatmaps,
+    }
     return dict(json_types(out))
 
 
@@ -285,9 +318,11 @@ def _statements(features: dict[str, FeatureProfile], limit: int) -> list[dict[st
     out = []
     for target in TARGETS:
         found = [(p, getattr(p, target)) for p in features.values()]
-        found = [(p, s) for p, s in found
-                 if math.isfinite(s.q_value) and s.q_value < Q_THRESHOLD
-                 and math.isfinite(s.effect_size)]  # fmt: skip
+        found = [
+            (p, s)
+            for p, s in found
+            if math.isfinite(s.q_value) and s.q_value < Q_THRESHOLD and math.isfinite(s.effect_size)
+        ]
         found.sort(key=lambda ps: -ps[1].effect_size)
         out += [_statement(p, s, target) for p, s in found]
     return out[:limit]
@@ -305,9 +340,15 @@ def _statement(p: FeatureProfile, s: BinStats, target: str) -> dict[str, Any]:
     text = f"{text} ({detail})"
     if s.agreement is not None:
         text += "; " + _agreement_words(s.agreement)
-    return {"feature": p.name, "target": target, "bins": list(s.extreme_bins),
-            "effect_size": s.effect_size, "direction": s.direction, "q_value": s.q_value,
-            "text": text}  # fmt: skip
+    return {
+        "feature": p.name,
+        "target": target,
+        "bins": list(s.extreme_bins),
+        "effect_size": s.effect_size,
+        "direction": s.direction,
+        "q_value": s.q_value,
+        "text": text,
+    }
 
 
 def _lowest_highest(p: FeatureProfile, s: BinStats) -> str:
