@@ -27,6 +27,10 @@ class InvalidPointsError(InputDataError):
     """Coordinates are NaN or infinite, or arrays have the wrong shape or dtype."""
 
 
+class AugmentInputError(InputDataError):
+    """Arrays handed to `lads.augment` do not fit its contract (columns, label lengths)."""
+
+
 class IntensityEncodingError(InputDataError):
     """Intensities lie outside the sensor profile's declared encoding."""
 

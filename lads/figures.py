@@ -24,6 +24,7 @@ OUTCOME_STYLE = {
     Outcome.PARTICLE: ("#e8112d", "particle return"),
     Outcome.LOST: ("#f5a623", "lost (aligned: at origin)"),
     Outcome.RESAMPLED: ("#2a9d4a", "resampled (another sensor's beam)"),
+    Outcome.DISPLACED: ("#8e44ad", "displaced (motion distortion)"),
 }
 BEV_PIXELS = 400  # cells per side of the bird's-eye raster (0.2 m at the default 40 m)
 

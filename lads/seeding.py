@@ -27,3 +27,15 @@ def rng_for(root_seed: int, item_id: str, variant: str, stage: str) -> np.random
     return np.random.default_rng(
         np.random.SeedSequence(seed_entropy(root_seed, item_id, variant, stage))
     )
+
+
+def augment_rng(
+    seed: int, sample_id: str | int, epoch: int, corruption: str
+) -> np.random.Generator:
+    """numpy Generator for one corruption of one training sample in one epoch.
+
+    The same (seed, sample id, epoch, corruption) gives the same stream in any data-loader
+    worker, so a training run is reproducible whatever the worker count; `epoch` changes the
+    draw from one epoch to the next.
+    """
+    return rng_for(int(seed), f"augment:{sample_id}", f"epoch:{int(epoch)}", corruption)

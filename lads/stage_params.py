@@ -28,11 +28,26 @@ STAGE_PARAMS: dict[str, dict[str, str]] = {
     "wet_ground": {"water_film_mm": "film", "severity": "severity", "detection": "detection"},
     "intensity": {"model": "text", "target": "optional_text", "device": "device"},
     "sensor": {"target": "profile", "neighbours": "neighbours"},
+    "beam_missing": {
+        "lost_channel_share": "share",
+        "channels": "channel_list",
+        "severity": "severity",
+    },
+    "motion_distortion": {
+        "speed_m_s": "speed",
+        "yaw_rate_deg_s": "optional_number",
+        "sweep_period_s": "optional_period",
+        "seam_azimuth_deg": "optional_number",
+        "severity": "severity",
+    },
 }
 _OPTIONAL_KINDS = {"return_mode", "optional_text", "device", "severity", "settings", "detection",
-                   "neighbours"}  # fmt: skip
+                   "neighbours", "channel_list", "optional_number", "optional_period"}  # fmt: skip
+# Weather stages, and the sensor faults and artefacts that are not weather.
+WEATHER_STAGES = ("rain", "snow", "fog", "wet_ground")
+FAULT_STAGES = ("beam_missing", "motion_distortion")
 # Stages whose physical strength a `severity` preset can give (lads.physics.severity).
-SEVERITY_STAGES = ("rain", "snow", "fog", "wet_ground")
+SEVERITY_STAGES = WEATHER_STAGES + FAULT_STAGES
 # The physical strengths a severity preset names (rate, visibility, water film).
 STRENGTHS = tuple(sorted({key for key, _ in PRESETS.values()}))
 DEVICES = ("cpu", "cuda")
@@ -72,6 +87,18 @@ def _check_value(kind: str, value: Any, where: str) -> None:
         if value not in SEVERITIES:
             raise ConfigError(f"{where}: severity {value!r}; expected one of {SEVERITIES}.")
         return
+    if kind == "channel_list":
+        ok = value is None or (
+            isinstance(value, list | tuple)
+            and all(isinstance(c, int) and not isinstance(c, bool) and c >= 0 for c in value)
+        )
+        if not ok:
+            raise ConfigError(
+                f"{where}: expected a list of channel ids (integers >= 0), got {value!r}."
+            )
+        return
+    if kind in ("optional_number", "optional_period") and value is None:
+        return
     if kind == "return_mode":
         if value not in RETURN_MODES:
             raise ConfigError(f"{where}: mode is {value!r}; expected one of {RETURN_MODES}.")
@@ -82,6 +109,12 @@ def _check_value(kind: str, value: Any, where: str) -> None:
         raise ConfigError(f"{where}: rate must be a finite number >= 0 mm/h, got {value}.")
     if kind == "film" and not (0 <= value < math.inf):
         raise ConfigError(f"{where}: water film must be a finite thickness >= 0 mm, got {value}.")
+    if kind == "share" and not 0 <= value <= 1:
+        raise ConfigError(f"{where}: expected a share in [0, 1], got {value}.")
+    if kind in ("speed", "optional_number") and not math.isfinite(value):
+        raise ConfigError(f"{where}: expected a finite number, got {value}.")
+    if kind == "optional_period" and not 0 < value < 10:
+        raise ConfigError(f"{where}: expected a sweep period in (0, 10) s, got {value}.")
     if kind == "visibility" and not value > 0:
         raise ConfigError(f"{where}: visibility must be > 0 m (inf = clear air), got {value}.")
 

@@ -5,8 +5,7 @@ from __future__ import annotations
 
 from typing import Any
 
-# The weather stages are the ones a severity preset scales.
-from lads.stage_params import SEVERITY_STAGES as WEATHER_STAGES
+from lads.stage_params import WEATHER_STAGES
 
 _TEXT: dict[str, dict[str, str]] = {
     "weather": {

@@ -22,6 +22,8 @@ class Outcome(IntEnum):
     RESAMPLED: a beam of another sensor (a sensor transfer, `lads.transfer`) that hit the
         surface a source return gave; its source index names that return, in the scan of
         the frame's window its provenance names.
+    DISPLACED: the hard-target return survives but is reported at another position (a
+        sweep distorted by the vehicle's motion, `lads.physics.sensor_faults`).
     """
 
     KEPT = 0
@@ -29,6 +31,7 @@ class Outcome(IntEnum):
     PARTICLE = 2
     LOST = 3
     RESAMPLED = 4
+    DISPLACED = 5
 
 
 @dataclass(frozen=True, slots=True)

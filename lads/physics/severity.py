@@ -17,6 +17,11 @@ docs/physics.md ("Severity presets"):
 - wet ground, water film in mm: 0.2 (damp: the texture of dense asphalt, ~1 mm, partly
   filled), 0.5 and 1.2 mm (the texture covered; Hahner et al. 2022's wet-ground default is
   1-1.2 mm), all below the ~2.5 mm where aquaplaning starts.
+- beam missing, the share of lasers that fail: 0.25, 0.5 and 0.75, i.e. Robo3D's beam-missing
+  levels (16, 32 and 48 of 64 beams dropped).
+- motion distortion, the vehicle's speed in m/s with an uncompensated sweep: 5 m/s (18 km/h,
+  slow traffic), 14 m/s (50 km/h, the usual urban limit) and 28 m/s (100 km/h, motorway); at
+  10 Hz the seam behind the vehicle then opens by 0.5, 1.4 and 2.8 m.
 """
 
 from __future__ import annotations
@@ -33,6 +38,8 @@ PRESETS: dict[str, tuple[str, dict[str, float]]] = {
     "snow": ("rate_mm_h", {"light": 0.5, "moderate": 1.0, "heavy": 2.5}),
     "fog": ("visibility_m", {"light": 600.0, "moderate": 150.0, "heavy": 50.0}),
     "wet_ground": ("water_film_mm", {"light": 0.2, "moderate": 0.5, "heavy": 1.2}),
+    "beam_missing": ("lost_channel_share", {"light": 0.25, "moderate": 0.5, "heavy": 0.75}),
+    "motion_distortion": ("speed_m_s", {"light": 5.0, "moderate": 14.0, "heavy": 28.0}),
 }
 
 

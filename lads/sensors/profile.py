@@ -149,6 +149,11 @@ class SensorProfile:
         intensity: the dataset's intensity encoding.
         has_ring_column: scans carry a per-point ring (channel) column.
         sources: citations for the numbers above.
+        sweep_period_s: time of one revolution in the dataset the profile describes, s
+            (1 / the spin rate); None when unknown. Motion distortion reads it.
+        forward_azimuth_deg: azimuth atan2(y, x) of the vehicle's forward direction in the
+            sensor frame, degrees (0 when x points forward, 90 for nuScenes LIDAR_TOP,
+            whose y points forward); None when unknown.
     """
 
     name: str
@@ -169,6 +174,8 @@ class SensorProfile:
     intensity: IntensityEncoding
     has_ring_column: bool
     sources: tuple[str, ...]
+    sweep_period_s: float | None = None
+    forward_azimuth_deg: float | None = None
 
     @property
     def beam_divergence_rad(self) -> float:
@@ -218,9 +225,14 @@ def load_profile(name_or_path: str | Path) -> SensorProfile:
     return _build(raw, path)
 
 
+# Keys a profile may leave out (older or user-written profiles); the stages that need them
+# say so when they are missing.
+_OPTIONAL_KEYS = ("sweep_period_s", "forward_azimuth_deg")
+
+
 def _build(raw: dict[str, Any], path: Path) -> SensorProfile:
     expected = {f.name for f in fields(SensorProfile)}
-    unknown, missing = set(raw) - expected, expected - set(raw)
+    unknown, missing = set(raw) - expected, expected - set(raw) - set(_OPTIONAL_KEYS)
     if unknown or missing:
         raise SensorProfileError(
             f"{path}: unknown keys {sorted(unknown)}, missing keys {sorted(missing)}; "
@@ -247,6 +259,7 @@ def _build(raw: dict[str, Any], path: Path) -> SensorProfile:
             intensity=enc,
             has_ring_column=bool(raw["has_ring_column"]),
             sources=tuple(str(s) for s in raw["sources"]),
+            **{k: float(raw[k]) for k in _OPTIONAL_KEYS if raw.get(k) is not None},
         )
     except (TypeError, ValueError, KeyError, IndexError, AttributeError) as exc:
         raise SensorProfileError(
@@ -288,6 +301,8 @@ def _check(p: SensorProfile, path: Path) -> None:
         problems.append("intensity needs kind unit|byte and 0 < step <= max_value")
     if not enc.reflectivity_full_scale > 0:
         problems.append("intensity.reflectivity_full_scale must be > 0")
+    if p.sweep_period_s is not None and not 0 < p.sweep_period_s < 10:
+        problems.append("sweep_period_s must lie in (0, 10) s")
     det = p.detection
     if not (det.reflectivity > 0 and det.range_m > 0 and det.spread_ln > 0):
         problems.append("detection needs reflectivity, range_m and spread_ln > 0")

@@ -13,6 +13,7 @@ from lads.errors import ConfigError
 from lads.stages.base import Stage
 from lads.stages.intensity import IntensityStage
 from lads.stages.sensor import SensorStage
+from lads.stages.sensor_faults import BeamMissingStage, MotionDistortionStage
 from lads.stages.weather import WeatherStage
 from lads.stages.wet_ground import WetGroundStage
 
@@ -30,6 +31,8 @@ STAGES: dict[str, StageClass] = {
     "intensity": IntensityStage,
     "wet_ground": WetGroundStage,
     "sensor": SensorStage,
+    "beam_missing": BeamMissingStage,
+    "motion_distortion": MotionDistortionStage,
 }
 
 

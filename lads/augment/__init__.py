@@ -1,0 +1,28 @@
+"""Corruptions for training loops: weather and sensor faults applied to in-memory point clouds
+(docs/augment.md).
+
+- `corrupt(points, labels, instance, rng, corruption=..., severity=..., sensor=...)`: one call.
+- `Corruption(...)`: configured once, applied per sample with randomness from
+  (seed, sample id, epoch).
+- `CORRUPTIONS`: the suite, by name; severities "light", "moderate", "heavy".
+- Loader adapters, each imported on demand so the core never imports torch or a framework:
+  `lads.augment.torch_data` (Dataset wrapper, worker init), `lads.augment.mmdet3d`
+  (a registered transform), `lads.augment.openpcdet` (a DataAugmentor entry).
+"""
+
+from lads.augment.catalogue import CORRUPTIONS, CorruptionSpec, corruption_spec
+from lads.augment.core import Augmented, AugmentInfo, Corruption, corrupt
+from lads.physics.severity import SEVERITIES
+from lads.seeding import augment_rng
+
+__all__ = [
+    "CORRUPTIONS",
+    "SEVERITIES",
+    "AugmentInfo",
+    "Augmented",
+    "Corruption",
+    "CorruptionSpec",
+    "augment_rng",
+    "corrupt",
+    "corruption_spec",
+]

@@ -1,0 +1,119 @@
+"""mmdetection3d 1.x glue: `LadsCorruption`, a data-pipeline transform (docs/augment.md §2.2).
+
+Importing this module registers the transform under the name "LadsCorruption" in
+mmdet3d's TRANSFORMS registry when mmdet3d is installed, else in mmengine's root TRANSFORMS
+(which mmdet3d's registry falls back to); a config then needs two lines:
+
+    custom_imports = dict(imports=["lads.augment.mmdet3d"], allow_failed_imports=False)
+    dict(type="LadsCorruption", corruption="snow", severity="moderate", sensor="hdl32e")
+
+The transform follows mmcv's BaseTransform contract (`transform(results) -> results`) and
+updates `points` (a BasePoints such as LiDARPoints, a tensor or an array), and
+`pts_semantic_mask` / `pts_instance_mask` when present; boxes are left as they are.
+"""
+
+from __future__ import annotations
+
+import os
+from typing import Any
+
+import numpy as np
+
+from lads.augment.core import Corruption
+from lads.errors import AugmentInputError
+
+try:  # mmcv's base class when it is installed; the contract is the same without it.
+    from mmcv.transforms import BaseTransform as _Base
+except ImportError:  # pragma: no cover - depends on the environment
+
+    class _Base:  # type: ignore[no-redef]
+        """mmcv's BaseTransform contract: calling the transform runs `transform`."""
+
+        def __call__(self, results: dict[str, Any]) -> dict[str, Any] | None:
+            return self.transform(results)  # type: ignore[attr-defined, no-any-return]
+
+
+# Keys of mmdet3d's results dict this transform reads and writes.
+POINTS_KEY, SEMANTIC_KEY, INSTANCE_KEY = "points", "pts_semantic_mask", "pts_instance_mask"
+
+
+def sample_id_of(results: dict[str, Any]) -> str:
+    """A stable id of the sample: `sample_idx`, else the LiDAR file's name.
+
+    Raises:
+        AugmentInputError: the results name neither.
+    """
+    if results.get("sample_idx") is not None:
+        return str(results["sample_idx"])
+    path = (results.get("lidar_points") or {}).get("lidar_path") or results.get("lidar_path")
+    if path:
+        return os.path.basename(str(path))
+    raise AugmentInputError(
+        "LadsCorruption: the results dict has no 'sample_idx' and no LiDAR path, so the "
+        "corruption cannot be tied to the sample; put it after LoadPointsFromFile."
+    )
+
+
+class LadsCorruption(_Base):  # type: ignore[misc]
+    """Corrupt `results['points']` and its masks (arguments as `lads.augment.Corruption`).
+
+    Args:
+        corruption, severity, sensor, dataset, particle_label, ring_column, seed, **params:
+            as `Corruption`; mmdet3d's remapped masks need `particle_label` (e.g. the
+            ignore index) rather than `dataset`.
+        probability: share of samples corrupted (drawn from the sample's generator).
+    """
+
+    def __init__(self, corruption: str, probability: float = 1.0, **options: Any) -> None:
+        if not 0.0 <= probability <= 1.0:
+            raise AugmentInputError(f"LadsCorruption: probability {probability}; expected [0, 1].")
+        self.corruption = Corruption(corruption, **options)
+        self.probability = float(probability)
+        self.epoch = 0
+
+    def set_epoch(self, epoch: int) -> None:
+        """Draw the next epoch's corruptions (workers see it when they are started)."""
+        self.epoch = int(epoch)
+
+    def transform(self, results: dict[str, Any]) -> dict[str, Any]:
+        sample_id = sample_id_of(results)
+        rng = self.corruption.rng(sample_id, self.epoch)
+        if self.probability < 1.0 and rng.random() >= self.probability:
+            return results
+        holder = results[POINTS_KEY]
+        tensor = getattr(holder, "tensor", holder)
+        is_tensor = hasattr(tensor, "detach")
+        points = tensor.detach().cpu().numpy() if is_tensor else np.asarray(tensor)
+        labels, instance = results.get(SEMANTIC_KEY), results.get(INSTANCE_KEY)
+        out = self.corruption.apply(points, labels, instance, rng, sample_id)
+        new = out.points
+        if is_tensor:
+            new = tensor.new_tensor(new)
+        results[POINTS_KEY] = holder.new_point(new) if hasattr(holder, "new_point") else new
+        if labels is not None:
+            results[SEMANTIC_KEY] = out.labels
+        if instance is not None:
+            results[INSTANCE_KEY] = out.instance
+        results["lads_outcome"] = out.info.outcome
+        return results
+
+    def __repr__(self) -> str:
+        return f"LadsCorruption({self.corruption!r}, probability={self.probability})"
+
+
+def register() -> str | None:
+    """Register LadsCorruption in mmdet3d's TRANSFORMS, else mmengine's; returns the
+    registry's scope, or None when neither package is installed."""
+    registry: Any = None
+    try:
+        from mmdet3d.registry import TRANSFORMS as registry
+    except ImportError:
+        try:
+            from mmengine.registry import TRANSFORMS as registry
+        except ImportError:
+            return None
+    registry.register_module(name="LadsCorruption", module=LadsCorruption, force=True)
+    return str(registry.scope)
+
+
+REGISTERED_SCOPE = register()

@@ -1,0 +1,102 @@
+"""OpenPCDet glue: a `DATA_AUGMENTOR.AUG_CONFIG_LIST` entry (docs/augment.md §2.1).
+
+OpenPCDet's DataAugmentor builds its queue with `getattr(self, cfg.NAME)(config=cfg)`, so an
+augmentation is a method of that class. `install()` adds `lads_corruption` to it; the
+dataset config then lists
+
+    - NAME: lads_corruption
+      CORRUPTION: snow
+      SEVERITY: moderate
+      SENSOR: hdl64e
+
+Other keys: SEED, PROBABILITY, DATASET, PARTICLE_LABEL, RING_COLUMN, EPOCH_KEY and PARAMS (a
+dict of stage parameters). The entry corrupts `data_dict['points']` (N, 3 + C features,
+x, y, z, intensity first) and keeps `gt_boxes`, `gt_names` and any other key; the sample is
+named by `data_dict['frame_id']`.
+"""
+
+from __future__ import annotations
+
+from functools import partial
+from typing import Any
+
+from lads.augment.core import Corruption
+from lads.errors import AugmentInputError
+
+# Config keys of an entry, mapped to `Corruption` arguments.
+_KEYS = {
+    "CORRUPTION": "corruption", "SEVERITY": "severity", "SENSOR": "sensor", "SEED": "seed",
+    "DATASET": "dataset", "PARTICLE_LABEL": "particle_label", "RING_COLUMN": "ring_column",
+}  # fmt: skip
+_OWN_KEYS = {"NAME", "PROBABILITY", "PARAMS", "EPOCH_KEY"}
+
+
+class OpenPCDetCorruption:
+    """One configured entry: called on a data_dict, returns it corrupted.
+
+    Args:
+        config: the entry (an EasyDict or a dict) with the keys above.
+
+    Raises:
+        AugmentInputError: unknown keys. ConfigError: as `Corruption`.
+    """
+
+    def __init__(self, config: Any) -> None:
+        given = dict(config)
+        unknown = sorted(set(given) - set(_KEYS) - _OWN_KEYS)
+        if unknown:
+            raise AugmentInputError(
+                f"lads_corruption: unknown keys {unknown}; expected "
+                f"{sorted(set(_KEYS) | _OWN_KEYS)}."
+            )
+        options = {_KEYS[k]: v for k, v in given.items() if k in _KEYS}
+        self.corruption = Corruption(**options, **dict(given.get("PARAMS") or {}))
+        self.probability = float(given.get("PROBABILITY", 1.0))
+        self.epoch_key = given.get("EPOCH_KEY", "epoch")
+        self.epoch = 0
+
+    def __call__(self, data_dict: dict[str, Any]) -> dict[str, Any]:
+        if "frame_id" not in data_dict:
+            raise AugmentInputError(
+                "lads_corruption: data_dict has no 'frame_id' to tie the corruption to the "
+                "sample; OpenPCDet's datasets set it in __getitem__."
+            )
+        sample_id = str(data_dict["frame_id"])
+        epoch = int(data_dict.get(self.epoch_key, self.epoch))
+        rng = self.corruption.rng(sample_id, epoch)
+        if self.probability < 1.0 and rng.random() >= self.probability:
+            return data_dict
+        out = self.corruption.apply(data_dict["points"], None, None, rng, sample_id)
+        data_dict["points"] = out.points
+        return data_dict
+
+
+def lads_corruption(self: Any, data_dict: dict[str, Any] | None = None, config: Any = None) -> Any:
+    """The DataAugmentor method: with no data_dict it returns the configured callable
+    (OpenPCDet's convention), else it corrupts the data_dict."""
+    if data_dict is None:
+        return partial(_run, OpenPCDetCorruption(config))
+    return OpenPCDetCorruption(config)(data_dict)
+
+
+def _run(entry: OpenPCDetCorruption, data_dict: dict[str, Any]) -> dict[str, Any]:
+    return entry(data_dict)
+
+
+def install(augmentor_class: Any = None) -> Any:
+    """Add `lads_corruption` to OpenPCDet's DataAugmentor (or the class given).
+
+    Returns the class. Raises AugmentInputError when OpenPCDet is not installed and no class
+    is given.
+    """
+    if augmentor_class is None:
+        try:
+            from pcdet.datasets.augmentor.data_augmentor import DataAugmentor
+        except ImportError as exc:
+            raise AugmentInputError(
+                "lads.augment.openpcdet.install: OpenPCDet (pcdet) is not importable; install "
+                "it, or pass your DataAugmentor class."
+            ) from exc
+        augmentor_class = DataAugmentor
+    augmentor_class.lads_corruption = lads_corruption
+    return augmentor_class

@@ -1,0 +1,143 @@
+"""lads.augment's transform API: layout and dtype kept, labels re-indexed, provenance, seeding
+from the sample's identity, and named errors for bad input."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from lads.augment import CORRUPTIONS, SEVERITIES, Corruption, augment_rng, corrupt
+from lads.errors import AugmentInputError, ConfigError, IntensityEncodingError
+from lads.physics.result import Outcome
+from lads.sensors.profile import load_profile
+from tests.conftest import street_frame
+
+
+@pytest.fixture(scope="module")
+def cloud() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A synthetic HDL-64E sweep with a 5th column (a per-point time stamp), classes and
+    instance ids that are functions of the row, so re-indexing can be checked exactly."""
+    xyz, intensity = street_frame(load_profile("hdl64e"), azimuths=360)
+    n = xyz.shape[0]
+    time_s = np.linspace(0.0, 0.1, n, dtype=np.float32)
+    points = np.column_stack([xyz, intensity, time_s]).astype(np.float32)
+    labels = np.where(xyz[:, 2] < -1.5, 40, 50).astype(np.uint32)  # road below, building above
+    instance = (np.arange(n) % 7).astype(np.int32)
+    return points, labels, instance
+
+
+@pytest.mark.parametrize("name", list(CORRUPTIONS))
+def test_every_corruption_keeps_columns_and_reindexes_labels(cloud, name):
+    points, labels, instance = cloud
+    c = Corruption(name, "heavy", sensor="hdl64e", dataset="semantickitti")
+    out = c(points, labels, instance, sample_id="frame-1")
+    info = out.info
+    m = out.points.shape[0]
+    assert out.points.dtype == points.dtype and out.points.shape[1] == points.shape[1]
+    assert info.source_index.shape == info.outcome.shape == (m,)
+    assert out.labels.shape == out.instance.shape == (m,)
+    # Every input row is either the source of an output point or lost, never both.
+    assert set(info.source_index.tolist()).isdisjoint(info.lost_index.tolist())
+    assert len(set(info.source_index.tolist())) + info.lost_index.size == points.shape[0]
+    # The extra column follows the source beam; non-particle labels and instances too.
+    np.testing.assert_array_equal(out.points[:, 4], points[info.source_index, 4])
+    beam = info.outcome != Outcome.PARTICLE
+    np.testing.assert_array_equal(out.labels[beam], labels[info.source_index[beam]])
+    np.testing.assert_array_equal(out.instance[beam], instance[info.source_index[beam]])
+    assert (out.labels[~beam] == 1).all() and (out.instance[~beam] == 0).all()  # KITTI outlier
+
+
+def test_float64_input_stays_float64_and_exact_where_untouched(cloud):
+    points, labels, _ = cloud
+    p64 = points.astype(np.float64) + 1e-9  # values float32 cannot hold
+    out = corrupt(
+        p64,
+        rng=augment_rng(0, "a", 0, "beam_missing"),
+        corruption="beam_missing",
+        severity="moderate",
+        sensor="hdl64e",
+    )
+    assert out.points.dtype == np.float64
+    np.testing.assert_array_equal(out.points, p64[out.info.source_index])
+
+
+def test_same_sample_same_epoch_same_bytes_other_epoch_differs(cloud):
+    points, labels, instance = cloud
+    c = Corruption("snow", "heavy", sensor="hdl64e", particle_label=255, seed=3)
+    a = c(points, labels, instance, sample_id="s", epoch=1)
+    b = Corruption("snow", "heavy", sensor="hdl64e", particle_label=255, seed=3)(
+        points, labels, instance, sample_id="s", epoch=1
+    )
+    other = c(points, labels, instance, sample_id="s", epoch=2)
+    assert a.points.tobytes() == b.points.tobytes()
+    assert a.labels.tobytes() == b.labels.tobytes()
+    assert a.points.tobytes() != other.points.tobytes()
+    assert (a.labels[a.info.outcome == Outcome.PARTICLE] == 255).all()
+
+
+def test_severity_sets_the_documented_physical_value():
+    c = Corruption("fog", "moderate", sensor="hdl64e")
+    assert c.params["visibility_m"] == CORRUPTIONS["fog"].preset("moderate") == 150.0
+    assert Corruption("rain", sensor="hdl64e", rate_mm_h=8.0).params == {"rate_mm_h": 8.0}
+    assert Corruption("motion_blur", "light", sensor="hdl64e").spec.name == "motion_distortion"
+
+
+def test_dual_mode_second_returns_repeat_their_source_row(cloud):
+    points, labels, _ = cloud
+    c = Corruption("fog", "heavy", sensor="hdl64e", particle_label=0, mode="dual")
+    out = c(points, labels, sample_id="d")
+    repeats = np.diff(out.info.source_index) == 0
+    assert repeats.any()
+    assert (np.diff(out.info.source_index) >= 0).all()
+
+
+def test_zero_range_rows_pass_through_every_corruption(cloud):
+    points, labels, instance = cloud
+    with_zero = np.vstack([points, np.zeros((5, points.shape[1]), np.float32)])
+    lab = np.concatenate([labels, np.zeros(5, labels.dtype)])
+    ins = np.concatenate([instance, np.zeros(5, instance.dtype)])
+    for name in CORRUPTIONS:
+        out = Corruption(name, "heavy", sensor="hdl64e", dataset="semantickitti")(
+            with_zero, lab, ins, sample_id="z"
+        )
+        assert np.isfinite(out.points).all(), name
+
+
+@pytest.mark.parametrize(
+    ("points", "labels", "message"),
+    [
+        (np.zeros((10, 3), np.float32), None, "C >= 4"),
+        (np.zeros((10, 4), np.int32), None, "float32 or float64"),
+        (np.zeros((10, 4), np.float32), np.zeros(9, np.uint32), r"shape \(9,\)"),
+    ],
+)
+def test_bad_arrays_raise_named_errors(points, labels, message):
+    c = Corruption("rain", "light", sensor="hdl64e", particle_label=0)
+    with pytest.raises(AugmentInputError, match=message):
+        c(points, labels, sample_id="bad")
+
+
+def test_bad_configuration_and_encoding_raise_named_errors(cloud):
+    points, labels, _ = cloud
+    with pytest.raises(ConfigError, match="severity 'extreme'"):
+        Corruption("fog", "extreme", sensor="hdl64e")
+    with pytest.raises(ConfigError, match="unknown corruption"):
+        Corruption("hail", "light", sensor="hdl64e")
+    with pytest.raises(ConfigError, match="unknown parameters"):
+        Corruption("fog", "light", sensor="hdl64e", rate_mm_h=3.0)
+    with pytest.raises(AugmentInputError, match="particle_label"):
+        Corruption("snow", "light", sensor="hdl64e")(points, labels, sample_id="x")
+    with pytest.raises(AugmentInputError, match="ground classes"):
+        Corruption("wet_ground", "light", sensor="hdl64e")(points, labels, sample_id="x")
+    scaled = points.copy()
+    scaled[:, 3] *= 255.0
+    with pytest.raises(IntensityEncodingError, match="hdl32e"):
+        Corruption("rain", "light", sensor="hdl64e")(scaled, sample_id="x")
+    with pytest.raises(AugmentInputError, match="rng"):
+        corrupt(points, corruption="rain", severity="light", sensor="hdl64e")
+
+
+def test_every_corruption_has_all_severities():
+    for spec in CORRUPTIONS.values():
+        values = [spec.preset(s) for s in SEVERITIES]
+        assert values == sorted(values) or values == sorted(values, reverse=True), spec.name

@@ -1,0 +1,144 @@
+"""The loader adapters of lads.augment: a PyTorch Dataset wrapper (real DataLoader, several
+workers), the mmdetection3d transform built through mmengine's real registry, and the
+OpenPCDet DataAugmentor entry against OpenPCDet's documented contract (pcdet needs compiled
+CUDA ops and does not install here)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+from torch.utils.data import DataLoader
+
+from lads.augment import Corruption
+from lads.augment.torch_data import CorruptedDataset, worker_init_fn
+from lads.physics.result import Outcome
+from lads.sensors.profile import load_profile
+from tests.conftest import street_frame
+
+
+class Clouds(torch.utils.data.Dataset):
+    """Three dict samples of tensors, as a user's dataset would return them."""
+
+    def __init__(self) -> None:
+        xyz, intensity = street_frame(load_profile("hdl64e"), azimuths=240)
+        self.points = torch.from_numpy(np.column_stack([xyz, intensity]).astype(np.float32))
+        self.labels = torch.from_numpy(np.where(xyz[:, 2] < -1.5, 40, 50).astype(np.int64))
+
+    def __len__(self) -> int:
+        return 3
+
+    def __getitem__(self, i: int) -> dict:
+        shift = torch.tensor([float(i), 0.0, 0.0, 0.0])
+        return {"points": self.points + shift, "labels": self.labels, "path": f"scan_{i}.bin"}
+
+
+def _wrapped(**kw) -> CorruptedDataset:
+    corruption = Corruption("snow", "heavy", sensor="hdl64e", particle_label=0, seed=7)
+    return CorruptedDataset(Clouds(), corruption, labels_key="labels", id_key="path", **kw)
+
+
+def _epoch(dataset: CorruptedDataset, workers: int) -> list[dict]:
+    loader = DataLoader(
+        dataset,
+        batch_size=None,
+        num_workers=workers,
+        worker_init_fn=worker_init_fn if workers else None,
+    )
+    return list(loader)
+
+
+def test_dataset_wrapper_same_bytes_with_any_worker_count_and_new_draw_per_epoch():
+    data = _wrapped()
+    one, two = _epoch(data, 0), _epoch(data, 2)
+    for a, b in zip(one, two, strict=True):
+        assert isinstance(a["points"], torch.Tensor) and a["points"].dtype == torch.float32
+        assert torch.equal(a["points"], b["points"]) and torch.equal(a["labels"], b["labels"])
+        assert a["labels"].shape[0] == a["points"].shape[0]
+    data.set_epoch(1)
+    assert not torch.equal(_epoch(data, 0)[0]["points"], one[0]["points"])
+
+
+def test_dataset_wrapper_reports_info_and_honours_probability():
+    data = _wrapped(info_key="lads")
+    sample = data[0]
+    assert sample["lads"].outcome.shape[0] == sample["points"].shape[0]
+    untouched = _wrapped(probability=0.0)[1]
+    assert torch.equal(untouched["points"], Clouds()[1]["points"])
+
+
+class FakeLiDARPoints:
+    """mmdet3d's BasePoints contract as LadsCorruption uses it: `.tensor` (N, C) and
+    `new_point(tensor)` returning the same type."""
+
+    def __init__(self, tensor: torch.Tensor) -> None:
+        self.tensor = tensor
+
+    def new_point(self, tensor: torch.Tensor) -> FakeLiDARPoints:
+        return FakeLiDARPoints(tensor)
+
+
+def test_mmdet3d_transform_builds_from_a_config_through_mmengine():
+    pytest.importorskip("mmengine")
+    import lads.augment.mmdet3d  # noqa: F401  (registers the transform)
+    from mmengine.dataset import Compose
+
+    pipeline = Compose(
+        [
+            dict(
+                type="LadsCorruption",
+                corruption="fog",
+                severity="heavy",
+                sensor="hdl64e",
+                particle_label=19,
+            )
+        ]
+    )
+    xyz, intensity = street_frame(load_profile("hdl64e"), azimuths=240)
+    n = xyz.shape[0]
+    points = torch.from_numpy(np.column_stack([xyz, intensity, np.ones(n)]).astype(np.float32))
+    boxes = object()
+    results = {
+        "points": FakeLiDARPoints(points),
+        "pts_semantic_mask": np.where(xyz[:, 2] < -1.5, 0, 1).astype(np.int64),
+        "pts_instance_mask": np.arange(n, dtype=np.int64),
+        "sample_idx": 42,
+        "gt_bboxes_3d": boxes,
+    }
+    out = pipeline(results)
+    new = out["points"].tensor
+    assert isinstance(out["points"], FakeLiDARPoints) and new.shape[1] == 5
+    assert new.shape[0] == out["pts_semantic_mask"].shape[0] == out["pts_instance_mask"].shape[0]
+    fog = out["lads_outcome"] == Outcome.PARTICLE
+    assert fog.any() and (out["pts_semantic_mask"][fog] == 19).all()
+    assert out["gt_bboxes_3d"] is boxes
+
+
+class FakeDataAugmentor:
+    """OpenPCDet's DataAugmentor contract: the queue is built with
+    getattr(self, cfg.NAME)(config=cfg) and run as augmentor(data_dict=data_dict)."""
+
+    def __init__(self, configs: list[dict]) -> None:
+        self.queue = [getattr(self, cfg["NAME"])(config=cfg) for cfg in configs]
+
+    def forward(self, data_dict: dict) -> dict:
+        for augmentor in self.queue:
+            data_dict = augmentor(data_dict=data_dict)
+        return data_dict
+
+
+def test_openpcdet_entry_corrupts_points_and_keeps_boxes():
+    from lads.augment.openpcdet import install
+
+    install(FakeDataAugmentor)
+    config = {"NAME": "lads_corruption", "CORRUPTION": "beam_missing", "SEVERITY": "moderate",
+              "SENSOR": "hdl64e", "SEED": 1}  # fmt: skip
+    augmentor = FakeDataAugmentor([config])
+    xyz, intensity = street_frame(load_profile("hdl64e"), azimuths=240)
+    points = np.column_stack([xyz, intensity]).astype(np.float32)
+    boxes = np.ones((2, 7), np.float32)
+    out = augmentor.forward({"points": points, "gt_boxes": boxes, "frame_id": "000123"})
+    assert out["points"].shape[1] == 4 and 0 < out["points"].shape[0] < points.shape[0] * 0.7
+    assert out["gt_boxes"] is boxes
+    again = FakeDataAugmentor([config]).forward({"points": points, "frame_id": "000123"})
+    np.testing.assert_array_equal(again["points"], out["points"])
