@@ -16,6 +16,7 @@ faults.json           fault injection: kills, races, damage, bad frames, full/re
 sensor_transfer.json  sensor transfer vs the target's direct render (ground truth), speed
 sensor_transfer_real.json  sensor transfer of real scans, ring statistics vs real target scans
 sensor_build_speed.json    lads build --variant sensor-hdl32e: frames/s, memory, Dask bytes
+augment_speed.json    lads.augment corruptions through each loader adapter: frames/s, one core
 """
 
 from __future__ import annotations
@@ -48,6 +49,7 @@ BENCHMARKS = (
     "sensor_transfer",
     "sensor_transfer_real",
     "sensor_build_speed",
+    "augment_speed",
 )
 
 
