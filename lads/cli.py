@@ -56,6 +56,7 @@ class _LazyGroup(click.Group):
     LAZY = {
         "synth": ("lads.synth.command", "synth_command", False),
         "weather": ("lads.weather_command", "weather_command", True),
+        "suite": ("lads.suite_command", "suite_command", True),
         "diagnose": ("lads.diagnose.command", "diagnose_command", True),
         "train": ("lads.intensity.commands", "train_command", True),
         "eval-intensity": ("lads.intensity.commands", "eval_intensity_command", True),
@@ -139,7 +140,7 @@ def variants() -> None:
         for variant in variants_for(source):
             path = find_pipeline(source, variant)
             stages = ", ".join(s.stage for s in pipeline_for(source, variant).stages)
-            click.echo(f"{source:14s} {variant:20s} {path.name:24s} {stages}")
+            click.echo(f"{source:14s} {variant:28s} {path.name:20s} {stages}")
 
 
 @main.command()

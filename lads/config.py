@@ -20,11 +20,16 @@ from lads.errors import ConfigError
 from lads.readers import READERS
 from lads.resources import pipelines_dir
 from lads.stage_params import SEVERITY_STAGES, STAGE_PARAMS, STRENGTHS, check_stage, resolved
+from lads.variant_families import (
+    CORRUPTION_PIPELINE,
+    CORRUPTION_PREFIX,
+    SENSOR_PIPELINE,
+    corruption_stage,
+    corruption_variants,
+    sensor_variants,
+)
 
 SCHEMA_VERSION = 1
-# pipelines/sensor.yaml holds the settings of every `sensor-<profile>` variant: the variant
-# `sensor-P` is that pipeline with the target P (`pipeline_for`).
-SENSOR_PIPELINE = "sensor"
 # Stages that may follow a sensor transfer: they keep its points (a weather stage would mix
 # the transfer's provenance with its own).
 _AFTER_SENSOR = ("intensity",)
@@ -297,18 +302,11 @@ def variants_for(source: str, directory: Path | None = None) -> list[str]:
         if owner is not None:
             if owner == source:
                 names.add(stem[len(owner) + 1 :])
+        elif stem == CORRUPTION_PIPELINE:
+            names.update(corruption_variants(source))
         elif source in (load_pipeline(path).sources or (source,)):
-            names.update(_sensor_variants(source) if stem == SENSOR_PIPELINE else [stem])
+            names.update(sensor_variants(source) if stem == SENSOR_PIPELINE else [stem])
     return sorted(names)
-
-
-def _sensor_variants(source: str) -> list[str]:
-    """`sensor-<profile>` for every shipped profile but the source's own sensor."""
-    from lads.readers import reader_class
-    from lads.sensors.profile import available_profiles
-
-    own = reader_class(source).sensor
-    return [f"{SENSOR_PIPELINE}-{p}" for p in available_profiles() if p != own]
 
 
 def pipeline_for(source: str, variant: str, directory: Path | None = None) -> PipelineConfig:
@@ -320,6 +318,10 @@ def pipeline_for(source: str, variant: str, directory: Path | None = None) -> Pi
     """
     path = find_pipeline(source, variant, directory)
     pipeline = load_pipeline(path)
+    if path.stem == CORRUPTION_PIPELINE and variant != CORRUPTION_PIPELINE:
+        stage, params, description = corruption_stage(variant)
+        stages = (StageConfig(stage, params),)
+        return replace(pipeline, variant=variant, stages=stages, description=description)
     if path.stem != SENSOR_PIPELINE or variant == SENSOR_PIPELINE:
         return pipeline
     target = variant[len(SENSOR_PIPELINE) + 1 :]
@@ -351,7 +353,10 @@ def find_pipeline(source: str, variant: str, directory: Path | None = None) -> P
         return own
     valid = variants_for(source, directory)
     if variant in valid:
-        return files[variant] if variant in files else files[SENSOR_PIPELINE]
+        if variant in files:
+            return files[variant]
+        generic = CORRUPTION_PIPELINE if variant.startswith(CORRUPTION_PREFIX) else SENSOR_PIPELINE
+        return files[generic]
     others = [s for s in sorted(READERS) if s != source and variant in variants_for(s, directory)]
     elsewhere = f" '{variant}' exists for: {', '.join(others)}." if others else ""
     raise ConfigError(

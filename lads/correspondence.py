@@ -83,7 +83,8 @@ def outcome_counts(
 ) -> dict[str, int]:
     """Point counts for the manifest: source, output, kept, attenuated, particle, lost, and
     (dual-return trees only) second_returns, the output points that are a beam's second,
-    and (sensor transfers only) resampled, the target's beams."""
+    (sensor transfers only) resampled, the target's beams, and (motion-distorted sweeps
+    only) displaced, the returns reported at another position."""
     found = np.bincount(outcome, minlength=len(Outcome))
     counts = {
         "source": int(source_points),
@@ -95,6 +96,8 @@ def outcome_counts(
     }
     if found[Outcome.RESAMPLED]:
         counts["resampled"] = int(found[Outcome.RESAMPLED])
+    if found[Outcome.DISPLACED]:
+        counts["displaced"] = int(found[Outcome.DISPLACED])
     # A transfer's beams may share a source return (two beams on one surfel): not a dual return.
     dual = source_index is not None and not found[Outcome.RESAMPLED]
     second = int(np.count_nonzero(np.diff(source_index) == 0)) if dual else 0  # type: ignore[arg-type]

@@ -10,8 +10,8 @@
   (a registered transform), `lads.augment.openpcdet` (a DataAugmentor entry).
 """
 
-from lads.augment.catalogue import CORRUPTIONS, CorruptionSpec, corruption_spec
 from lads.augment.core import Augmented, AugmentInfo, Corruption, corrupt
+from lads.corruptions import CORRUPTIONS, CorruptionSpec, corruption_spec
 from lads.physics.severity import SEVERITIES
 from lads.seeding import augment_rng
 

@@ -16,8 +16,8 @@ from typing import Any, NamedTuple
 import numpy as np
 import numpy.typing as npt
 
-from lads.augment.catalogue import CorruptionSpec, corruption_spec
 from lads.config import StageConfig
+from lads.corruptions import CorruptionSpec, corruption_spec
 from lads.errors import AugmentInputError, ConfigError
 from lads.frame import Frame, Item
 from lads.physics.result import Outcome

@@ -13,7 +13,7 @@ from lads.card.sources import CONFIRM, SOURCES, Source
 TAGS = ["lidar", "point-cloud", "autonomous-driving", "synthetic"]
 # The tag of each kind of variant (lads.card.kinds.variant_kind).
 KIND_TAGS = {"weather": "weather-augmentation", "sensor": "sensor-adaptation",
-             "intensity": "intensity-adaptation"}  # fmt: skip
+             "intensity": "intensity-adaptation", "corruption": "robustness-benchmark"}  # fmt: skip
 
 # Offline copies of the Hub's enums (hub-docs datasetcard.md, repositories-licenses.md,
 # huggingface.js tasks); only these values pass `validate_card`.

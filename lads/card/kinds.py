@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from lads.stage_params import WEATHER_STAGES
+from lads.stage_params import FAULT_STAGES, WEATHER_STAGES
 
 _TEXT: dict[str, dict[str, str]] = {
     "weather": {
@@ -48,6 +48,25 @@ _TEXT: dict[str, dict[str, str]] = {
         "the target's encoding; it inherits the source's calibration.",
         "compare": "compare against real scans of the target sensor where possible.",
     },
+    "corruption": {
+        "word": "sensor-fault",
+        "direct_use": "Evaluating (or training) LiDAR perception for robustness to sensor faults "
+        "and scan artefacts on {src}: each variant is one corruption at one severity of the "
+        "robustness suite (`lads suite`), so a model's score can be reported per corruption and "
+        "severity.",
+        "out_of_scope": "Claims about how often a real sensor fails this way: the fault is "
+        "applied to every scan at a fixed severity (see Physical model and limitations).",
+        "rationale": "Robustness benchmarks report scores under sensor faults that real "
+        "recordings rarely contain. This variant applies one modelled fault to every scan of "
+        "{src}, one output scan per source scan, so that labels, poses and calibration carry "
+        "over.",
+        "annotations": "Points keep their labels; points a fault removes take their labels "
+        "with them (physical mode).",
+        "risks": "- The fault is a model: real lasers fail intermittently and real sweeps are "
+        "distorted by the speed the car actually drove, which this variant replaces with the "
+        "preset's.",
+        "compare": "compare against real recordings with the same fault where any exist.",
+    },
     "intensity": {
         "word": "intensity",
         "direct_use": "Training and evaluating LiDAR perception with the intensity another "
@@ -76,6 +95,12 @@ NOT_MODELLED_BY_KIND: dict[str, tuple[str, ...]] = {
         "no surface beyond the window's surfels: no mesh or learned completion of unseen parts",
         "no effect on cameras or other sensors of the source dataset",
     ),
+    "corruption": (
+        "beam missing: whole lasers fail for a whole scan; no intermittent or partial failure",
+        "motion distortion: constant speed and turn rate over a sweep, the scene itself static; "
+        "no compensation by the sensor or the dataset is undone",
+        "no effect on cameras or other sensors of the source dataset",
+    ),
     "intensity": (
         "geometry, dropout and labels are the source's: only intensity changes",
         "no effect on cameras or other sensors of the source dataset",
@@ -84,10 +109,12 @@ NOT_MODELLED_BY_KIND: dict[str, tuple[str, ...]] = {
 
 
 def variant_kind(stage_names: list[str]) -> str:
-    """ "sensor" when a stage changes the sensor, "weather" when one adds weather, else
-    "intensity" (a learned intensity only)."""
+    """ "sensor" when a stage changes the sensor, "corruption" when one applies a sensor
+    fault, "weather" when one adds weather, else "intensity" (a learned intensity only)."""
     if "sensor" in stage_names:
         return "sensor"
+    if any(n in FAULT_STAGES for n in stage_names):
+        return "corruption"
     if any(n in WEATHER_STAGES for n in stage_names) or not stage_names:
         return "weather"
     return "intensity"

@@ -38,6 +38,16 @@ PHYSICS = {
     "classes and moved instances come from the frame's own scan only.",
     "intensity": "intensity: a learned generator predicts every point's intensity from range, "
     "incidence and material (docs/intensity.md of lads).",
+    "wet_ground": "wet ground: a water film on the classes marked as ground; Fresnel "
+    "reflection at its surface, absorption and internal reflection darken the road, most at "
+    "grazing incidence, and returns that fall below the detection limit are lost.",
+    "beam_missing": "beam missing: a share of the sensor's lasers fails for the whole scan "
+    "(drawn per scan unless fixed); every return of a failed laser is lost, nothing else "
+    "changes.",
+    "motion_distortion": "motion distortion: each point is reported in the sensor pose of "
+    "the moment it was measured (its azimuth's time in the sweep), the vehicle moving at the "
+    "given speed and turn rate, as an uncompensated sweep would; the seam behind the vehicle "
+    "opens by speed x sweep period.",
 }
 
 

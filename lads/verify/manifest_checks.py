@@ -159,11 +159,12 @@ def _check_points(
         v.add(where, "manifest_inconsistent", f"{item_id}: points {pts!r} lacks counts")
         return
     s, o, lost = pts["source"], pts["output"], pts["lost"]
-    returned = pts["kept"] + pts["attenuated"] + pts["particle"]
+    # Displaced points (a motion-distorted sweep) are returns too; older trees lack the key.
+    returned = pts["kept"] + pts["attenuated"] + pts["particle"] + pts.get("displaced", 0)
     mode = v.run_json.get("points_mode")
     rules = [("output == scan records", scan is None or o == scan.get("records"))]
     if mode == "physical":
-        rules += [("kept+attenuated+particle == output", returned == o)]
+        rules += [("kept+attenuated+particle+displaced == output", returned == o)]
         second = pts.get("second_returns", 0)
         rules += [("output + lost == source + second_returns", o + lost == s + second)]
     elif mode == "resampled":
@@ -172,7 +173,7 @@ def _check_points(
         rules += [("lost == 0 (a transfer loses no source beam)", lost == 0)]
     elif mode == "aligned":
         rules += [("output == source", o == s)]
-        rules += [("kept+attenuated+particle+lost == source", returned + lost == s)]
+        rules += [("kept+attenuated+particle+displaced+lost == source", returned + lost == s)]
     rb = scan.get("record_bytes", 0) if scan else 0
     src_scan = sources.get(scan["path"], {}) if scan else {}
     if rb and count(src_scan.get("bytes")):

@@ -1,5 +1,5 @@
-"""The corruptions `lads.augment` offers, by name: which stage runs each, the physical
-quantity its severity sets, and the names the robustness benchmarks use for it.
+"""The corruption suite, by name (`lads.augment` and the `C-` build variants): which stage runs
+each, the physical quantity its severity sets, and the names the robustness benchmarks use.
 
 One table (`CORRUPTIONS`); the severity values themselves live in `lads.physics.severity`.
 """

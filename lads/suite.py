@@ -1,0 +1,109 @@
+"""The robustness suite: every `C-<corruption>-<severity>` variant of one source, each its own
+verified tree with its card, plus `suite.json` listing them (docs/augment.md §4).
+
+`lads suite --source semantickitti --in ROOT --out SUITE` builds a SemanticKITTI-C-style set:
+SUITE/C-fog-light, SUITE/C-fog-moderate, ... Each tree is an ordinary `lads build`, so an
+interrupted suite resumes where it stopped and `lads verify` checks every tree.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from lads.config import pipeline_for
+from lads.corruptions import corruption_spec
+from lads.errors import ConfigError
+from lads.files import atomic_write
+from lads.physics.severity import SEVERITIES
+from lads.runner import BuildReport, run_build
+from lads.variant_families import CORRUPTION_PREFIX, corruption_variants
+
+SUITE_FILE = "suite.json"
+
+
+@dataclass(frozen=True, slots=True)
+class SuiteReport:
+    """What `build_suite` did: the report of each variant's build, in suite order."""
+
+    out_root: Path
+    builds: tuple[tuple[str, BuildReport], ...]
+
+    @property
+    def complete(self) -> bool:
+        return all(report.complete for _, report in self.builds)
+
+
+def suite_variants(
+    source: str, corruptions: list[str] | None = None, severities: list[str] | None = None
+) -> list[str]:
+    """The suite's variants for `source`, optionally narrowed to some corruptions (names or
+    peers' names) and severities.
+
+    Raises:
+        ConfigError: an unknown corruption or severity, or one this source cannot take.
+    """
+    names = None if corruptions is None else {corruption_spec(c).name for c in corruptions}
+    unknown = sorted(set(severities or ()) - set(SEVERITIES))
+    if unknown:
+        raise ConfigError(f"severities {unknown}; expected some of {', '.join(SEVERITIES)}.")
+    chosen = []
+    for variant in corruption_variants(source):
+        name, _, severity = variant[len(CORRUPTION_PREFIX) :].rpartition("-")
+        if (names is None or name in names) and (severities is None or severity in severities):
+            chosen.append(variant)
+    missing = sorted(
+        (names or set()) - {v[len(CORRUPTION_PREFIX) :].rpartition("-")[0] for v in chosen}
+    )
+    if missing:
+        raise ConfigError(f"source {source!r} cannot take {missing} (it has no point labels).")
+    return chosen
+
+
+def build_suite(
+    source: str,
+    source_root: Path,
+    out_root: Path,
+    variants: list[str],
+    **build_options: Any,
+) -> SuiteReport:
+    """Build every variant into out_root/<variant> and write out_root/suite.json.
+
+    Args:
+        source: reader name. source_root: the source tree.
+        variants: from `suite_variants`.
+        **build_options: passed to every `lads.runner.run_build` (seed, jobs, reader_options,
+            backend, figures, limit, ...).
+    """
+    builds = []
+    for variant in variants:
+        pipeline = pipeline_for(source, variant)
+        report = run_build(source, source_root, out_root / variant, pipeline, **build_options)
+        builds.append((variant, report))
+    suite = SuiteReport(out_root, tuple(builds))
+    atomic_write(
+        out_root / SUITE_FILE, (json.dumps(_summary(source, suite), indent=2) + "\n").encode()
+    )
+    return suite
+
+
+def _summary(source: str, suite: SuiteReport) -> dict[str, Any]:
+    rows = []
+    for variant, report in suite.builds:
+        name, _, severity = variant[len(CORRUPTION_PREFIX) :].rpartition("-")
+        spec = corruption_spec(name)
+        rows.append(
+            {
+                "variant": variant,
+                "corruption": name,
+                "peer_names": list(spec.peer_names),
+                "severity": severity,
+                spec.parameter: spec.preset(severity),
+                "tree": variant,
+                "items": report.items,
+                "complete": report.complete,
+            }
+        )
+    return {"source": source, "complete": suite.complete, "variants": rows}

@@ -1,0 +1,88 @@
+"""`lads suite`: build the robustness suite of one source (lads.suite)."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import click
+
+from lads.physics.severity import SEVERITIES
+from lads.readers import READERS
+
+# The exit code of a suite with an incomplete tree (as `lads build`).
+EXIT_INCOMPLETE = 1
+
+
+def _names(value: str | None) -> list[str] | None:
+    return None if value is None else [v.strip() for v in value.split(",") if v.strip()]
+
+
+@click.command("suite")
+@click.option("--source", required=True, type=click.Choice(sorted(READERS)), help="Reader.")
+@click.option(
+    "--in",
+    "source_root",
+    required=True,
+    type=click.Path(exists=True, file_okay=False, path_type=Path),
+    help="Source dataset root.",
+)
+@click.option(
+    "--out",
+    "out_root",
+    required=True,
+    type=click.Path(file_okay=False, path_type=Path),
+    help="Suite root: one tree per variant below it, and suite.json.",
+)
+@click.option(
+    "--corruptions",
+    help="Comma-separated corruptions (default: every one the source can take; "
+    "`lads variants` lists them as C-<corruption>-<severity>).",
+)
+@click.option("--severities", help=f"Comma-separated severities (default: {','.join(SEVERITIES)}).")
+@click.option("--seed", type=int, default=0, show_default=True, help="Root seed.")
+@click.option("--jobs", type=int, default=1, show_default=True, help="Worker processes (loky).")
+@click.option("--sequences", help="Comma-separated sequences to build (as lads build).")
+@click.option("--version", "nuscenes_version", help="nuScenes table version.")
+@click.option("--limit", type=int, help="Only the first N items of each tree (trial runs).")
+@click.option("--figures/--no-figures", default=True, show_default=True)
+def suite_command(
+    source: str,
+    source_root: Path,
+    out_root: Path,
+    corruptions: str | None,
+    severities: str | None,
+    seed: int,
+    jobs: int,
+    sequences: str | None,
+    nuscenes_version: str | None,
+    limit: int | None,
+    figures: bool,
+) -> None:
+    """Build every corruption at every severity (a SemanticKITTI-C-style suite) from one
+    source: one verified tree with its card per C-<corruption>-<severity> variant."""
+    from lads.suite import build_suite, suite_variants
+
+    options: dict[str, object] = {}
+    if sequences:
+        options["sequences"] = _names(sequences)
+    if nuscenes_version:
+        options["version"] = nuscenes_version
+    variants = suite_variants(source, _names(corruptions), _names(severities))
+    report = build_suite(
+        source,
+        source_root,
+        out_root,
+        variants,
+        seed=seed,
+        jobs=jobs,
+        reader_options=options,
+        limit=limit,
+        figures=figures,
+    )
+    for variant, build in report.builds:
+        state = "complete" if build.complete else "INCOMPLETE"
+        click.echo(f"{variant:30s} {build.items:6d} items  {state}")
+    click.echo(f"suite: {len(report.builds)} trees in {out_root} (suite.json)")
+    if not report.complete:
+        sys.exit(EXIT_INCOMPLETE)
