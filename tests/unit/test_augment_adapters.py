@@ -80,8 +80,9 @@ class FakeLiDARPoints:
 
 def test_mmdet3d_transform_builds_from_a_config_through_mmengine():
     pytest.importorskip("mmengine")
-    import lads.augment.mmdet3d  # noqa: F401  (registers the transform)
     from mmengine.dataset import Compose
+
+    import lads.augment.mmdet3d  # noqa: F401  (registers the transform)
 
     pipeline = Compose(
         [

@@ -1,0 +1,104 @@
+"""The robustness suite on disk: every `C-<corruption>-<severity>` variant builds, verifies
+and regenerates byte for byte; `lads suite` builds a chosen set with suite.json; sources
+without labels get no wet ground."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from lads.cli import main
+from lads.config import pipeline_for, variants_for
+from lads.corruptions import CORRUPTIONS
+from lads.errors import ConfigError
+from lads.physics.severity import SEVERITIES
+from lads.runner import run_build
+from lads.suite import suite_variants
+from lads.synth.writer import write_synthetic_dataset
+from lads.verify import verify_tree
+
+
+@pytest.fixture(scope="module")
+def street(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    root = tmp_path_factory.mktemp("street") / "src"
+    write_synthetic_dataset(root, frames=2)
+    return root
+
+
+def _manifest(out: Path) -> list[dict]:
+    return [json.loads(line) for line in (out / "manifest.jsonl").read_text().splitlines()]
+
+
+def test_every_corruption_and_severity_is_a_variant_of_a_labelled_source():
+    names = {f"C-{c}-{s}" for c in CORRUPTIONS for s in SEVERITIES}
+    assert names <= set(variants_for("semantickitti"))
+    radiate = {v for v in variants_for("radiate") if v.startswith("C-")}
+    assert radiate == {v for v in names if "wet_ground" not in v}
+    pipeline = pipeline_for("nuscenes", "C-beam_missing-moderate")
+    assert pipeline.stages[0].stage == "beam_missing"
+    assert pipeline.stages[0].params == {"severity": "moderate", "lost_channel_share": 0.5}
+    with pytest.raises(ConfigError, match="C-hail-heavy"):
+        pipeline_for("semantickitti", "C-hail-heavy")
+
+
+@pytest.mark.parametrize("name", list(CORRUPTIONS))
+def test_heavy_corruption_builds_verifies_and_regenerates(street, tmp_path, name):
+    out = tmp_path / "out"
+    pipeline = pipeline_for("semantickitti", f"C-{name}-heavy")
+    report = run_build("semantickitti", street, out, pipeline, jobs=1, progress=False)
+    assert report.complete, report.failed
+    check = verify_tree(out, street, regenerate=2, seed=0)
+    assert check.ok, [f"{p.kind} {p.path}: {p.message}" for p in check.problems]
+    points = [row["points"] for row in _manifest(out) if "points" in row]
+    assert points
+    if name == "motion_distortion":
+        assert all(p["displaced"] > 0.99 * p["source"] and p["lost"] == 0 for p in points)
+    elif name == "beam_missing":
+        assert all(0.1 < p["output"] / p["source"] < 0.4 for p in points)
+    else:
+        assert all(p["output"] != p["source"] or p["attenuated"] > 0 for p in points)
+    card = (out / "README.md").read_text()
+    word = "sensor-fault" if name in ("beam_missing", "motion_distortion") else "weather"
+    assert f"a {word} variant" in card
+
+
+def test_suite_command_builds_the_chosen_set_with_its_summary(street, tmp_path):
+    out = tmp_path / "suite"
+    args = [
+        "suite",
+        "--source",
+        "semantickitti",
+        "--in",
+        str(street),
+        "--out",
+        str(out),
+        "--corruptions",
+        "beam_missing,motion_blur",
+        "--severities",
+        "light",
+        "--no-figures",
+    ]
+    result = CliRunner().invoke(main, args)
+    assert result.exit_code == 0, result.output
+    summary = json.loads((out / "suite.json").read_text())
+    assert [v["variant"] for v in summary["variants"]] == [
+        "C-beam_missing-light",
+        "C-motion_distortion-light",
+    ]
+    assert summary["complete"] and summary["variants"][1]["speed_m_s"] == 5.0
+    for variant in ("C-beam_missing-light", "C-motion_distortion-light"):
+        assert verify_tree(out / variant, street).ok
+    scan = np.fromfile(out / "C-beam_missing-light" / "sequences/00/velodyne/000000.bin", "<f4")
+    assert scan.size % 4 == 0
+
+
+def test_suite_refuses_unknown_or_impossible_choices():
+    with pytest.raises(ConfigError, match="no point labels"):
+        suite_variants("radiate", ["wet_ground"])
+    with pytest.raises(ConfigError, match="severities"):
+        suite_variants("semantickitti", None, ["extreme"])
+    assert len(suite_variants("semantickitti")) == len(CORRUPTIONS) * len(SEVERITIES)
