@@ -68,6 +68,10 @@ CORRUPTIONS: dict[str, CorruptionSpec] = {
               "channels lost"),
         _spec("motion_distortion", ("motion_blur", "motion blur"), "rolling-shutter skew of a "
               "sweep taken while the vehicle moves"),
+        _spec("crosstalk", ("cross_talk",), "another LiDAR's pulses: false returns at uniform "
+              "range on a share of the beams", particles=True),
+        _spec("incomplete_echo", ("incomplete echo",), "vehicles in dark paint: weak returns "
+              "of clear-coat classes lost", labels=True),
     )
 }  # fmt: skip
 

@@ -40,12 +40,18 @@ STAGE_PARAMS: dict[str, dict[str, str]] = {
         "seam_azimuth_deg": "optional_number",
         "severity": "severity",
     },
+    "incomplete_echo": {
+        "paint_reflectance": "reflectance",
+        "severity": "severity",
+        "detection": "detection",
+    },
+    "crosstalk": {"interfered_share": "share", "severity": "severity"},
 }
 _OPTIONAL_KINDS = {"return_mode", "optional_text", "device", "severity", "settings", "detection",
                    "neighbours", "channel_list", "optional_number", "optional_period"}  # fmt: skip
 # Weather stages, and the sensor faults and artefacts that are not weather.
 WEATHER_STAGES = ("rain", "snow", "fog", "wet_ground")
-FAULT_STAGES = ("beam_missing", "motion_distortion")
+FAULT_STAGES = ("beam_missing", "motion_distortion", "incomplete_echo", "crosstalk")
 # Stages whose physical strength a `severity` preset can give (lads.physics.severity).
 SEVERITY_STAGES = WEATHER_STAGES + FAULT_STAGES
 # The physical strengths a severity preset names (rate, visibility, water film).
@@ -109,6 +115,8 @@ def _check_value(kind: str, value: Any, where: str) -> None:
         raise ConfigError(f"{where}: rate must be a finite number >= 0 mm/h, got {value}.")
     if kind == "film" and not (0 <= value < math.inf):
         raise ConfigError(f"{where}: water film must be a finite thickness >= 0 mm, got {value}.")
+    if kind == "reflectance" and not 0 < value <= 1:
+        raise ConfigError(f"{where}: expected a reflectance in (0, 1], got {value}.")
     if kind == "share" and not 0 <= value <= 1:
         raise ConfigError(f"{where}: expected a share in [0, 1], got {value}.")
     if kind in ("speed", "optional_number") and not math.isfinite(value):

@@ -99,6 +99,9 @@ NOT_MODELLED_BY_KIND: dict[str, tuple[str, ...]] = {
         "beam missing: whole lasers fail for a whole scan; no intermittent or partial failure",
         "motion distortion: constant speed and turn rate over a sweep, the scene itself static; "
         "no compensation by the sensor or the dataset is undone",
+        "crosstalk: interfered beams drawn uniformly over the scan, not concentrated towards "
+        "the interfering vehicle; no second return beside the false one",
+        "incomplete echo: diffuse darkening only, no specular glint of the clear coat",
         "no effect on cameras or other sensors of the source dataset",
     ),
     "intensity": (

@@ -48,6 +48,12 @@ PHYSICS = {
     "the moment it was measured (its azimuth's time in the sweep), the vehicle moving at the "
     "given speed and turn rate, as an uncompensated sweep would; the seam behind the vehicle "
     "opens by speed x sweep period.",
+    "incomplete_echo": "incomplete echo: the classes whose material has a clear-coat finish "
+    "(vehicle paint) are repainted with a darker paint; their returns dim by the reflectance "
+    "ratio and are lost where the sensor's detection limit then misses them, far ones first.",
+    "crosstalk": "crosstalk: a share of the beams catches the pulses of an unsynchronised LiDAR "
+    "nearby; each reports a false return on its own ray at a range uniform over the range "
+    "gate (the pulse's timing), with an intensity of unknown power.",
 }
 
 

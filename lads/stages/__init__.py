@@ -13,7 +13,12 @@ from lads.errors import ConfigError
 from lads.stages.base import Stage
 from lads.stages.intensity import IntensityStage
 from lads.stages.sensor import SensorStage
-from lads.stages.sensor_faults import BeamMissingStage, MotionDistortionStage
+from lads.stages.sensor_faults import (
+    BeamMissingStage,
+    CrosstalkStage,
+    IncompleteEchoStage,
+    MotionDistortionStage,
+)
 from lads.stages.weather import WeatherStage
 from lads.stages.wet_ground import WetGroundStage
 
@@ -33,6 +38,8 @@ STAGES: dict[str, StageClass] = {
     "sensor": SensorStage,
     "beam_missing": BeamMissingStage,
     "motion_distortion": MotionDistortionStage,
+    "incomplete_echo": IncompleteEchoStage,
+    "crosstalk": CrosstalkStage,
 }
 
 

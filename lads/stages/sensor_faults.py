@@ -1,4 +1,5 @@
-"""Sensor-fault stages: dead lasers and a motion-distorted sweep (`lads.physics.sensor_faults`)."""
+"""Sensor-fault stages: dead lasers, a motion-distorted sweep (`lads.physics.sensor_faults`),
+returns lost to dark glossy paint and another LiDAR's false returns (`lads.physics.echo_faults`)."""
 
 from __future__ import annotations
 
@@ -10,8 +11,10 @@ from lads.config import StageConfig
 from lads.errors import ConfigError
 from lads.frame import Frame
 from lads.physics import sensor_faults as faults
+from lads.physics.echo_faults import crosstalk, incomplete_echo
 from lads.physics.projection import range_m
 from lads.physics.result import WeatherResult
+from lads.readers import label_set_for
 from lads.sensors.profile import SensorProfile, load_profile
 
 # Bump when the output bytes change for the same input and seed.
@@ -141,3 +144,74 @@ class MotionDistortionStage:
             result.outcome[empty] = 0
         conditions = (("speed_m_s", float(self.speed_m_s)), ("sweep_period_s", period))
         return _apply(frame, result, conditions)
+
+
+@dataclass(frozen=True, slots=True)
+class IncompleteEchoStage:
+    """Vehicles repainted with a darker paint: weak returns of clear-coat classes are lost.
+
+    Attributes:
+        name: "incomplete_echo".
+        paint_reflectance: 905 nm reflectance of the new paint, in (0, 1].
+        severity: the preset the reflectance came from, or None.
+        detection: None ("sensor"), "sensor", "frame" or a fixed threshold.
+    """
+
+    name: str
+    paint_reflectance: float = 1.0
+    severity: str | None = None
+    detection: str | float | None = None
+    version: str = SENSOR_FAULT_STAGE_VERSION
+
+    @classmethod
+    def from_config(cls, config: StageConfig) -> IncompleteEchoStage:
+        return cls(name=config.stage, **config.params)
+
+    def __call__(self, frame: Frame, rng: np.random.Generator) -> Frame:
+        """Clear-coat points dimmed or lost; a frame without labels passes unchanged and
+        its conditions say so."""
+        label_set = label_set_for(frame.item.dataset)
+        if frame.labels is None or label_set is None:
+            return replace(frame, conditions=frame.conditions + (("incomplete_echo", "no labels"),))
+        result = incomplete_echo(
+            frame.xyz,
+            frame.intensity,
+            frame.labels,
+            label_set,
+            sensor=frame.sensor,
+            rng=rng,
+            paint_reflectance=float(self.paint_reflectance),
+            detection="sensor" if self.detection is None else self.detection,
+        )
+        return _apply(frame, result, (("paint_reflectance", float(self.paint_reflectance)),))
+
+
+@dataclass(frozen=True, slots=True)
+class CrosstalkStage:
+    """False returns of an unsynchronised LiDAR nearby on a share of the beams.
+
+    Attributes:
+        name: "crosstalk".
+        interfered_share: share of the beams that catch interfering pulses, [0, 1].
+        severity: the preset the share came from, or None.
+    """
+
+    name: str
+    interfered_share: float = 0.0
+    severity: str | None = None
+    version: str = SENSOR_FAULT_STAGE_VERSION
+
+    @classmethod
+    def from_config(cls, config: StageConfig) -> CrosstalkStage:
+        return cls(name=config.stage, **config.params)
+
+    def __call__(self, frame: Frame, rng: np.random.Generator) -> Frame:
+        """Interfered beams report a false return on their own ray (outcome PARTICLE)."""
+        result = crosstalk(
+            frame.xyz,
+            frame.intensity,
+            sensor=frame.sensor,
+            rng=rng,
+            interfered_share=float(self.interfered_share),
+        )
+        return _apply(frame, result, (("interfered_share", float(self.interfered_share)),))

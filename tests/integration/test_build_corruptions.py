@@ -17,6 +17,7 @@ from lads.corruptions import CORRUPTIONS
 from lads.errors import ConfigError
 from lads.physics.severity import SEVERITIES
 from lads.runner import run_build
+from lads.stage_params import FAULT_STAGES
 from lads.suite import suite_variants
 from lads.synth.writer import write_synthetic_dataset
 from lads.verify import verify_tree
@@ -37,7 +38,10 @@ def test_every_corruption_and_severity_is_a_variant_of_a_labelled_source():
     names = {f"C-{c}-{s}" for c in CORRUPTIONS for s in SEVERITIES}
     assert names <= set(variants_for("semantickitti"))
     radiate = {v for v in variants_for("radiate") if v.startswith("C-")}
-    assert radiate == {v for v in names if "wet_ground" not in v}
+    unlabelled = {
+        f"C-{c}-{s}" for c, spec in CORRUPTIONS.items() if not spec.needs_labels for s in SEVERITIES
+    }
+    assert radiate == unlabelled and "C-wet_ground-heavy" not in radiate
     pipeline = pipeline_for("nuscenes", "C-beam_missing-moderate")
     assert pipeline.stages[0].stage == "beam_missing"
     assert pipeline.stages[0].params == {"severity": "moderate", "lost_channel_share": 0.5}
@@ -59,10 +63,12 @@ def test_heavy_corruption_builds_verifies_and_regenerates(street, tmp_path, name
         assert all(p["displaced"] > 0.99 * p["source"] and p["lost"] == 0 for p in points)
     elif name == "beam_missing":
         assert all(0.1 < p["output"] / p["source"] < 0.4 for p in points)
+    elif name == "crosstalk":
+        assert all(p["particle"] == round(0.01 * p["source"]) for p in points)
     else:
         assert all(p["output"] != p["source"] or p["attenuated"] > 0 for p in points)
     card = (out / "README.md").read_text()
-    word = "sensor-fault" if name in ("beam_missing", "motion_distortion") else "weather"
+    word = "sensor-fault" if CORRUPTIONS[name].stage in FAULT_STAGES else "weather"
     assert f"a {word} variant" in card
 
 

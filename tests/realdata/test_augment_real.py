@@ -42,4 +42,5 @@ def test_heavy_corruption_runs_on_every_real_frame(shared_data, real_frames, nam
         if frame.labels is not None:
             assert out.labels.shape == (out.points.shape[0],), where
         changed = out.info.lost_index.size + np.count_nonzero(out.info.outcome)
-        assert changed > 0 or frame.points.shape[0] < 200, where
+        # Incomplete echo acts on vehicles only; a frame may have none.
+        assert changed > 0 or frame.points.shape[0] < 200 or name == "incomplete_echo", where

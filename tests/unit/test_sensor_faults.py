@@ -78,3 +78,67 @@ def test_forward_axis_and_yaw_follow_the_profile_convention():
         seam_azimuth_deg=180.0,
     )
     np.testing.assert_allclose(np.linalg.norm(turn.xyz, axis=1), 10.0, rtol=1e-5)  # rotation only
+
+
+def test_crosstalk_puts_false_returns_on_their_own_ray_inside_the_range_gate():
+    from lads.physics.echo_faults import crosstalk
+    from lads.sensors.profile import load_profile
+
+    profile = load_profile("hdl64e")
+    rng = np.random.default_rng(1)
+    azimuth = rng.uniform(-180, 180, 5000)
+    xyz = _ring_of_points(azimuth, 20.0)
+    xyz[:, 2] = rng.uniform(-2, 2, xyz.shape[0])
+    res = crosstalk(
+        xyz, np.full(5000, 0.3, np.float32), sensor=profile, rng=rng, interfered_share=0.01
+    )
+    false = res.outcome == Outcome.PARTICLE
+    assert false.sum() == 50 and res.lost_index.size == 0
+    src = xyz[res.source_index[false]].astype(np.float64)
+    out = res.xyz[false].astype(np.float64)
+    cos = (
+        np.einsum("ij,ij->i", src, out) / np.linalg.norm(src, axis=1) / np.linalg.norm(out, axis=1)
+    )
+    assert (cos > 1 - 1e-6).all()  # same ray, another range
+    r = np.linalg.norm(out, axis=1)
+    assert (r >= profile.min_range_m - 1e-3).all() and (r <= profile.max_range_m + 1e-3).all()
+
+
+def test_incomplete_echo_dims_and_drops_only_clearcoat_classes_far_ones_first():
+    from lads.physics.echo_faults import incomplete_echo
+    from lads.sensors.profile import load_profile
+
+    profile = load_profile("hdl64e")
+    n = 4000
+    range_m = np.linspace(5.0, 70.0, n)
+    xyz = _ring_of_points(np.zeros(n), 1.0) * range_m[:, None].astype(np.float32)
+    labels = np.where(np.arange(n) % 2 == 0, 10, 50).astype(np.uint32)  # car, building
+    intensity = np.full(n, 0.3, np.float32)
+    res = incomplete_echo(
+        xyz,
+        intensity,
+        labels,
+        "semantickitti",
+        sensor=profile,
+        rng=np.random.default_rng(0),
+        paint_reflectance=0.04,
+    )
+    car = labels == 10
+    lost = np.zeros(n, bool)
+    lost[res.lost_index] = True
+    assert not lost[~car].any() and lost[car].any()
+    assert lost[car & (range_m > 40)].mean() > lost[car & (range_m < 15)].mean()
+    kept_building = res.outcome[~car[res.source_index]]
+    assert (kept_building == Outcome.KEPT).all()
+    dimmed = res.intensity[res.outcome == Outcome.ATTENUATED]
+    np.testing.assert_allclose(dimmed, 0.3 * 0.04 / 0.52, atol=0.006)
+    same = incomplete_echo(
+        xyz,
+        intensity,
+        labels,
+        "semantickitti",
+        sensor=profile,
+        rng=np.random.default_rng(0),
+        paint_reflectance=0.9,
+    )
+    assert same.lost_index.size == 0 and (same.outcome == Outcome.KEPT).all()

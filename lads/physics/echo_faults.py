@@ -1,0 +1,136 @@
+"""Returns lost to dark glossy paint (incomplete echo) and false returns from another LiDAR's
+pulses (crosstalk), both through the sensor's detection model (docs/augment.md §3).
+
+Incomplete echo: every point of a class whose material has a clear-coat finish (vehicle
+paint, materials.yaml) is repainted with a paint of reflectance rho_paint at 905 nm. Its
+received power and intensity scale by k = rho_paint / rho_material where that is below 1. Whether it is
+still detected follows the detection rule, conditioned on its clear-air detection, as for
+weather: far and already-weak returns go first, not a random share.
+
+Crosstalk: another LiDAR nearby fires pulses that are not synchronised with ours. A pulse that
+reaches our receiver while one of our beams listens is timed as an echo, so it appears on
+that beam's ray at a range uniform over the range gate [min_range, max_range]. A share of the
+beams catches interfering light strong enough to detect. Interfering light is direct or
+first-bounce laser light, far stronger than a diffuse echo, so it is the return the beam
+reports (a PARTICLE outcome: a false return replaced the target's on the same ray). Its
+reported intensity is that of an unknown power, drawn uniformly over the diffuse scale.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from lads.errors import ConfigError
+from lads.physics.beams import assemble, auto_threshold, prepare_beams, resolve_sensor, unchanged
+from lads.physics.detection import resolve_detection
+from lads.physics.materials import class_ids, class_roles, reflectance_for_labels
+from lads.physics.result import Outcome, WeatherResult
+from lads.sensors.profile import SensorProfile
+
+
+def incomplete_echo(
+    xyz: Any,
+    intensity: Any,
+    labels: Any,
+    label_set: str,
+    *,
+    sensor: SensorProfile | str,
+    rng: np.random.Generator,
+    paint_reflectance: float,
+    detection: str | float = "sensor",
+) -> WeatherResult:
+    """Vehicles repainted darker: their returns dimmed by k and lost where then undetected.
+
+    Args:
+        xyz: (N, 3) m. intensity: (N,) in the profile's encoding.
+        labels: (N,) the frame's labels; label_set: their materials.yaml label set.
+        sensor: profile or its name. rng: the frame's generator (detection draws only).
+        paint_reflectance: rho_paint, diffuse reflectance of the new paint at 905 nm, in
+            (0, 1].
+        detection: the detection rule (`lads.physics.detection.resolve_detection`).
+
+    Returns:
+        WeatherResult: clear-coat points ATTENUATED or LOST, every other point KEPT.
+    """
+    if not 0.0 < paint_reflectance <= 1.0:
+        raise ConfigError(
+            f"incomplete_echo: paint_reflectance {paint_reflectance!r}; expected (0, 1]."
+        )
+    profile = resolve_sensor(sensor)
+    beams = prepare_beams(xyz, intensity, profile)
+    glossy_classes = np.fromiter(class_roles(label_set).clearcoat, dtype=np.int64)
+    material = reflectance_for_labels(labels, label_set).astype(np.float64)
+    # Only a darker paint changes anything: a lighter one leaves the recorded return alone.
+    glossy = (
+        beams.active
+        & np.isin(class_ids(labels, label_set), glossy_classes)
+        & (paint_reflectance < material)
+    )
+    if not glossy.any():
+        return unchanged(beams, profile)
+    ratio = np.ones(beams.range_m.size)
+    ratio[glossy] = paint_reflectance / material[glossy]
+    rule = resolve_detection(
+        detection, profile.detection.power, profile.detection.spread_ln, auto_threshold(beams)
+    )
+    detected, _ = rule.targets_detected(beams.clear_power, np.log(ratio), glossy, rng)
+    outcome = np.full(beams.range_m.size, Outcome.KEPT, dtype=np.uint8)
+    outcome[glossy] = Outcome.LOST
+    outcome[glossy & detected] = Outcome.ATTENUATED
+    reflectivity = profile.intensity.to_reflectivity(beams.intensity) * ratio
+    return assemble(
+        beams,
+        profile,
+        outcome=outcome,
+        range_m=beams.range_m,
+        reflectivity=reflectivity,
+        extinction_per_m=0.0,
+        detection_threshold=rule.threshold,
+    )
+
+
+def crosstalk(
+    xyz: Any,
+    intensity: Any,
+    *,
+    sensor: SensorProfile | str,
+    rng: np.random.Generator,
+    interfered_share: float,
+) -> WeatherResult:
+    """False returns from an unsynchronised LiDAR nearby, on `interfered_share` of the beams.
+
+    Args:
+        xyz: (N, 3) m. intensity: (N,) in the profile's encoding.
+        sensor: profile or its name (its range gate and intensity encoding).
+        rng: the frame's generator: which beams, the false ranges and intensities.
+        interfered_share: share of the frame's beams that catch interfering light, [0, 1].
+
+    Returns:
+        WeatherResult: interfered beams PARTICLE at their false range, the rest KEPT.
+    """
+    if not 0.0 <= interfered_share <= 1.0:
+        raise ConfigError(f"crosstalk: interfered_share {interfered_share!r}; expected [0, 1].")
+    profile = resolve_sensor(sensor)
+    beams = prepare_beams(xyz, intensity, profile)
+    active = np.flatnonzero(beams.active)
+    count = int(round(interfered_share * active.size))
+    if count == 0:
+        return unchanged(beams, profile)
+    hit = np.sort(rng.choice(active, size=count, replace=False))
+    outcome = np.full(beams.range_m.size, Outcome.KEPT, dtype=np.uint8)
+    outcome[hit] = Outcome.PARTICLE
+    range_m = beams.range_m.copy()
+    range_m[hit] = rng.uniform(profile.min_range_m, profile.max_range_m, size=count)
+    reflectivity = profile.intensity.to_reflectivity(beams.intensity)
+    reflectivity[hit] = rng.uniform(0.0, 1.0, size=count)
+    return assemble(
+        beams,
+        profile,
+        outcome=outcome,
+        range_m=range_m,
+        reflectivity=reflectivity,
+        extinction_per_m=0.0,
+        detection_threshold=float("nan"),
+    )
