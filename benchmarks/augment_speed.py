@@ -31,6 +31,7 @@ from lads.augment import CORRUPTIONS, SEVERITIES, Corruption  # noqa: E402
 from lads.augment.mmdet3d import LadsCorruption  # noqa: E402
 from lads.augment.openpcdet import OpenPCDetCorruption  # noqa: E402
 from lads.augment.torch_data import CorruptedDataset  # noqa: E402
+from lads.physics.result import Outcome  # noqa: E402
 
 REPEATS = 5
 TARGET_FPS = 40.0
@@ -103,6 +104,21 @@ def _paths(
     return paths
 
 
+def _effect(call: Callable[[int], Any], points: list[np.ndarray]) -> dict[str, float]:
+    """Share of the input points each frame loses, and the output points that are particle
+    (or false) returns, displaced or attenuated, pooled over the frames."""
+    total = sum(p.shape[0] for p in points)
+    lost = particle = displaced = attenuated = 0
+    for i in range(len(points)):
+        info = call(i).info
+        lost += info.lost_index.size
+        particle += int(np.count_nonzero(info.outcome == Outcome.PARTICLE))
+        displaced += int(np.count_nonzero(info.outcome == Outcome.DISPLACED))
+        attenuated += int(np.count_nonzero(info.outcome == Outcome.ATTENUATED))
+    shares = {"lost": lost, "particle": particle, "displaced": displaced, "attenuated": attenuated}
+    return {k: round(v / total, 5) for k, v in shares.items()}
+
+
 def _median_ms(call: Callable[[int], Any], frames: int) -> float:
     call(0)  # compile and warm caches outside the timing
     times = []
@@ -119,8 +135,11 @@ def main() -> None:
     points, labels = kitti_frames(), kitti_labels()
     rows = []
     cases = [(n, s) for n in CORRUPTIONS for s in SEVERITIES]
+    effects = []
     for name, severity in tqdm(cases, desc="augment speed", unit="case"):
-        for adapter, call in _paths(name, severity, points, labels).items():
+        paths = _paths(name, severity, points, labels)
+        effects.append({"corruption": name, "severity": severity, **_effect(paths["core"], points)})
+        for adapter, call in paths.items():
             ms = _median_ms(call, len(points))
             rows.append(
                 {
@@ -142,6 +161,8 @@ def main() -> None:
         "slowest_weather": slowest,
         "weather_target_met": bool(slowest["frames_per_s"] >= TARGET_FPS),
         "rows": rows,
+        "effect_what": "share of the input points per outcome, pooled over the frames",
+        "effects": effects,
         "machine": machine_info(),
     }
     write_result("augment_speed.json", payload)
