@@ -26,6 +26,7 @@ from lads.variant_families import (
     SENSOR_PIPELINE,
     corruption_stage,
     corruption_variants,
+    describe_variants,
     sensor_variants,
 )
 
@@ -361,6 +362,6 @@ def find_pipeline(source: str, variant: str, directory: Path | None = None) -> P
     elsewhere = f" '{variant}' exists for: {', '.join(others)}." if others else ""
     raise ConfigError(
         f"no pipeline for source {source!r} and variant {variant!r} in {directory}; "
-        f"variants of {source!r}: {', '.join(valid) or 'none'}.{elsewhere} "
+        f"variants of {source!r}: {describe_variants(valid) or 'none'}.{elsewhere} "
         "Pass --pipeline FILE to use your own."
     )

@@ -65,3 +65,16 @@ def corruption_stage(variant: str) -> tuple[str, dict[str, Any], str]:
     check_stage(spec.stage, params, where)
     value = f"{spec.parameter} = {spec.preset(severity):g}"
     return spec.stage, params, f"{spec.summary} ({severity}: {value})"
+
+
+def describe_variants(variants: list[str]) -> str:
+    """The variants as a short list for messages: the suite's `C-` variants folded into one
+    entry naming their corruptions and severities."""
+    suite = [v for v in variants if v.startswith(CORRUPTION_PREFIX)]
+    others = [v for v in variants if not v.startswith(CORRUPTION_PREFIX)]
+    if suite:
+        names = sorted({v[len(CORRUPTION_PREFIX) :].rpartition("-")[0] for v in suite})
+        others.append(
+            f"{CORRUPTION_PREFIX}<corruption>-<{'|'.join(SEVERITIES)}> for {'|'.join(names)}"
+        )
+    return ", ".join(others)

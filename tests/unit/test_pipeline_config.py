@@ -8,6 +8,7 @@ import yaml
 from lads.config import find_pipeline, load_pipeline, parse_pipeline, variants_for
 from lads.errors import ConfigError
 from lads.readers import READERS
+from lads.variant_families import corruption_variants
 
 SNOW = {
     "schema_version": 1,
@@ -59,7 +60,7 @@ def test_unknown_variant_lists_the_valid_ones():
 
 
 def test_another_sources_pipeline_file_is_not_a_variant():
-    listed = "variants of 'nuscenes': fog, .*snow, wet-ground\\. Pass"
+    listed = "variants of 'nuscenes': fog, .*snow, wet-ground, C-<corruption>-<.*>.*\\. Pass"
     with pytest.raises(ConfigError, match=listed):
         find_pipeline("nuscenes", "voxelscape-snow")
 
@@ -77,7 +78,11 @@ def test_every_source_offers_every_shipped_variant():
     for source in READERS:
         # A wet road needs labels to find the road: every source but RADIATE has them.
         wet = [] if source == "radiate" else ["wet-ground"]
-        assert variants_for(source) == sorted(expected + sensors.get(source, []) + wet), source
+        # The robustness suite: every corruption the source can take, at every severity.
+        suite = corruption_variants(source)
+        assert len(suite) == (18 if source == "radiate" else 24)
+        shipped = sorted(expected + sensors.get(source, []) + wet + suite)
+        assert variants_for(source) == shipped, source
 
 
 @pytest.mark.parametrize(
