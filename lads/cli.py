@@ -300,8 +300,8 @@ def build(
     if (variant is None) == (pipeline_file is None):
         raise click.UsageError("give exactly one of --variant and --pipeline")
     loaded = (
-        load_pipeline(pipeline_file) if pipeline_file is not None else pipeline_for(source, variant)
-    )  # type: ignore[arg-type]
+        load_pipeline(pipeline_file) if pipeline_file is not None else pipeline_for(source, variant)  # type: ignore[arg-type]
+    )
     pipeline = loaded.with_overrides(
         rate_mm_h=rate_mm_h,
         visibility_m=visibility_m,

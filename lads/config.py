@@ -321,8 +321,8 @@ def pipeline_for(source: str, variant: str, directory: Path | None = None) -> Pi
     pipeline = load_pipeline(path)
     if path.stem == CORRUPTION_PIPELINE and variant != CORRUPTION_PIPELINE:
         stage, params, description = corruption_stage(variant)
-        stages = (StageConfig(stage, params),)
-        return replace(pipeline, variant=variant, stages=stages, description=description)
+        only = (StageConfig(stage, params),)
+        return replace(pipeline, variant=variant, stages=only, description=description)
     if path.stem != SENSOR_PIPELINE or variant == SENSOR_PIPELINE:
         return pipeline
     target = variant[len(SENSOR_PIPELINE) + 1 :]

@@ -83,11 +83,11 @@ def _run_stages(
         if hasattr(stage, "call_window"):
             key = f"{plan.pipeline.config_hash()}:{stage.name}"
             frame = run_window_stage(
-                stage,
+                stage,  # type: ignore[arg-type]
                 key,
                 reader_for(plan),
                 item,
-                frame,  # type: ignore[arg-type]
+                frame,
                 _rng(plan, item, stage),
             )
         else:

@@ -104,16 +104,16 @@ class LadsCorruption(_Base):  # type: ignore[misc]
 def register() -> str | None:
     """Register LadsCorruption in mmdet3d's TRANSFORMS, else mmengine's; returns the
     registry's scope, or None when neither package is installed."""
-    registry: Any = None
-    try:
-        from mmdet3d.registry import TRANSFORMS as registry
-    except ImportError:
+    import importlib
+
+    for module in ("mmdet3d.registry", "mmengine.registry"):
         try:
-            from mmengine.registry import TRANSFORMS as registry
+            registry: Any = importlib.import_module(module).TRANSFORMS
         except ImportError:
-            return None
-    registry.register_module(name="LadsCorruption", module=LadsCorruption, force=True)
-    return str(registry.scope)
+            continue
+        registry.register_module(name="LadsCorruption", module=LadsCorruption, force=True)
+        return str(registry.scope)
+    return None
 
 
 REGISTERED_SCOPE = register()

@@ -3,9 +3,9 @@ pulses (crosstalk), both through the sensor's detection model (docs/augment.md Â
 
 Incomplete echo: every point of a class whose material has a clear-coat finish (vehicle
 paint, materials.yaml) is repainted with a paint of reflectance rho_paint at 905 nm. Its
-received power and intensity scale by k = rho_paint / rho_material where that is below 1. Whether it is
-still detected follows the detection rule, conditioned on its clear-air detection, as for
-weather: far and already-weak returns go first, not a random share.
+received power and intensity scale by k = rho_paint / rho_material where that is below 1.
+Whether it is still detected follows the detection rule, conditioned on its clear-air
+detection, as for weather: far and already-weak returns go first, not a random share.
 
 Crosstalk: another LiDAR nearby fires pulses that are not synchronised with ours. A pulse that
 reaches our receiver while one of our beams listens is timed as an echo, so it appears on

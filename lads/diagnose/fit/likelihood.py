@@ -164,7 +164,7 @@ class RowTerms:
             return a + step * (b - a)
 
         return RowTerms(
-            mix(self.mu, other.mu),
+            mix(self.mu, other.mu),  # type: ignore[arg-type]
             mix(self.ln_sigma, other.ln_sigma),  # type: ignore[arg-type]
             mix(self.ln_p_given, other.ln_p_given),
             mix(self.ln_p_ret, other.ln_p_ret),
