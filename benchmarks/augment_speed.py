@@ -37,6 +37,8 @@ REPEATS = 5
 TARGET_FPS = 40.0
 # The target applies to the physics weather; the sensor faults are reported beside it.
 WEATHER = ("fog", "rain", "snow", "wet_ground")
+# Cross-sensor has no severities: the KITTI frames go to the HDL-32E.
+CROSS_SENSOR_TARGET = "hdl32e"
 
 
 class _Samples(torch.utils.data.Dataset):  # type: ignore[type-arg]
@@ -59,11 +61,12 @@ class _Samples(torch.utils.data.Dataset):  # type: ignore[type-arg]
 
 
 def _paths(
-    name: str, severity: str, points: list[np.ndarray], labels: list[np.ndarray]
+    name: str, severity: str | None, points: list[np.ndarray], labels: list[np.ndarray]
 ) -> dict[str, Callable[[int], Any]]:
     """One callable per adapter: frame index -> corrupted sample."""
-    options = {"sensor": "hdl64e", "dataset": "semantickitti", "seed": 0}
-    core = Corruption(name, severity, **options)
+    options: dict[str, Any] = {"sensor": "hdl64e", "dataset": "semantickitti", "seed": 0}
+    params = {} if CORRUPTIONS[name].has_presets else {"target": CROSS_SENSOR_TARGET}
+    core = Corruption(name, severity, **options, **params)
     wrapped = CorruptedDataset(
         _Samples(points, labels),
         core,
@@ -71,7 +74,7 @@ def _paths(
         instance_key="instance",
         id_key="path",
     )
-    mmdet = LadsCorruption(name, severity=severity, **options)
+    mmdet = LadsCorruption(name, severity=severity, **options, **params)
     pcdet = OpenPCDetCorruption(
         {
             "NAME": "lads_corruption",
@@ -79,6 +82,7 @@ def _paths(
             "SEVERITY": severity,
             "SENSOR": "hdl64e",
             "DATASET": "semantickitti",
+            "PARAMS": params,
         }
     )
     semantic = [(lab & 0xFFFF).astype(np.int64) for lab in labels]
@@ -134,7 +138,10 @@ def main() -> None:
     torch.set_num_threads(1)
     points, labels = kitti_frames(), kitti_labels()
     rows = []
-    cases = [(n, s) for n in CORRUPTIONS for s in SEVERITIES]
+    cases: list[tuple[str, str | None]] = [
+        (n, s) for n, spec in CORRUPTIONS.items() if spec.has_presets for s in SEVERITIES
+    ]
+    cases += [(n, None) for n, spec in CORRUPTIONS.items() if not spec.has_presets]
     effects = []
     for name, severity in tqdm(cases, desc="augment speed", unit="case"):
         paths = _paths(name, severity, points, labels)

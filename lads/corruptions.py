@@ -33,6 +33,11 @@ class CorruptionSpec:
     summary: str
 
     @property
+    def has_presets(self) -> bool:
+        """Whether severities name values of it (cross-sensor names a target sensor instead)."""
+        return self.stage in PRESETS
+
+    @property
     def parameter(self) -> str:
         """The physical quantity a severity preset sets (`lads.physics.severity.PRESETS`)."""
         return PRESETS[self.stage][0]
@@ -49,8 +54,9 @@ def _spec(
     *,
     labels: bool = False,
     particles: bool = False,
+    stage: str | None = None,
 ) -> CorruptionSpec:
-    return CorruptionSpec(name, name, peers, labels, particles, summary)
+    return CorruptionSpec(name, stage or name, peers, labels, particles, summary)
 
 
 CORRUPTIONS: dict[str, CorruptionSpec] = {
@@ -72,6 +78,9 @@ CORRUPTIONS: dict[str, CorruptionSpec] = {
               "range on a share of the beams", particles=True),
         _spec("incomplete_echo", ("incomplete echo",), "vehicles in dark paint: weak returns "
               "of clear-coat classes lost", labels=True),
+        _spec("cross_sensor", ("cross-sensor", "cross sensor"), "the scan as another LiDAR "
+              "(target=PROFILE) would have made it, ray-cast against the frame's surfaces",
+              stage="sensor"),
     )
 }  # fmt: skip
 

@@ -1,5 +1,6 @@
-"""The robustness suite: every `C-<corruption>-<severity>` variant of one source, each its own
-verified tree with its card, plus `suite.json` listing them (docs/augment.md §4).
+"""The robustness suite: every `C-<corruption>-<severity>` variant of one source and its
+`sensor-<profile>` variants (cross-sensor), each its own verified tree with its card, plus
+`suite.json` listing them (docs/augment.md §4).
 
 `lads suite --source semantickitti --in ROOT --out SUITE` builds a SemanticKITTI-C-style set:
 SUITE/C-fog-light, SUITE/C-fog-moderate, ... Each tree is an ordinary `lads build`, so an
@@ -13,15 +14,17 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from lads.config import pipeline_for
+from lads.config import pipeline_for, variants_for
 from lads.corruptions import corruption_spec
 from lads.errors import ConfigError
 from lads.files import atomic_write
 from lads.physics.severity import SEVERITIES
 from lads.runner import BuildReport, run_build
-from lads.variant_families import CORRUPTION_PREFIX, corruption_variants
+from lads.variant_families import CORRUPTION_PREFIX, SENSOR_PIPELINE, corruption_variants
 
 SUITE_FILE = "suite.json"
+# The corruption whose trees are the sensor-<profile> variants.
+CROSS_SENSOR = "cross_sensor"
 
 
 @dataclass(frozen=True, slots=True)
@@ -39,8 +42,10 @@ class SuiteReport:
 def suite_variants(
     source: str, corruptions: list[str] | None = None, severities: list[str] | None = None
 ) -> list[str]:
-    """The suite's variants for `source`, optionally narrowed to some corruptions (names or
-    peers' names) and severities.
+    """The suite's variants for `source`: `C-<corruption>-<severity>` for every corruption
+    with severities, and `sensor-<profile>` for cross-sensor (every target profile the
+    source can be transferred to). `corruptions` (names or peers' names) and `severities`
+    narrow the set; severities do not apply to cross-sensor.
 
     Raises:
         ConfigError: an unknown corruption or severity, or one this source cannot take.
@@ -51,15 +56,26 @@ def suite_variants(
         raise ConfigError(f"severities {unknown}; expected some of {', '.join(SEVERITIES)}.")
     chosen = []
     for variant in corruption_variants(source):
-        name, _, severity = variant[len(CORRUPTION_PREFIX) :].rpartition("-")
+        name, severity = _corruption_of(variant)
         if (names is None or name in names) and (severities is None or severity in severities):
             chosen.append(variant)
-    missing = sorted(
-        (names or set()) - {v[len(CORRUPTION_PREFIX) :].rpartition("-")[0] for v in chosen}
-    )
+    if names is None or CROSS_SENSOR in names:
+        chosen += [v for v in variants_for(source) if v.startswith(f"{SENSOR_PIPELINE}-")]
+    missing = sorted((names or set()) - {_corruption_of(v)[0] for v in chosen})
     if missing:
-        raise ConfigError(f"source {source!r} cannot take {missing} (it has no point labels).")
+        raise ConfigError(
+            f"source {source!r} cannot take {missing}: wet ground and incomplete echo need "
+            "point labels, cross-sensor a reader with poses (`lads variants`)."
+        )
     return chosen
+
+
+def _corruption_of(variant: str) -> tuple[str, str | None]:
+    """(corruption, severity) of a suite variant; cross-sensor has no severity."""
+    if variant.startswith(f"{SENSOR_PIPELINE}-"):
+        return CROSS_SENSOR, None
+    name, _, severity = variant[len(CORRUPTION_PREFIX) :].rpartition("-")
+    return name, severity
 
 
 def build_suite(
@@ -92,18 +108,17 @@ def build_suite(
 def _summary(source: str, suite: SuiteReport) -> dict[str, Any]:
     rows = []
     for variant, report in suite.builds:
-        name, _, severity = variant[len(CORRUPTION_PREFIX) :].rpartition("-")
+        name, severity = _corruption_of(variant)
         spec = corruption_spec(name)
-        rows.append(
-            {
-                "variant": variant,
-                "corruption": name,
-                "peer_names": list(spec.peer_names),
-                "severity": severity,
-                spec.parameter: spec.preset(severity),
-                "tree": variant,
-                "items": report.items,
-                "complete": report.complete,
-            }
-        )
+        row: dict[str, Any] = {
+            "variant": variant,
+            "corruption": name,
+            "peer_names": list(spec.peer_names),
+            "severity": severity,
+        }
+        if severity is None:
+            row["target"] = variant[len(SENSOR_PIPELINE) + 1 :]
+        else:
+            row[spec.parameter] = spec.preset(severity)
+        rows.append({**row, "tree": variant, "items": report.items, "complete": report.complete})
     return {"source": source, "complete": suite.complete, "variants": rows}

@@ -42,7 +42,7 @@ def corruption_variants(source: str) -> list[str]:
     return [
         f"{CORRUPTION_PREFIX}{name}-{severity}"
         for name, spec in CORRUPTIONS.items()
-        if labelled or not spec.needs_labels
+        if spec.has_presets and (labelled or not spec.needs_labels)
         for severity in SEVERITIES
     ]
 

@@ -33,6 +33,8 @@ from lads.stages.sensor_faults import RING_COLUMN
 ANONYMOUS_DATASET = "augment"
 # Columns every input must start with, in this order.
 LEADING_COLUMNS = ("x", "y", "z", "intensity")
+# The stage of a sensor transfer (cross-sensor): its output beams are the target's.
+SENSOR_STAGE = "sensor"
 
 
 @dataclass(frozen=True, slots=True)
@@ -42,6 +44,8 @@ class AugmentInfo:
     Attributes:
         corruption: the corruption's name. severity: its preset, or None.
         params: the stage parameters it ran with (the preset's value filled in).
+        sensor: the sensor profile of the output: the input's, or cross-sensor's target
+            (whose intensity encoding the output's intensity column then uses).
         source_index: (M,) int64 input row of each output point (a beam's second return
             repeats its row).
         outcome: (M,) uint8 `lads.physics.result.Outcome` of each output point.
@@ -54,6 +58,7 @@ class AugmentInfo:
     corruption: str
     severity: str | None
     params: dict[str, Any]
+    sensor: str
     source_index: npt.NDArray[np.int64]
     outcome: npt.NDArray[np.uint8]
     lost_index: npt.NDArray[np.int64]
@@ -109,6 +114,14 @@ class Corruption:
         **params: Any,
     ) -> None:
         self.spec: CorruptionSpec = corruption_spec(corruption)
+        if severity is not None and not self.spec.has_presets:
+            raise ConfigError(
+                f"corruption {self.spec.name!r} has no severities; give its parameters "
+                "(cross_sensor: target=<profile>, see `lads profiles`)."
+            )
+        if self.spec.stage == SENSOR_STAGE:
+            # A loader has one scan, not a sequence: the transfer uses the frame alone.
+            params = {"neighbours": 0, **params}
         if severity is not None and severity not in SEVERITIES:
             raise ConfigError(
                 f"corruption {corruption!r}: severity {severity!r}; expected one of "
@@ -197,23 +210,29 @@ class Corruption:
         instance: npt.NDArray[np.generic] | None,
         sample_id: str | int,
     ) -> Frame:
-        extra = tuple(
-            RING_COLUMN if k == self.ring_column else f"column_{k}"
-            for k in range(4, points.shape[1])
-        )
+        kept = list(range(4)) + [k for k in range(4, points.shape[1]) if self._passed(k)]
+        extra = tuple(RING_COLUMN if k == self.ring_column else f"column_{k}" for k in kept[4:])
         item = Item(dataset=self.dataset or ANONYMOUS_DATASET, relpath=str(sample_id))
+        values = points if len(kept) == points.shape[1] else points[:, kept]
         return Frame.from_source(
             item,
             self.profile.name,
             LEADING_COLUMNS + extra,
-            np.ascontiguousarray(points, dtype=np.float32),
+            np.ascontiguousarray(values, dtype=np.float32),
             labels,
             None if instance is None else {"instance": instance},
         )
 
+    def _passed(self, column: int) -> bool:
+        """Whether a further column goes through the stage: every one does, except that a
+        sensor transfer takes the ring alone (the others follow the return each beam hit)."""
+        return self.spec.stage != SENSOR_STAGE or column == self.ring_column
+
     def _result(self, points: npt.NDArray[np.floating[Any]], out: Frame) -> Augmented:
         rows = out.source_index
-        if points.dtype == np.float32:
+        if self.spec.stage == SENSOR_STAGE:
+            new_points = _transferred_points(points, out, self.ring_column)
+        elif points.dtype == np.float32:
             new_points = out.points
         else:
             # Keep the input's precision wherever the corruption left a value alone.
@@ -233,6 +252,7 @@ class Corruption:
             corruption=self.spec.name,
             severity=self.severity,
             params=dict(self.params),
+            sensor=out.sensor,
             source_index=rows,
             outcome=out.outcome,
             lost_index=out.lost_index,
@@ -273,6 +293,19 @@ def corrupt(
         )
     spec = Corruption(corruption, severity, sensor=sensor, **options)
     return spec.apply(points, labels, instance, rng)
+
+
+def _transferred_points(
+    points: npt.NDArray[np.floating[Any]], out: Frame, ring_column: int | None
+) -> npt.NDArray[np.floating[Any]]:
+    """(M, C) points of a transfer in the input's layout and dtype: x, y, z, intensity (the
+    target's encoding) and ring (the target's channel) from the transfer; every further
+    column the value of the source return each beam hit."""
+    new = points[out.source_index]
+    new[:, :4] = out.points[:, :4]
+    if ring_column is not None:
+        new[:, ring_column] = out.points[:, out.columns.index(RING_COLUMN)]
+    return new
 
 
 def _particle_label(dataset: str | None, particle_label: int | None) -> int | None:

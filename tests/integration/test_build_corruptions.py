@@ -35,12 +35,12 @@ def _manifest(out: Path) -> list[dict]:
 
 
 def test_every_corruption_and_severity_is_a_variant_of_a_labelled_source():
-    names = {f"C-{c}-{s}" for c in CORRUPTIONS for s in SEVERITIES}
+    names = {
+        f"C-{c}-{s}" for c, spec in CORRUPTIONS.items() if spec.has_presets for s in SEVERITIES
+    }
     assert names <= set(variants_for("semantickitti"))
     radiate = {v for v in variants_for("radiate") if v.startswith("C-")}
-    unlabelled = {
-        f"C-{c}-{s}" for c, spec in CORRUPTIONS.items() if not spec.needs_labels for s in SEVERITIES
-    }
+    unlabelled = {v for v in names if not CORRUPTIONS[v[2:].rpartition("-")[0]].needs_labels}
     assert radiate == unlabelled and "C-wet_ground-heavy" not in radiate
     pipeline = pipeline_for("nuscenes", "C-beam_missing-moderate")
     assert pipeline.stages[0].stage == "beam_missing"
@@ -49,7 +49,7 @@ def test_every_corruption_and_severity_is_a_variant_of_a_labelled_source():
         pipeline_for("semantickitti", "C-hail-heavy")
 
 
-@pytest.mark.parametrize("name", list(CORRUPTIONS))
+@pytest.mark.parametrize("name", [n for n, spec in CORRUPTIONS.items() if spec.has_presets])
 def test_heavy_corruption_builds_verifies_and_regenerates(street, tmp_path, name):
     out = tmp_path / "out"
     pipeline = pipeline_for("semantickitti", f"C-{name}-heavy")
@@ -103,8 +103,17 @@ def test_suite_command_builds_the_chosen_set_with_its_summary(street, tmp_path):
 
 
 def test_suite_refuses_unknown_or_impossible_choices():
-    with pytest.raises(ConfigError, match="no point labels"):
+    with pytest.raises(ConfigError, match="need point labels"):
         suite_variants("radiate", ["wet_ground"])
     with pytest.raises(ConfigError, match="severities"):
         suite_variants("semantickitti", None, ["extreme"])
-    assert len(suite_variants("semantickitti")) == len(CORRUPTIONS) * len(SEVERITIES)
+    graded = [spec for spec in CORRUPTIONS.values() if spec.has_presets]
+    suite = suite_variants("semantickitti")
+    assert len(suite) == len(graded) * len(SEVERITIES) + 3  # cross-sensor: 3 other profiles
+    assert suite_variants("semantickitti", ["cross_sensor"]) == [
+        "sensor-hdl32e",
+        "sensor-voxelscape64",
+        "sensor-wads64",
+    ]
+    with pytest.raises(ConfigError, match="cannot take"):
+        suite_variants("radiate", ["cross_sensor"])

@@ -37,13 +37,19 @@ def real_frames(real_roots: dict[str, Path]) -> list[tuple[str, object]]:
 
 @pytest.mark.parametrize("name", list(CORRUPTIONS))
 def test_heavy_corruption_runs_on_every_real_frame(shared_data, real_frames, name):
+    """Cross-sensor (no severities) goes to the other 64-beam profile, or to the HDL-32E."""
     assert len(real_frames) >= 100
     for dataset, frame in real_frames:
         labelled = frame.labels is not None and label_set_for(dataset) is not None
         if CORRUPTIONS[name].needs_labels and not labelled:
             continue
         ring = frame.columns.index(RING_COLUMN) if RING_COLUMN in frame.columns else None
-        c = Corruption(name, "heavy", sensor=frame.sensor, dataset=dataset, ring_column=ring)
+        options = {"sensor": frame.sensor, "dataset": dataset, "ring_column": ring}
+        if CORRUPTIONS[name].has_presets:
+            c = Corruption(name, "heavy", **options)
+        else:
+            target = "hdl32e" if frame.sensor != "hdl32e" else "hdl64e"
+            c = Corruption(name, target=target, **options)
         out = c(frame.points, frame.labels, sample_id=frame.item.item_id)
         where = f"{name} on {frame.item.item_id}"
         assert np.isfinite(out.points).all(), where

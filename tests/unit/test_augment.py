@@ -12,6 +12,9 @@ from lads.physics.result import Outcome
 from lads.sensors.profile import load_profile
 from tests.conftest import street_frame
 
+# The corruptions with severity presets (cross-sensor names a target sensor instead).
+GRADED = [name for name, spec in CORRUPTIONS.items() if spec.has_presets]
+
 
 @pytest.fixture(scope="module")
 def cloud() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -26,7 +29,7 @@ def cloud() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return points, labels, instance
 
 
-@pytest.mark.parametrize("name", list(CORRUPTIONS))
+@pytest.mark.parametrize("name", GRADED)
 def test_every_corruption_keeps_columns_and_reindexes_labels(cloud, name):
     points, labels, instance = cloud
     c = Corruption(name, "heavy", sensor="hdl64e", dataset="semantickitti")
@@ -96,7 +99,7 @@ def test_zero_range_rows_pass_through_every_corruption(cloud):
     with_zero = np.vstack([points, np.zeros((5, points.shape[1]), np.float32)])
     lab = np.concatenate([labels, np.zeros(5, labels.dtype)])
     ins = np.concatenate([instance, np.zeros(5, instance.dtype)])
-    for name in CORRUPTIONS:
+    for name in GRADED:
         out = Corruption(name, "heavy", sensor="hdl64e", dataset="semantickitti")(
             with_zero, lab, ins, sample_id="z"
         )
@@ -137,7 +140,25 @@ def test_bad_configuration_and_encoding_raise_named_errors(cloud):
         corrupt(points, corruption="rain", severity="light", sensor="hdl64e")
 
 
-def test_every_corruption_has_all_severities():
-    for spec in CORRUPTIONS.values():
+def test_every_graded_corruption_has_all_severities():
+    for spec in (CORRUPTIONS[name] for name in GRADED):
         values = [spec.preset(s) for s in SEVERITIES]
         assert values == sorted(values) or values == sorted(values, reverse=True), spec.name
+
+
+def test_cross_sensor_rescans_with_the_target_and_keeps_the_layout(cloud):
+    points, labels, instance = cloud
+    c = Corruption("cross_sensor", sensor="hdl64e", dataset="semantickitti", target="hdl32e")
+    out = c(points, labels, instance, sample_id="t")
+    info = out.info
+    assert info.sensor == "hdl32e" and (info.outcome == Outcome.RESAMPLED).all()
+    assert out.points.shape[1] == points.shape[1] and out.points.dtype == points.dtype
+    # x, y, z, intensity are the target's beams (its 0-255 encoding); the time column and the
+    # labels are those of the source return each beam hit.
+    assert out.points[:, 3].max() > 1.0
+    np.testing.assert_array_equal(out.points[:, 4], points[info.source_index, 4])
+    np.testing.assert_array_equal(out.labels, labels[info.source_index])
+    channel = load_profile("hdl32e").channel_of(out.points[:, :3])
+    assert np.unique(channel).size > 16  # many of the target's rings, not the source's 64
+    with pytest.raises(ConfigError, match="no severities"):
+        Corruption("cross_sensor", "heavy", sensor="hdl64e", target="hdl32e")
