@@ -135,12 +135,19 @@ def profiles() -> None:
 def variants() -> None:
     """List the variants of every source and the shipped pipeline each one runs."""
     from lads.config import find_pipeline, pipeline_for, variants_for
+    from lads.variant_families import fold_severity
 
     for source in sorted(READERS):
+        shown = set()
         for variant in variants_for(source):
+            # The suite's variants: one line per corruption, its severities folded.
+            name = fold_severity(variant)
+            if name in shown:
+                continue
+            shown.add(name)
             path = find_pipeline(source, variant)
             stages = ", ".join(s.stage for s in pipeline_for(source, variant).stages)
-            click.echo(f"{source:14s} {variant:28s} {path.name:20s} {stages}")
+            click.echo(f"{source:14s} {name:42s} {path.name:24s} {stages}")
 
 
 @main.command()

@@ -78,3 +78,12 @@ def describe_variants(variants: list[str]) -> str:
             f"{CORRUPTION_PREFIX}<corruption>-<{'|'.join(SEVERITIES)}> for {'|'.join(names)}"
         )
     return ", ".join(others)
+
+
+def fold_severity(variant: str) -> str:
+    """A suite variant with its severity spelled as the choice of all of them
+    (`C-fog-<light|moderate|heavy>`); any other variant unchanged."""
+    if not variant.startswith(CORRUPTION_PREFIX):
+        return variant
+    name = variant[len(CORRUPTION_PREFIX) :].rpartition("-")[0]
+    return f"{CORRUPTION_PREFIX}{name}-<{'|'.join(SEVERITIES)}>"
