@@ -1,8 +1,6 @@
 """The `lads` command line.
 
-Exit codes: 0 success; 1 the job ran but its result is not clean (a build with failed
-items, a tree that does not verify); 2 a LadsError (bad input, config or paths), with its
-message on stderr.
+Exit codes: `lads.exit_codes` (0 success, 1 a result that is not clean, 2 a LadsError).
 """
 
 from __future__ import annotations
@@ -17,12 +15,9 @@ import click
 
 from lads.correspondence import POINT_MODES
 from lads.errors import LadsError
-from lads.files import atomic_write
+from lads.exit_codes import EXIT_INCOMPLETE, EXIT_LADS_ERROR
 from lads.physics.severity import SEVERITIES
 from lads.readers import READERS
-
-EXIT_INCOMPLETE = 1
-EXIT_LADS_ERROR = 2
 
 
 def _lads_errors(func: Callable[..., Any]) -> Callable[..., Any]:
@@ -57,6 +52,7 @@ class _LazyGroup(click.Group):
         "synth": ("lads.synth.command", "synth_command", False),
         "weather": ("lads.weather_command", "weather_command", True),
         "suite": ("lads.suite_command", "suite_command", True),
+        "verify": ("lads.verify_command", "verify_command", True),
         "diagnose": ("lads.diagnose.command", "diagnose_command", True),
         "train": ("lads.intensity.commands", "train_command", True),
         "eval-intensity": ("lads.intensity.commands", "eval_intensity_command", True),
@@ -352,57 +348,6 @@ def build(
     )
     click.echo(report.summary_text())
     if not report.complete:
-        sys.exit(EXIT_INCOMPLETE)
-
-
-@main.command()
-@click.argument("out_root", type=click.Path(exists=True, file_okay=False, path_type=Path))
-@click.option(
-    "--against",
-    "source_root",
-    type=click.Path(exists=True, file_okay=False, path_type=Path),
-    help="The source tree the output was built from.",
-)
-@click.option(
-    "--regenerate",
-    type=int,
-    default=0,
-    show_default=True,
-    help="Rebuild K random items in memory and compare bytes.",
-)
-@click.option(
-    "--inventory", help="Expected release inventory, e.g. semantickitti-00-10 (see manifests/)."
-)
-@click.option(
-    "--seed", type=int, default=0, show_default=True, help="Seed for choosing items to regenerate."
-)
-@click.option(
-    "--json",
-    "json_out",
-    type=click.Path(dir_okay=False, path_type=Path),
-    help="Also write the report as JSON.",
-)
-@_lads_errors
-def verify(
-    out_root: Path,
-    source_root: Path | None,
-    regenerate: int,
-    inventory: str | None,
-    seed: int,
-    json_out: Path | None,
-) -> None:
-    """Check a built tree: checksums, manifest, one-to-one layout against the source."""
-    from lads.verify import verify_tree
-
-    if regenerate and source_root is None:
-        raise click.UsageError("--regenerate needs --against SOURCE")
-    report = verify_tree(
-        out_root, source_root, regenerate=regenerate, seed=seed, inventory=inventory, progress=None
-    )
-    if json_out is not None:
-        atomic_write(json_out, report.to_json().encode())
-    click.echo(report.summary_text())
-    if not report.ok:
         sys.exit(EXIT_INCOMPLETE)
 
 

@@ -7,11 +7,9 @@ from pathlib import Path
 
 import click
 
+from lads.exit_codes import EXIT_INCOMPLETE
 from lads.physics.severity import SEVERITIES
 from lads.readers import READERS
-
-# The exit code of a suite with an incomplete tree (as `lads build`).
-EXIT_INCOMPLETE = 1
 
 
 def _names(value: str | None) -> list[str] | None:
