@@ -91,21 +91,15 @@ def train(
     nets, opt_g, opt_d = _networks(cfg, facts.labelled, stats, device)
     rng = np.random.default_rng(cfg.seed)
     sampler = Sampler(run, jobs, rng)
-    history: list[dict[str, float]] = []
-    start = 0
     ckpt_path = run / CHECKPOINT
     config_id = _config_id(cfg)
-    if ckpt_path.is_file():
-        start, history = resume(ckpt_path, config_id, nets, opt_g, opt_d, rng)
-
+    start, history = (
+        resume(ckpt_path, config_id, nets, opt_g, opt_d, rng) if ckpt_path.is_file() else (0, [])
+    )
     targets = {k: (v["log_mean"], v["log_std"], v["floor"]) for k, v in stats.targets.items()}
     log_k = {k: v["log_k"] for k, v in stats.targets.items()}
     nets.use_laws(torch_laws, targets, cfg.residual)
-    record = {
-        "laws": {k: law.to_json() for k, law in laws.items()},
-        "jobs": len(jobs),
-        "data_hash": cfg.data_hash(),
-    }
+    record = _record(cfg, laws, len(jobs))
     meta_at = functools.partial(_meta, cfg, stats, channels, record, history)
     validation = validation_frames(cfg)
     selector = Selector(run, config_id, resumed=start > 0)
@@ -141,6 +135,16 @@ def _fit_laws(
         target_jobs = [j for j in jobs if j.pair == p.key and j.role == "target"]
         laws[p.key] = fit_law(iter_frames(run, target_jobs), stats.targets[p.key]["floor"])
     return laws
+
+
+def _record(cfg: TrainConfig, laws: dict[str, FittedPhysics], n_jobs: int) -> dict[str, Any]:
+    """What every weight file of the run records of its data: the fitted laws (JSON), the
+    number of cached frames and the data hash."""
+    return {
+        "laws": {k: law.to_json() for k, law in laws.items()},
+        "jobs": n_jobs,
+        "data_hash": cfg.data_hash(),
+    }
 
 
 def _networks(
