@@ -12,7 +12,7 @@ from __future__ import annotations
 import functools
 import re
 from collections import Counter
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -264,8 +264,19 @@ def compare(
     members = inv.subsets[subset]
     counts = Counter(group_of(i, inv.group_by, version=version) for i in item_ids)
     uncounted = counts.pop(None, 0)
-    problems: list[tuple[str, str, str]] = []
     where = f"inventory {name}-{subset} ({inv.path.name})"
+    return [
+        *_missing_groups(inv, members, counts, where),
+        *_miscounted_groups(inv, members, counts, where),
+        *_outside_groups(inv, members, counts, uncounted, where),
+    ]
+
+
+def _missing_groups(
+    inv: Inventory, members: Sequence[str], counts: Counter[str | None], where: str
+) -> list[tuple[str, str, str]]:
+    """One problem naming the groups of the subset that have no items (none if all do)."""
+    problems: list[tuple[str, str, str]] = []
     missing = [g for g in members if counts.get(g, 0) == 0]
     if missing:
         expected = sum(inv.groups[g].items or 0 for g in missing)
@@ -278,6 +289,14 @@ def compare(
                 + "; build them (or verify against a smaller subset).",
             )
         )
+    return problems
+
+
+def _miscounted_groups(
+    inv: Inventory, members: Sequence[str], counts: Counter[str | None], where: str
+) -> list[tuple[str, str, str]]:
+    """A problem per group of the subset with some items, but more or fewer than expected."""
+    problems: list[tuple[str, str, str]] = []
     for g in members:
         have, grp = counts.get(g, 0), inv.groups[g]
         if have == 0 or grp.items is None or _close(have, grp.items, grp.approximate):
@@ -292,6 +311,18 @@ def compare(
                 + ("build the missing items." if have < grp.items else "explain the extra items."),
             )
         )
+    return problems
+
+
+def _outside_groups(
+    inv: Inventory,
+    members: Sequence[str],
+    counts: Counter[str | None],
+    uncounted: int,
+    where: str,
+) -> list[tuple[str, str, str]]:
+    """Problems for items of groups outside the subset and for items of no group."""
+    problems: list[tuple[str, str, str]] = []
     strangers = sorted(str(g) for g in counts if g not in members)
     if strangers and not (inv.allow_unknown_groups and all(g not in inv.groups for g in strangers)):
         problems.append(

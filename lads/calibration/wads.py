@@ -52,7 +52,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass, replace
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -72,13 +72,20 @@ from lads.calibration.wads_frames import (
     real_snow_stats,
     scene_from_frame,
 )
+from lads.calibration.wads_knobs import (
+    BOUNDS,
+    FITTED_SNOW_KNOBS,
+    SENSOR,
+    SnowKnobs,
+    knob_vector,
+    knobs_from_vector,
+)
 from lads.errors import ConfigError
 from lads.physics.particles import ParticleParams
 from lads.physics.result import Outcome
 from lads.physics.weather import LISA_SNOW, SNOW_DEFAULTS, snow, with_overrides
-from lads.sensors.profile import DetectionLimit, SensorProfile, load_profile
+from lads.sensors.profile import SensorProfile, load_profile
 
-SENSOR = "wads64"
 MODES = ("dual", "strongest")
 
 # Water-equivalent snowfall rate assumed for the WADS frames, mm/h. Not recorded per frame.
@@ -90,60 +97,6 @@ ASSUMED_RATE_MM_H = 2.5
 # LISA's settings (docs/physics.md §4, paper code / pylisa) are `LISA_SNOW`, imported above.
 # The Hahner fork of LISA: r_max 120 m (threshold 0.9 / 120^2) and r_min 0.9 m.
 LISA_HAHNER_SNOW = with_overrides(LISA_SNOW, min_range_m=0.9, detection_threshold=0.9 / 120.0**2)
-
-# Physical bounds of the fitted knobs.
-BOUNDS = {
-    "particle_reflectivity": (0.005, 2.0),
-    "beam_divergence_mrad": (0.5, 10.0),
-    "min_range_m": (0.0, 5.0),
-    "overlap_extra_m": (0.0, 6.0),  # R2 - R1
-    "detection_threshold": (1e-7, 1e-4),
-}
-
-
-@dataclass(frozen=True, slots=True)
-class SnowKnobs:
-    """The fitted physical knobs (module docstring).
-
-    detection_threshold: the sensor's detection limit P_lim (reflectivity / m^2) the fit
-    assumes for WADS' unknown sensor, or None for the profile's (`SensorProfile.detection`).
-    """
-
-    particle_reflectivity: float
-    beam_divergence_mrad: float
-    min_range_m: float
-    overlap_full_m: float
-    detection_threshold: float | None
-
-    def params(self, base: ParticleParams = SNOW_DEFAULTS) -> ParticleParams:
-        """The flake optics; detection stays the sensor's rule (`sensor` gives the limit)."""
-        optics = {k: v for k, v in asdict(self).items() if k != "detection_threshold"}
-        return with_overrides(base, **optics, detection_threshold="sensor")
-
-    def sensor(self, profile: SensorProfile | str = SENSOR) -> SensorProfile:
-        """`profile` with its detection limit replaced by the fitted one (if any)."""
-        base = load_profile(profile) if isinstance(profile, str) else profile
-        if self.detection_threshold is None:
-            return base
-        reference = base.detection.reflectivity
-        limit = DetectionLimit(
-            reflectivity=reference,
-            range_m=math.sqrt(reference / self.detection_threshold),
-            spread_ln=base.detection.spread_ln,
-        )
-        return replace(base, detection=limit)
-
-
-# Result of `benchmarks.wads_snow` (dual-return mode, the WADS sensor's detection limit
-# fitted with the flake optics on the fit frames at ASSUMED_RATE_MM_H), rounded. The optics
-# are SNOW_DEFAULTS' and the limit is wads64.yaml's `detection`.
-FITTED_SNOW_KNOBS = SnowKnobs(
-    particle_reflectivity=0.00855,
-    beam_divergence_mrad=1.56,
-    min_range_m=3.25,
-    overlap_full_m=7.29,
-    detection_threshold=8.69e-6,
-)
 
 
 @dataclass(frozen=True, slots=True)
@@ -269,29 +222,6 @@ def loss(result: dict[str, Any], intensity_weight: float = 1.0) -> float:
     return result["ks_range"] + share + intensity_weight * zero_term
 
 
-def _knobs_from_vector(x: npt.NDArray[np.float64], fit_threshold: bool) -> SnowKnobs:
-    lo_hi = BOUNDS
-    rho = float(np.clip(10 ** x[0], *lo_hi["particle_reflectivity"]))
-    theta = float(np.clip(10 ** x[1], *lo_hi["beam_divergence_mrad"]))
-    r1 = float(np.clip(x[2], *lo_hi["min_range_m"]))
-    r2 = r1 + float(np.clip(x[3], *lo_hi["overlap_extra_m"]))
-    p_min = float(np.clip(10 ** x[4], *lo_hi["detection_threshold"])) if fit_threshold else None
-    return SnowKnobs(rho, theta, round(r1, 4), round(r2, 4), p_min)
-
-
-def _vector(k: SnowKnobs) -> npt.NDArray[np.float64]:
-    p = k.detection_threshold if k.detection_threshold is not None else 1e-6
-    return np.array(
-        [
-            math.log10(k.particle_reflectivity),
-            math.log10(k.beam_divergence_mrad),
-            k.min_range_m,
-            k.overlap_full_m - k.min_range_m,
-            math.log10(p),
-        ]
-    )
-
-
 @dataclass(frozen=True, slots=True)
 class FitResult:
     knobs: SnowKnobs
@@ -316,32 +246,8 @@ def fit(
     Grid: rho_p x theta x P_min (or auto) at R1 = 2 m, R2 = 5 m (where real snow starts and
     where its density per r^2 peaks); then all five knobs by Nelder-Mead within BOUNDS.
     """
-    count = 0
-
-    def objective(x: npt.NDArray[np.float64]) -> float:
-        nonlocal count
-        count += 1
-        knobs = _knobs_from_vector(x, fit_threshold)
-        res = evaluate(
-            scenes,
-            knobs.params(base),
-            rate_mm_h=rate_mm_h,
-            mode=mode,
-            seeds=seeds,
-            sensor=knobs.sensor(),
-        )
-        # Soft wall outside the bounds, so Nelder-Mead does not wander on a flat plateau.
-        clipped = _vector(knobs)
-        wall = float(np.abs(x - clipped)[: 5 if fit_threshold else 4].sum())
-        return loss(res) + wall
-
-    thresholds = [1e-6, 3e-6, 1e-5, 3e-5] if fit_threshold else [1e-6]
-    grid = [
-        np.array([math.log10(rho), math.log10(th), 2.0, 3.0, math.log10(pm)])
-        for rho in (0.0173, 0.05, 0.15, 0.5, 1.5)
-        for th in (1.0, 3.0, 6.0)
-        for pm in thresholds
-    ]
+    objective = _Objective(scenes, rate_mm_h, mode, seeds, fit_threshold, base)
+    grid = _start_grid(fit_threshold)
     values = [objective(x) for x in grid]
     best = int(np.argmin(values))
     x0 = grid[best]
@@ -360,12 +266,52 @@ def fit(
     )
     x_best = res.x if res.fun < values[best] else x0
     return FitResult(
-        knobs=_knobs_from_vector(x_best, fit_threshold),
+        knobs=knobs_from_vector(x_best, fit_threshold),
         loss=float(min(res.fun, values[best])),
-        evaluations=count,
-        grid_best=_knobs_from_vector(x0, fit_threshold),
+        evaluations=objective.count,
+        grid_best=knobs_from_vector(x0, fit_threshold),
         grid_loss=float(values[best]),
     )
+
+
+def _start_grid(fit_threshold: bool) -> list[npt.NDArray[np.float64]]:
+    """The grid's knob vectors: rho_p x theta x P_lim at R1 = 2 m, R2 = 5 m."""
+    thresholds = [1e-6, 3e-6, 1e-5, 3e-5] if fit_threshold else [1e-6]
+    return [
+        np.array([math.log10(rho), math.log10(th), 2.0, 3.0, math.log10(pm)])
+        for rho in (0.0173, 0.05, 0.15, 0.5, 1.5)
+        for th in (1.0, 3.0, 6.0)
+        for pm in thresholds
+    ]
+
+
+@dataclass
+class _Objective:
+    """`loss` of the knobs at a knob vector, counting its evaluations."""
+
+    scenes: Sequence[SnowScene]
+    rate_mm_h: float
+    mode: str
+    seeds: Sequence[int]
+    fit_threshold: bool
+    base: ParticleParams
+    count: int = 0
+
+    def __call__(self, x: npt.NDArray[np.float64]) -> float:
+        self.count += 1
+        knobs = knobs_from_vector(x, self.fit_threshold)
+        res = evaluate(
+            self.scenes,
+            knobs.params(self.base),
+            rate_mm_h=self.rate_mm_h,
+            mode=self.mode,
+            seeds=self.seeds,
+            sensor=knobs.sensor(),
+        )
+        # Soft wall outside the bounds, so Nelder-Mead does not wander on a flat plateau.
+        clipped = knob_vector(knobs)
+        wall = float(np.abs(x - clipped)[: 5 if self.fit_threshold else 4].sum())
+        return loss(res) + wall
 
 
 def rate_sensitivity(
@@ -408,11 +354,16 @@ def rate_sensitivity(
     return out
 
 
-# Re-exported for the benchmark and the tests, which read a frame and fit it in one place.
+# Re-exported for the benchmark and the tests, which read a frame and fit it in one place,
+# and for the importers of the knobs from before they moved to wads_knobs.
 __all__ = [
     "ACCUMULATED_SNOW",
+    "BOUNDS",
     "FALLING_SNOW",
+    "FITTED_SNOW_KNOBS",
     "PERCENTILES",
+    "SENSOR",
+    "SnowKnobs",
     "SnowScene",
     "WadsFrame",
     "duplicate_mask",

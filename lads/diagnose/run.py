@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -95,24 +96,8 @@ def _diagnose(
         sim_table, table = unpaired_tables(pair, progress=progress)
         design = unpaired_design(sim_table, table)
     _check_fit_data(design, sim_root, real_root)
-
     steps = ("localise", *PHASES, "localise after", "figures and report")
-    bar = tqdm(
-        total=len(steps),
-        desc="diagnose",
-        unit="step",
-        disable=not progress,
-        bar_format="{desc} (step {n_fmt}/{total_fmt}, {elapsed})",
-    )
-
-    started: list[str] = []
-
-    def step(name: str) -> None:
-        if started:
-            bar.update(1)
-        started.append(name)
-        bar.set_description_str(f"diagnose: {name}")
-
+    bar, step = _step_bar(len(steps), progress)
     with bar:
         step(steps[0])
         residual_before = _row_residual(table, design, None)
@@ -146,6 +131,27 @@ def _diagnose(
             pair, table, design, dg.final, Path(write_corrected_to), seed, sim_table=sim_table
         )
     return doc
+
+
+def _step_bar(total: int, progress: bool) -> tuple[tqdm[Any], Callable[[str], None]]:
+    """A progress bar over `total` named steps and the function that starts the next one
+    (completing the one before)."""
+    bar = tqdm(
+        total=total,
+        desc="diagnose",
+        unit="step",
+        disable=not progress,
+        bar_format="{desc} (step {n_fmt}/{total_fmt}, {elapsed})",
+    )
+    started: list[str] = []
+
+    def step(name: str) -> None:
+        if started:
+            bar.update(1)
+        started.append(name)
+        bar.set_description_str(f"diagnose: {name}")
+
+    return bar, step
 
 
 def _write(

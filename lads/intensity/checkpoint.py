@@ -228,7 +228,21 @@ def load_model(path: str | Path, *, device: str = "cpu") -> IntensityModel:
             channels that do not match; normalisation statistics that do not match their hash.
     """
     where = str(path)
-    p = Path(path)
+    blob = _read_weights(Path(path), where)
+    meta = _checked_meta(blob, where)
+    generator = _checked_generator(meta, blob, where)
+    generator.eval()
+    # Channels-last weights let oneDNN run the small convolutions without reordering every
+    # activation map: the forward pass of a 64 x 2048 frame takes less than half the time
+    # (benchmarks/intensity_speed.py). The values are the same convolutions, in another
+    # summation order (differences ~1e-6 in z).
+    # Module.to takes memory_format (torch._C._nn._parse_to) but its stub overloads omit it.
+    generator.to(device=device, memory_format=torch.channels_last)  # type: ignore[call-overload]
+    return IntensityModel(meta=meta, generator=generator, path=where)
+
+
+def _read_weights(p: Path, where: str) -> dict[str, Any]:
+    """The weight file's contents, refused unless a lads intensity model of this format."""
     if not p.is_file():
         raise ModelError(
             f"{where}: intensity model file not found. Use a shipped model "
@@ -248,6 +262,12 @@ def load_model(path: str | Path, *, device: str = "cpu") -> IntensityModel:
             f"{where}: model format version {blob.get('format_version')!r}, this lads reads "
             f"{FORMAT_VERSION}; retrain with this version (lads train)."
         )
+    return blob
+
+
+def _checked_meta(blob: dict[str, Any], where: str) -> ModelMeta:
+    """The model's metadata, refused unless its features, channels and materials are this
+    lads'."""
     try:
         meta = ModelMeta.from_json(json.loads(blob["meta"]), where)
     except (KeyError, TypeError, json.JSONDecodeError):
@@ -269,6 +289,14 @@ def load_model(path: str | Path, *, device: str = "cpu") -> IntensityModel:
             f"{list(material_names())} (lads/physics/materials.yaml); its material indices "
             "would name other materials. Retrain it (lads train) or restore materials.yaml."
         )
+    return meta
+
+
+def _checked_generator(
+    meta: ModelMeta, blob: dict[str, Any], where: str
+) -> Generator | PointGenerator:
+    """The generator of `meta` with the file's weights, refused unless they fit, match their
+    statistics hash and are finite."""
     try:
         generator = build_generator(meta)
     except ModelError as exc:
@@ -285,14 +313,7 @@ def load_model(path: str | Path, *, device: str = "cpu") -> IntensityModel:
     for name, tensor in generator.state_dict().items():
         if tensor.is_floating_point() and not bool(torch.isfinite(tensor).all()):
             raise ModelError(f"{where}: tensor {name} holds NaN or inf; the weights are corrupt.")
-    generator.eval()
-    # Channels-last weights let oneDNN run the small convolutions without reordering every
-    # activation map: the forward pass of a 64 x 2048 frame takes less than half the time
-    # (benchmarks/intensity_speed.py). The values are the same convolutions, in another
-    # summation order (differences ~1e-6 in z).
-    # Module.to takes memory_format (torch._C._nn._parse_to) but its stub overloads omit it.
-    generator.to(device=device, memory_format=torch.channels_last)  # type: ignore[call-overload]
-    return IntensityModel(meta=meta, generator=generator, path=where)
+    return generator
 
 
 def shipped_path(name: str) -> Path:

@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import click
 import numpy as np
@@ -18,6 +19,9 @@ from lads.intensity.train_config import (
     TrainConfig,
     load_train_config,
 )
+
+if TYPE_CHECKING:  # for annotations only: evaluate_pair imports the evaluation when it runs
+    from lads.intensity.evaluate import EvalFrame, EvalResult
 
 
 def evaluate_pair(
@@ -33,14 +37,11 @@ def evaluate_pair(
     choosing): the generator against every baseline fitted on the target's train split, and
     the in-sample bound; writes the report and figures under out_dir/<pair>/ and returns
     the JSON result."""
-    from lads.intensity import eval_figures
     from lads.intensity.baselines import InSampleBound, fit_baselines
     from lads.intensity.cache import role_split
-    from lads.intensity.checkpoint import resolve_model
     from lads.intensity.eval_metrics import BOUND_PREFIX
     from lads.intensity.eval_report import write_report
     from lads.intensity.evaluate import evaluate
-    from lads.intensity.predict import predict_points
 
     target = pair.target
     where = f"{cfg.name}: pairs.{pair.key}.target"
@@ -55,23 +56,7 @@ def evaluate_pair(
     reference = frames_of(role_split(target, "train", where), cfg.kind)
     methods = fit_baselines(reference, range_exponent=cfg.range_exponent)
     methods[f"{BOUND_PREFIX}in_sample"] = InSampleBound.of(heldout, cfg.range_exponent)
-    model = resolve_model(model_path)
-
-    def generator(frame: Any) -> np.ndarray:
-        return predict_points(
-            model,
-            frame.xyz,
-            frame.profile,
-            target=pair.key,
-            labels=frame.labels,
-            label_set=frame.label_set,
-            ring=frame.ring,
-            particle=frame.particle,
-            extinction_per_m=frame.extinction_per_m,
-            where=frame.name,
-        ).encoded
-
-    methods["generator"] = generator
+    methods["generator"] = _generator_method(model_path, pair.key)
     result = evaluate(heldout, methods)
     folder = out_dir / pair.key
     context = {
@@ -84,11 +69,42 @@ def evaluate_pair(
     }
     write_report(result, folder, title=f"{cfg.name} / {pair.key}: {split} split", context=context)
     if figures:
-        first = heldout[0]
-        preds = {name: result.predictions[first.name][name] for name in ("unchanged", "generator")}
-        eval_figures.range_panels(first, preds, folder / "range_panels.png")
-        eval_figures.histograms(first, result.predictions[first.name], folder / "histograms.png")
+        _write_figures(result, heldout[0], folder)
     return {"context": context, **result.to_json()}
+
+
+def _generator_method(model_path: str, key: str) -> Callable[[Any], np.ndarray]:
+    """The weight file's generator as an evaluation method: a frame's encoded intensity
+    for target `key`."""
+    from lads.intensity.checkpoint import resolve_model
+    from lads.intensity.predict import predict_points
+
+    model = resolve_model(model_path)
+
+    def generator(frame: Any) -> np.ndarray:
+        return predict_points(
+            model,
+            frame.xyz,
+            frame.profile,
+            target=key,
+            labels=frame.labels,
+            label_set=frame.label_set,
+            ring=frame.ring,
+            particle=frame.particle,
+            extinction_per_m=frame.extinction_per_m,
+            where=frame.name,
+        ).encoded
+
+    return generator
+
+
+def _write_figures(result: EvalResult, first: EvalFrame, folder: Path) -> None:
+    """Range panels (unchanged vs generator) and histograms of the first held-out frame."""
+    from lads.intensity import eval_figures
+
+    preds = {name: result.predictions[first.name][name] for name in ("unchanged", "generator")}
+    eval_figures.range_panels(first, preds, folder / "range_panels.png")
+    eval_figures.histograms(first, result.predictions[first.name], folder / "histograms.png")
 
 
 _DATA_ROOT_HELP = (

@@ -62,18 +62,7 @@ def range_panels(frame: EvalFrame, predictions: Mapping[str, npt.ArrayLike], out
     shown = _with_unchanged(frame, predictions)
     shown[REAL] = frame.intensity
     image = project(frame.xyz, frame.profile, channel=frame.ring)
-    owned = image.index >= 0
-    grids = {}
-    for name, values in shown.items():
-        grid = np.full(image.index.shape, np.nan, dtype=np.float32)
-        grid[owned] = values[image.index[owned]]
-        grids[name] = grid
-    pooled = np.concatenate([g[owned] for g in grids.values()])
-    # The 99.5th percentile, not the maximum, so a few retro-reflector returns do not
-    # squeeze everything else into the bottom of the scale.
-    vmax = max(
-        float(np.percentile(pooled, 99.5)) if pooled.size else 0.0, frame.profile.intensity.step
-    )
+    grids, vmax = _owner_grids(frame, shown, image.index)
 
     # About one screen pixel per azimuth column, so nearest-neighbour drawing drops none.
     width_in = max(PANEL_WIDTH_IN, image.index.shape[1] / DPI / AXES_WIDTH_FRACTION)
@@ -104,6 +93,26 @@ def range_panels(frame: EvalFrame, predictions: Mapping[str, npt.ArrayLike], out
     bar.ax.tick_params(labelsize=7)
     _save(fig, out)
     return out
+
+
+def _owner_grids(
+    frame: EvalFrame, shown: Mapping[str, npt.NDArray[Any]], index: npt.NDArray[np.int64]
+) -> tuple[dict[str, npt.NDArray[np.float32]], float]:
+    """Per method, the (H, W) float32 image of the pixel owners' values (NaN where empty),
+    and the top of the shared colour scale; `index` is the owner per pixel (-1: none)."""
+    owned = index >= 0
+    grids = {}
+    for name, values in shown.items():
+        grid = np.full(index.shape, np.nan, dtype=np.float32)
+        grid[owned] = values[index[owned]]
+        grids[name] = grid
+    pooled = np.concatenate([g[owned] for g in grids.values()])
+    # The 99.5th percentile, not the maximum, so a few retro-reflector returns do not
+    # squeeze everything else into the bottom of the scale.
+    vmax = max(
+        float(np.percentile(pooled, 99.5)) if pooled.size else 0.0, frame.profile.intensity.step
+    )
+    return grids, vmax
 
 
 def histograms(
@@ -148,18 +157,7 @@ def histograms(
         classes, class_names = _frame_classes(frame)
     else:
         values = np.asarray(real, dtype=np.float32).reshape(-1)
-    preds = {name: np.asarray(v, dtype=np.float32).reshape(-1) for name, v in predictions.items()}
-    for name, v in preds.items():
-        if v.shape != values.shape:
-            raise InputDataError(
-                f"histograms: prediction '{name}' has {v.size} values, the real data "
-                f"{values.size}; pass values of the same points."
-            )
-    cls = None if classes is None else np.asarray(classes).reshape(-1)
-    if cls is not None and cls.shape != values.shape:
-        raise InputDataError(
-            f"histograms: {cls.size} class keys for {values.size} values; one per point."
-        )
+    preds, cls = _same_points(values, predictions, classes)
     bins = _bins(profile, values, preds)
     unit = f"intensity ({profile.name} encoding)" if profile else "intensity (encoding units)"
 
@@ -177,14 +175,9 @@ def histograms(
     main.set_xlabel(unit, fontsize=8)
     main.set_ylabel("points (log scale)", fontsize=8)
     names = dict(enumerate(class_names)) if isinstance(class_names, Sequence) else class_names
-    names = names or {}
     for i, key in enumerate(top_classes):
         ax = fig.add_subplot(grid[1 + i // 3, i % 3])
-        members = cls == key
-        _overlay(ax, values[members], {n: v[members] for n, v in preds.items()}, bins)
-        ax.set_title(f"{names.get(key, str(key))} (N = {int(members.sum()):,})", fontsize=8)
-        ax.set_xlabel(unit, fontsize=7)
-        ax.set_ylabel("points (log)", fontsize=7)
+        _class_panel(ax, key, names or {}, cls == key, values, preds, bins, unit)
     fig.suptitle(title or "intensity histograms: real vs methods", fontsize=10)
     # Fixed margins: tight_layout would cost a second measuring log-axis tick labels.
     height = fig.get_figheight()
@@ -193,6 +186,49 @@ def histograms(
     )
     _save(fig, out)
     return out
+
+
+def _same_points(
+    values: npt.NDArray[np.float32],
+    predictions: Mapping[str, npt.ArrayLike],
+    classes: npt.ArrayLike | None,
+) -> tuple[dict[str, npt.NDArray[np.float32]], npt.NDArray[Any] | None]:
+    """The (M,) float32 predictions by method and the (M,) class keys (or None), checked to
+    be one per real value.
+
+    Raises:
+        InputDataError: arrays of different lengths.
+    """
+    preds = {name: np.asarray(v, dtype=np.float32).reshape(-1) for name, v in predictions.items()}
+    for name, v in preds.items():
+        if v.shape != values.shape:
+            raise InputDataError(
+                f"histograms: prediction '{name}' has {v.size} values, the real data "
+                f"{values.size}; pass values of the same points."
+            )
+    cls = None if classes is None else np.asarray(classes).reshape(-1)
+    if cls is not None and cls.shape != values.shape:
+        raise InputDataError(
+            f"histograms: {cls.size} class keys for {values.size} values; one per point."
+        )
+    return preds, cls
+
+
+def _class_panel(
+    ax: Any,
+    key: Any,
+    names: Mapping[Any, str],
+    members: npt.NDArray[np.bool_],
+    values: npt.NDArray[np.float32],
+    preds: dict[str, npt.NDArray[np.float32]],
+    bins: npt.NDArray[np.float64],
+    unit: str,
+) -> None:
+    """One class's small histogram panel: the real values and every method on `members`."""
+    _overlay(ax, values[members], {n: v[members] for n, v in preds.items()}, bins)
+    ax.set_title(f"{names.get(key, str(key))} (N = {int(members.sum()):,})", fontsize=8)
+    ax.set_xlabel(unit, fontsize=7)
+    ax.set_ylabel("points (log)", fontsize=7)
 
 
 def _with_unchanged(

@@ -161,35 +161,64 @@ def frame_image(
     """
     xyz64, r = checked_xyz(xyz)
     n = len(xyz64)
-    if style is not None and style not in STYLES:
-        raise ConfigError(f"weather style {style!r}: expected one of {', '.join(STYLES)}.")
-    if style is not None and not styles:
-        raise ConfigError(f"weather style {style!r} given to a model without style channels.")
-    w = profile.range_image_width if width is None else int(width)
-    if w < 8 or w % 4:
-        raise ConfigError(f"range-image width {w}: expected a multiple of 4, at least 8.")
+    w = _checked_width(profile, style, styles, width)
     chan = channels_of(xyz64, profile, ring)
     image = organise(xyz64, r, chan, profile.channels, w)
     cos = _incidence(xyz64, r, image, DEFAULT_DEPTH_JUMP).cos
-
-    labelled = labels is not None
-    if labelled:
-        if label_set is None:
-            raise ConfigError("labels given without a label_set; pass the dataset's label set.")
-        label_arr = np.asarray(labels)
-        if label_arr.shape != (n,):
-            raise InvalidPointsError(f"labels: shape {label_arr.shape}, expected ({n},).")
-        rho = reflectance_for_labels(label_arr, label_set)
-        material = material_index_for_labels(label_arr, label_set)
-    else:
-        rho = np.full(n, UNKNOWN_REFLECTANCE, dtype=np.float32)
-        material = np.full(n, material_names().index(default_material()), dtype=np.int64)
+    rho, material = _reflectance_and_material(n, labels, label_set)
     phys = physics_intensity(
         rho, cos, r, range_exponent=range_exponent, extinction_per_m=extinction_per_m
     )
     is_particle = _particle_flags(n, outcome, particle)
 
     names = channel_names(styles)
+    elevation_deg = np.asarray(profile.elevation_deg, dtype=np.float64)[chan]
+    columns = _point_columns(
+        names,
+        r,
+        cos,
+        rho,
+        phys,
+        is_particle,
+        material,
+        elevation_deg,
+        style,
+        range_exponent=range_exponent,
+        extinction_per_m=extinction_per_m,
+    )
+    return FrameImage(
+        channels=names,
+        target=None if intensity is None else _target(intensity, n, profile, image.index),
+        labelled=labels is not None,
+        image=image,
+        physics=phys,
+        reflectance=rho.astype(np.float32),
+        cos_incidence=cos.astype(np.float32),
+        range_m=r.astype(np.float32),
+        elevation_deg=np.asarray(profile.elevation_deg, dtype=np.float32)[chan],
+        material=material,
+        point_inputs=columns,
+    )
+
+
+def _point_columns(
+    names: tuple[str, ...],
+    r: npt.NDArray[np.float64],
+    cos: npt.NDArray[np.float32],
+    rho: npt.NDArray[np.float32],
+    phys: npt.NDArray[np.float32],
+    is_particle: npt.NDArray[np.bool_],
+    material: npt.NDArray[np.int64],
+    elevation_deg: npt.NDArray[np.float64],
+    style: str | None,
+    *,
+    range_exponent: float,
+    extinction_per_m: float,
+) -> npt.NDArray[np.float32]:
+    """(C, N) float32 model inputs of the N points, one row per channel of `names`: range
+    (m), incidence cosine, reflectance, physics intensity, material, elevation (deg) and
+    flags, as the channels' docs in this module say."""
+    n = r.size
     per_point = {
         "ln_range": np.log(r),
         "cos_incidence": cos,
@@ -207,8 +236,7 @@ def frame_image(
             ).astype(np.float64)
             + GEOMETRY_FLOOR
         ),
-        "elevation": np.asarray(profile.elevation_deg, dtype=np.float64)[chan]
-        / ELEVATION_SCALE_DEG,
+        "elevation": elevation_deg / ELEVATION_SCALE_DEG,
         "mask": np.ones(n, dtype=np.float32),
     }
     if style is not None:
@@ -216,29 +244,67 @@ def frame_image(
     columns = np.zeros((len(names), n), dtype=np.float32)
     for name, values in per_point.items():
         columns[names.index(name)] = values
+    return columns
 
-    target = None
-    if intensity is not None:
-        values = np.asarray(intensity, dtype=np.float32)
-        if values.shape != (n,):
-            raise InvalidPointsError(f"intensity: shape {values.shape}, expected ({n},).")
-        profile.intensity.validate(values, "intensity")
-        refl = profile.intensity.to_reflectivity(values).astype(np.float32)
-        owners = image.index
-        target = np.where(owners >= 0, refl[np.maximum(owners, 0)], 0.0).astype(np.float32)
-    return FrameImage(
-        channels=names,
-        target=target,
-        labelled=labelled,
-        image=image,
-        physics=phys,
-        reflectance=rho.astype(np.float32),
-        cos_incidence=cos.astype(np.float32),
-        range_m=r.astype(np.float32),
-        elevation_deg=np.asarray(profile.elevation_deg, dtype=np.float32)[chan],
-        material=material,
-        point_inputs=columns,
+
+def _checked_width(
+    profile: SensorProfile, style: str | None, styles: bool, width: int | None
+) -> int:
+    """The range image's azimuth bins (default the profile's), after checking the style.
+
+    Raises:
+        ConfigError: unknown style, a style without style channels, or a bad width.
+    """
+    if style is not None and style not in STYLES:
+        raise ConfigError(f"weather style {style!r}: expected one of {', '.join(STYLES)}.")
+    if style is not None and not styles:
+        raise ConfigError(f"weather style {style!r} given to a model without style channels.")
+    w = profile.range_image_width if width is None else int(width)
+    if w < 8 or w % 4:
+        raise ConfigError(f"range-image width {w}: expected a multiple of 4, at least 8.")
+    return w
+
+
+def _reflectance_and_material(
+    n: int, labels: npt.ArrayLike | None, label_set: str | None
+) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.int64]]:
+    """(N,) reflectance and (N,) material index of the points' labels; without labels the
+    unknown reflectance and the default material.
+
+    Raises:
+        ConfigError: labels without a label set.
+        InvalidPointsError: labels of the wrong shape.
+    """
+    if labels is None:
+        rho = np.full(n, UNKNOWN_REFLECTANCE, dtype=np.float32)
+        material = np.full(n, material_names().index(default_material()), dtype=np.int64)
+        return rho, material
+    if label_set is None:
+        raise ConfigError("labels given without a label_set; pass the dataset's label set.")
+    label_arr = np.asarray(labels)
+    if label_arr.shape != (n,):
+        raise InvalidPointsError(f"labels: shape {label_arr.shape}, expected ({n},).")
+    return (
+        reflectance_for_labels(label_arr, label_set),
+        material_index_for_labels(label_arr, label_set),
     )
+
+
+def _target(
+    intensity: npt.ArrayLike, n: int, profile: SensorProfile, owners: npt.NDArray[np.int64]
+) -> npt.NDArray[np.float32]:
+    """The measured reflectivity per pixel (0 where no point), float32, of (N,) intensities
+    in the profile's encoding; `owners` is the image's point index per pixel (-1: none).
+
+    Raises:
+        InvalidPointsError: intensities of the wrong shape or out of the encoding's range.
+    """
+    values = np.asarray(intensity, dtype=np.float32)
+    if values.shape != (n,):
+        raise InvalidPointsError(f"intensity: shape {values.shape}, expected ({n},).")
+    profile.intensity.validate(values, "intensity")
+    refl = profile.intensity.to_reflectivity(values).astype(np.float32)
+    return np.where(owners >= 0, refl[np.maximum(owners, 0)], 0.0).astype(np.float32)
 
 
 def _particle_flags(

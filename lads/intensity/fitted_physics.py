@@ -245,34 +245,13 @@ def fit(
     e = None if elevation_deg is None else np.asarray(elevation_deg, dtype=np.float64)
     alpha = np.broadcast_to(np.asarray(extinction_per_m, dtype=np.float64), r.shape)
     y = np.log(np.asarray(reflectivity, dtype=np.float64) + floor) + 2.0 * alpha * r
-    keep = r >= NEAR_FIELD_M
-    if np.count_nonzero(keep) < MIN_GROUP_POINTS:  # toy data: every point is fitted
-        keep = np.ones(len(r), dtype=bool)
-    idx = np.flatnonzero(keep)
-    if len(idx) < MIN_GROUP_POINTS:
-        raise ValueError(f"{len(idx)} training points; the law needs at least {MIN_GROUP_POINTS}.")
-    if len(idx) > MAX_FIT_POINTS:
-        idx = idx[np.linspace(0, len(idx) - 1, MAX_FIT_POINTS).round().astype(np.int64)]
+    idx = _fit_rows(r)
     g, r, c, y = g[idx], r[idx], c[idx], y[idx]
     e = None if e is None else e[idx]
     keys, counts = np.unique(g, return_counts=True)
     kept = keys[counts >= MIN_GROUP_POINTS]
-    column = np.searchsorted(kept, g)
-    member = (column < len(kept)) & (kept[np.minimum(column, len(kept) - 1)] == g)
-    # Columns: one intercept per kept group, the pooled intercept of rare groups, ln R, R/10.
-    n, p = len(y), len(kept) + 3
-    cols = np.concatenate(
-        [np.where(member, column, len(kept)), np.full(n, p - 2), np.full(n, p - 1)]
-    )
-    values = np.concatenate([np.ones(n), np.log(r), r / 10.0])
-    design = sparse.csr_matrix((values, (np.tile(np.arange(n), 3), cols)), shape=(n, p))
-    best = None
-    for sigma in SIGMA_GRID_RAD:
-        target = y - np.log(oren_nayar(c, sigma))
-        beta, loss = _lad(design, target)
-        if best is None or loss < best[2]:
-            best = (sigma, beta, loss)
-    sigma, beta, loss = best  # type: ignore[misc]
+    design, member = _design_matrix(g, r, kept)
+    sigma, beta, loss = _best_roughness(design, y, c)
     lasers = _fit_lasers(design, y - np.log(oren_nayar(c, sigma)), r, e, beta)
     if lasers is not None:
         beta, loss = lasers["beta"], lasers["loss"]
@@ -291,6 +270,55 @@ def fit(
         counts={int(k): int(n) for k, n in zip(keys, counts, strict=True)},
         **({} if lasers is None else lasers["law"]),
     )
+
+
+def _fit_rows(r: npt.NDArray[np.float64]) -> npt.NDArray[np.int64]:
+    """Indices of the points the law is fitted to: those beyond the near field (every point
+    of toy data), thinned evenly to at most MAX_FIT_POINTS.
+
+    Raises:
+        ValueError: fewer than MIN_GROUP_POINTS points.
+    """
+    keep = r >= NEAR_FIELD_M
+    if np.count_nonzero(keep) < MIN_GROUP_POINTS:  # toy data: every point is fitted
+        keep = np.ones(len(r), dtype=bool)
+    idx = np.flatnonzero(keep)
+    if len(idx) < MIN_GROUP_POINTS:
+        raise ValueError(f"{len(idx)} training points; the law needs at least {MIN_GROUP_POINTS}.")
+    if len(idx) > MAX_FIT_POINTS:
+        idx = idx[np.linspace(0, len(idx) - 1, MAX_FIT_POINTS).round().astype(np.int64)]
+    return idx
+
+
+def _design_matrix(
+    g: npt.NDArray[np.int64], r: npt.NDArray[np.float64], kept: npt.NDArray[np.int64]
+) -> tuple[sparse.csr_matrix, npt.NDArray[np.bool_]]:
+    """The (N, len(kept) + 3) sparse design of the law and whether each point's group is
+    one of `kept` (the others share the pooled intercept)."""
+    column = np.searchsorted(kept, g)
+    member = (column < len(kept)) & (kept[np.minimum(column, len(kept) - 1)] == g)
+    # Columns: one intercept per kept group, the pooled intercept of rare groups, ln R, R/10.
+    n, p = len(g), len(kept) + 3
+    cols = np.concatenate(
+        [np.where(member, column, len(kept)), np.full(n, p - 2), np.full(n, p - 1)]
+    )
+    values = np.concatenate([np.ones(n), np.log(r), r / 10.0])
+    design = sparse.csr_matrix((values, (np.tile(np.arange(n), 3), cols)), shape=(n, p))
+    return design, member
+
+
+def _best_roughness(
+    design: sparse.csr_matrix, y: npt.NDArray[np.float64], c: npt.NDArray[np.float64]
+) -> tuple[float, npt.NDArray[np.float64], float]:
+    """(sigma in rad, coefficients, mean absolute log error) of the least-absolute fit at
+    the Oren-Nayar roughness of SIGMA_GRID_RAD that fits best."""
+    best = None
+    for sigma in SIGMA_GRID_RAD:
+        target = y - np.log(oren_nayar(c, sigma))
+        beta, loss = _lad(design, target)
+        if best is None or loss < best[2]:
+            best = (sigma, beta, loss)
+    return best  # type: ignore[return-value]
 
 
 def _fit_lasers(

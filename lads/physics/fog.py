@@ -63,6 +63,7 @@ import math
 from dataclasses import dataclass, replace
 
 import numpy as np
+import numpy.typing as npt
 
 from lads.errors import ConfigError
 from lads.physics.beams import Beams, assemble, assemble_dual, auto_threshold
@@ -301,15 +302,7 @@ def simulate_fog(
     p_min = detection.threshold
     n = beams.range_m.size
     if alpha == 0.0 or n == 0:
-        return assemble(
-            beams,
-            sensor,
-            outcome=np.full(n, Outcome.KEPT, dtype=np.uint8),
-            range_m=np.zeros(n),
-            reflectivity=np.zeros(n),
-            extinction_per_m=alpha,
-            detection_threshold=p_min,
-        )
+        return _unchanged(beams, sensor, alpha, p_min)
     beta = backscatter_from_visibility(visibility_m, params)
     idx = np.flatnonzero(beams.active)
     r0, rho = beams.range_m[idx], beams.reflectivity[idx]
@@ -318,38 +311,15 @@ def simulate_fog(
     target_ok, p_target = detection.targets_detected(
         beams.clear_power[idx], two_way_ln, np.ones(idx.size, dtype=bool), rng, t2
     )
-    table = soft_return_table(alpha, params)
-    r1 = params.overlap_start_m
-    if r1 is None:  # resolved_for(sensor) above set it
-        raise ConfigError("simulate_fog: FogParams.overlap_start_m unresolved.")
-    length = params.pulse_length_m
-    p_fog, reported, kappa = echo_lookup(
-        r0,
-        table.target_range_m,
-        table.peak_unit,
-        table.peak_range_m,
-        table.relative_curvature_per_m2,
-        np.pi * beta,
-        r1,
-        0.5 * length if params.report_pulse_centre else 0.0,
-    )
+    p_fog, reported, kappa = _fog_echoes(r0, alpha, beta, params)
     fog_ok = detection.faint_detected(p_fog, rng)
+    length = params.pulse_length_m
     choice, counts = fog_choices(
         MODE_CODES[mode], target_ok, fog_ok, p_target, p_fog, r0, reported, length
     )
     noise = rng.standard_normal(int(counts[0]) + int(counts[1]))
     # Second echoes draw after the first returns' normals (none drawn where there are none).
     noise_second = rng.standard_normal(int(counts[2])) if counts[2] else np.zeros(0)
-    constants = np.array(
-        [
-            0.5 * sensor.range_accuracy_m**2 * p_min,
-            p_min,
-            2.0 * np.pi**2 / length**2,
-            sensor.range_accuracy_m,
-            0.5 * length,
-            MIN_OUTPUT_RANGE_M,
-        ]
-    )
     codes1, range1, refl1, codes2, range2, refl2 = fog_returns(
         n,
         idx,
@@ -364,7 +334,7 @@ def simulate_fog(
         kappa,
         noise,
         noise_second,
-        constants,
+        _return_constants(sensor, p_min, length),
     )
     return assemble_dual(
         beams,
@@ -373,4 +343,57 @@ def simulate_fog(
         second=(codes2, range2, refl2),
         extinction_per_m=alpha,
         detection_threshold=p_min,
+    )
+
+
+def _unchanged(beams: Beams, sensor: SensorProfile, alpha: float, p_min: float) -> WeatherResult:
+    """The frame as it is (clear air, or no beams), every beam KEPT."""
+    n = beams.range_m.size
+    return assemble(
+        beams,
+        sensor,
+        outcome=np.full(n, Outcome.KEPT, dtype=np.uint8),
+        range_m=np.zeros(n),
+        reflectivity=np.zeros(n),
+        extinction_per_m=alpha,
+        detection_threshold=p_min,
+    )
+
+
+def _fog_echoes(
+    r0: npt.NDArray[np.float64], alpha: float, beta: float, params: FogParams
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    """(A,) peak power, reported range (m) and relative peak curvature (1/m^2) of the fog echo
+    in front of targets at r0 (m), in fog of extinction alpha (1/m) and backscatter beta
+    (1/(m sr)) (`echo_lookup`). Raises ConfigError if params.overlap_start_m is unresolved."""
+    table = soft_return_table(alpha, params)
+    r1 = params.overlap_start_m
+    if r1 is None:  # resolved_for(sensor) in simulate_fog set it
+        raise ConfigError("simulate_fog: FogParams.overlap_start_m unresolved.")
+    return echo_lookup(
+        r0,
+        table.target_range_m,
+        table.peak_unit,
+        table.peak_range_m,
+        table.relative_curvature_per_m2,
+        np.pi * beta,
+        r1,
+        0.5 * params.pulse_length_m if params.report_pulse_centre else 0.0,
+    )
+
+
+def _return_constants(
+    sensor: SensorProfile, p_min: float, length_m: float
+) -> npt.NDArray[np.float64]:
+    """(6,) float64 constants of `fog_returns`: 0.5 dR^2 P_min (m^2), P_min, 2 pi^2 / L^2
+    (1/m^2), dR (m), L / 2 (m) and the minimum output range (m), L the pulse length."""
+    return np.array(
+        [
+            0.5 * sensor.range_accuracy_m**2 * p_min,
+            p_min,
+            2.0 * np.pi**2 / length_m**2,
+            sensor.range_accuracy_m,
+            0.5 * length_m,
+            MIN_OUTPUT_RANGE_M,
+        ]
     )

@@ -212,6 +212,26 @@ def simulate_particles(
 
     if mode == "dual":
         return _dual(beams, sensor, optics, detected, target_power, transmission, rng)
+    return _single_return(
+        beams, sensor, optics, detected, target_power, transmission, r0, rng, mode
+    )
+
+
+def _single_return(
+    beams: Beams,
+    sensor: SensorProfile,
+    optics: FrameOptics,
+    detected: npt.NDArray[np.bool_],
+    target_power: npt.NDArray[np.float64],
+    transmission: npt.NDArray[np.float64],
+    r0: npt.NDArray[np.float64],
+    rng: np.random.Generator,
+    mode: str,
+) -> WeatherResult:
+    """The "strongest" or "last" return of each beam: the winning particle or the
+    attenuated target (`detected`, at `target_power`), else lost. `r0`: target ranges (m),
+    0 for inactive beams."""
+    n = beams.range_m.size
     # Strongest: a particle matters if it is detectable and beats the detected target.
     # Last: only on beams whose target is lost.
     if mode == "strongest":

@@ -32,6 +32,7 @@ import io
 import zipfile
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -156,6 +157,25 @@ class NuScenesReader:
         """Walk the tables with nuscenes-devkit; sorted by relpath."""
         version = self.resolved_version()
         table_root = self.root / version
+        nusc = self._devkit(table_root, version)
+        items, rows = self._lidar_items(nusc)
+        if not items:
+            raise DatasetNotFoundError(
+                f"{table_root}: no {CHANNEL} sample_data with lidarseg labels"
+                f"{' or sweep files' if self.include_sweeps else ''}; expected lidarseg.json "
+                "records for the LIDAR_TOP keyframes. Unpack the lidarseg archive."
+            )
+        self._pose_rows = {rel: k for k, rel in enumerate(rows)}
+        self._pose_table = np.array(list(rows.values()), dtype=np.float64).reshape(-1, 14)
+        return sorted(_numbered(items), key=lambda it: it.relpath)
+
+    def _devkit(self, table_root: Path, version: str) -> Any:
+        """The devkit's NuScenes database of `version`, after checking its tables exist.
+
+        Raises:
+            DatasetNotFoundError: a table is missing.
+            ReaderError: nuscenes-devkit is not installed or cannot load the database.
+        """
         missing = [f"{t}.json" for t in TABLES if not (table_root / f"{t}.json").is_file()]
         if missing:
             raise DatasetNotFoundError(
@@ -179,6 +199,11 @@ class NuScenesReader:
                 f"per lidarseg/panoptic record in lidarseg|panoptic/{version}/ and every "
                 "maps/ file the map table names. Fix or re-extract the dataset."
             ) from exc
+        return nusc
+
+    def _lidar_items(self, nusc: Any) -> tuple[list[Item], dict[str, tuple[float, ...]]]:
+        """The LIDAR_TOP items (labelled keyframes, and sweeps when included) and, by
+        relpath, the (14,) ego pose and calibration (translation, quaternion w, x, y, z)."""
         has_lidarseg = hasattr(nusc, "lidarseg")
         lidarseg = {r["sample_data_token"]: r["filename"] for r in getattr(nusc, "lidarseg", [])}
         panoptic = {r["sample_data_token"]: r["filename"] for r in getattr(nusc, "panoptic", [])}
@@ -211,15 +236,7 @@ class NuScenesReader:
                 *calib["translation"],
                 *calib["rotation"],
             )
-        if not items:
-            raise DatasetNotFoundError(
-                f"{table_root}: no {CHANNEL} sample_data with lidarseg labels"
-                f"{' or sweep files' if self.include_sweeps else ''}; expected lidarseg.json "
-                "records for the LIDAR_TOP keyframes. Unpack the lidarseg archive."
-            )
-        self._pose_rows = {rel: k for k, rel in enumerate(rows)}
-        self._pose_table = np.array(list(rows.values()), dtype=np.float64).reshape(-1, 14)
-        return sorted(_numbered(items), key=lambda it: it.relpath)
+        return items, rows
 
     def scan_position(self, item: Item) -> tuple[str, int]:
         """(scene token, scan number) of an item: its place in time among the scene's items,

@@ -28,9 +28,7 @@ Synthetic frames become nuScenes data as follows:
 
 from __future__ import annotations
 
-import functools
 import hashlib
-import importlib.resources
 import json
 import re
 import struct
@@ -40,15 +38,16 @@ from typing import Any
 
 import numpy as np
 import numpy.typing as npt
-import yaml
 
 from lads.errors import ConfigError
-from lads.physics.materials import class_materials
 from lads.readers.nuscenes import CHANNEL, TABLES
 from lads.sensors.profile import SensorProfile, load_profile
-from lads.synth.parts import SEMANTICKITTI_OF_PART
 
-CLASSES_FILE = "nuscenes_lidarseg.yaml"
+# The class table lives in nuscenes_classes; importers take it from here too.
+from lads.synth.nuscenes_classes import CLASSES_FILE as CLASSES_FILE
+from lads.synth.nuscenes_classes import LidarsegClasses as LidarsegClasses
+from lads.synth.nuscenes_classes import lidarseg_classes as lidarseg_classes
+
 VERSION = "v1.0-mini"
 # Real nuScenes LIDAR_TOP calibration (v1.0-mini, calibrated_sensor of scene-0061).
 REAL_SENSOR_TRANSLATION = (0.943713, 0.0, 1.84023)
@@ -110,64 +109,6 @@ class NuscScene:
     sensor_translation: tuple[float, float, float] = REAL_SENSOR_TRANSLATION
     sensor_rotation: tuple[float, float, float, float] = REAL_SENSOR_ROTATION
     salt: str = field(default="")
-
-
-@dataclass(frozen=True, slots=True)
-class LidarsegClasses:
-    """The lidarseg class list and the SemanticKITTI -> lidarseg map (nuscenes_lidarseg.yaml).
-
-    Attributes:
-        categories: the 32 class names; a class's `index` is its position.
-        of_semantickitti: (65536,) uint8 lidarseg index per SemanticKITTI raw id (ids not
-            listed map to 0 noise; every id the generator emits is listed).
-    """
-
-    categories: tuple[str, ...]
-    of_semantickitti: npt.NDArray[np.uint8]
-
-    def labels(self, semantickitti: npt.ArrayLike) -> npt.NDArray[np.uint8]:
-        """(N,) uint8 lidarseg indices of SemanticKITTI labels (instance bits ignored)."""
-        raw = np.asarray(semantickitti).astype(np.uint32) & np.uint32(0xFFFF)
-        return self.of_semantickitti[raw]
-
-
-@functools.cache
-def lidarseg_classes() -> LidarsegClasses:
-    """Load and check the shipped class table (cached).
-
-    Raises:
-        ConfigError: the YAML is malformed, the class list differs from the `nuscenes` label
-            set of lads/physics/materials.yaml, a mapped name is not a class, or an id the
-            generator emits is not mapped.
-    """
-    where = f"lads/synth/{CLASSES_FILE}"
-    try:
-        raw: Any = yaml.safe_load(
-            importlib.resources.files("lads.synth").joinpath(CLASSES_FILE).read_text()
-        )
-        categories = tuple(str(c) for c in raw["categories"])
-        mapping = {int(k): str(v) for k, v in raw["from_semantickitti"].items()}
-    except (OSError, yaml.YAMLError, KeyError, TypeError, ValueError, AttributeError) as exc:
-        raise ConfigError(f"{where}: cannot read the class table ({exc}); fix the file.") from exc
-    known = {i: name for i, (name, _) in class_materials("nuscenes").items()}
-    problems = []
-    if dict(enumerate(categories)) != known:
-        problems.append(
-            "categories differ from the nuscenes label set of lads/physics/materials.yaml "
-            f"({len(categories)} vs {len(known)} classes)"
-        )
-    problems += [
-        f"id {k} maps to unknown class '{v}'" for k, v in mapping.items() if v not in categories
-    ]
-    problems += [f"id {k} is outside 0..65535" for k in mapping if not 0 <= k <= 0xFFFF]
-    emitted = sorted(set(SEMANTICKITTI_OF_PART.tolist()))
-    problems += [f"generator id {s} is not mapped" for s in emitted if s not in mapping]
-    if problems:
-        raise ConfigError(f"{where}: " + "; ".join(problems) + ".")
-    lut = np.zeros(0x10000, dtype=np.uint8)
-    for k, v in mapping.items():
-        lut[k] = categories.index(v)
-    return LidarsegClasses(categories=categories, of_semantickitti=lut)
 
 
 def quaternion_wxyz(rotation: npt.ArrayLike) -> tuple[float, float, float, float]:
@@ -275,16 +216,105 @@ def nuscenes_tables(
     carries `index` (the lidarseg edition).
     """
     scene = scene or NuscScene()
-    salt = scene.salt
-    log, scene_token, sensor, calib, map_token = (
-        token(f"{salt}{version}:{k}") for k in ("log", "scene", "sensor", "calib", "map")
-    )
     ordered = sorted(records, key=lambda r: (_timestamp(r.filename), r.filename))
     keys = [r for r in ordered if r.key_frame]
     if not keys:
         raise ConfigError("nuScenes tables need at least one keyframe record.")
+    content = _tables(version, scene, ordered, keys)
+    for role in ("lidarseg", "panoptic"):
+        rows = [
+            {"token": r.token, "sample_data_token": r.token, "filename": getattr(r, role)}
+            for r in ordered
+            if getattr(r, role)
+        ]
+        if rows:
+            content[role] = rows
+    files = {
+        f"{version}/{name}.json": json.dumps(rows, indent=0).encode()
+        for name, rows in content.items()
+    }
+    files[map_relpath(version, scene)] = (
+        tiny_png()
+    )  # NuScenes() asserts it exists; pixels load lazily
+    return files
+
+
+# The one visibility level the tables list (no annotations refer to it).
+_VISIBILITY = {
+    "token": "1",
+    "level": "v0-40",
+    "description": "visibility of whole object is between 0 and 40%",
+}
+
+
+def _tables(
+    version: str, scene: NuscScene, ordered: list[NuscSampleData], keys: list[NuscSampleData]
+) -> dict[str, list[dict[str, Any]]]:
+    """The 13 tables by name, of `ordered` records (timestamp order) whose keyframes are
+    `keys`."""
+    log, scene_token, sensor, calib, map_token = (
+        token(f"{scene.salt}{version}:{k}") for k in ("log", "scene", "sensor", "calib", "map")
+    )
     samples = [token(f"sample:{r.token}") for r in keys]
-    sample_rows = [
+    sd_rows, ego_rows = _record_rows(ordered, keys, samples, calib)
+    return {
+        "category": [
+            {"token": token(f"category:{name}"), "name": name, "description": name, "index": i}
+            for i, name in enumerate(lidarseg_classes().categories)
+        ],
+        "attribute": [],
+        "visibility": [_VISIBILITY],
+        "instance": [],
+        "sensor": [{"token": sensor, "channel": CHANNEL, "modality": "lidar"}],
+        "calibrated_sensor": [
+            {
+                "token": calib,
+                "sensor_token": sensor,
+                "translation": list(scene.sensor_translation),
+                "rotation": list(scene.sensor_rotation),
+                "camera_intrinsic": [],
+            }
+        ],
+        "ego_pose": ego_rows,
+        "log": [
+            {
+                "token": log,
+                "logfile": scene.logfile,
+                "vehicle": scene.vehicle,
+                "date_captured": scene.date_captured,
+                "location": scene.location,
+            }
+        ],
+        "scene": [
+            {
+                "token": scene_token,
+                "log_token": log,
+                "nbr_samples": len(samples),
+                "first_sample_token": samples[0],
+                "last_sample_token": samples[-1],
+                "name": scene.name,
+                "description": scene.description,
+            }
+        ],
+        "sample": _sample_rows(keys, samples, scene_token),
+        "sample_data": sd_rows,
+        "sample_annotation": [],
+        "map": [
+            {
+                "category": "semantic_prior",
+                "token": map_token,
+                "filename": map_relpath(version, scene),
+                "log_tokens": [log],
+            }
+        ],
+    }
+
+
+def _sample_rows(
+    keys: list[NuscSampleData], samples: list[str], scene_token: str
+) -> list[dict[str, Any]]:
+    """The sample table: one sample per keyframe, linked prev/next."""
+    return [
         {
             "token": s,
             "timestamp": _timestamp(r.filename),
@@ -294,6 +324,13 @@ def nuscenes_tables(
         }
         for i, (s, r) in enumerate(zip(samples, keys, strict=True))
     ]
+
+
+def _record_rows(
+    ordered: list[NuscSampleData], keys: list[NuscSampleData], samples: list[str], calib: str
+) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
+    """The sample_data and ego_pose tables: one row each per record, chained prev/next; a
+    sweep belongs to the next keyframe's sample (the last one's after the last keyframe)."""
     sd_rows, ego_rows = [], []
     for i, r in enumerate(ordered):
         later = [
@@ -327,75 +364,4 @@ def nuscenes_tables(
                 "next": ordered[i + 1].token if i + 1 < len(ordered) else "",
             }
         )
-    map_file = map_relpath(version, scene)
-    content: dict[str, list[dict[str, Any]]] = {
-        "category": [
-            {"token": token(f"category:{name}"), "name": name, "description": name, "index": i}
-            for i, name in enumerate(lidarseg_classes().categories)
-        ],
-        "attribute": [],
-        "visibility": [
-            {
-                "token": "1",
-                "level": "v0-40",
-                "description": "visibility of whole object is between 0 and 40%",
-            }
-        ],
-        "instance": [],
-        "sensor": [{"token": sensor, "channel": CHANNEL, "modality": "lidar"}],
-        "calibrated_sensor": [
-            {
-                "token": calib,
-                "sensor_token": sensor,
-                "translation": list(scene.sensor_translation),
-                "rotation": list(scene.sensor_rotation),
-                "camera_intrinsic": [],
-            }
-        ],
-        "ego_pose": ego_rows,
-        "log": [
-            {
-                "token": log,
-                "logfile": scene.logfile,
-                "vehicle": scene.vehicle,
-                "date_captured": scene.date_captured,
-                "location": scene.location,
-            }
-        ],
-        "scene": [
-            {
-                "token": scene_token,
-                "log_token": log,
-                "nbr_samples": len(samples),
-                "first_sample_token": samples[0],
-                "last_sample_token": samples[-1],
-                "name": scene.name,
-                "description": scene.description,
-            }
-        ],
-        "sample": sample_rows,
-        "sample_data": sd_rows,
-        "sample_annotation": [],
-        "map": [
-            {
-                "category": "semantic_prior",
-                "token": map_token,
-                "filename": map_file,
-                "log_tokens": [log],
-            }
-        ],
-    }
-    for role in ("lidarseg", "panoptic"):
-        rows = [
-            {"token": r.token, "sample_data_token": r.token, "filename": getattr(r, role)}
-            for r in ordered
-            if getattr(r, role)
-        ]
-        if rows:
-            content[role] = rows
-    files = {
-        f"{version}/{name}.json": json.dumps(rows, indent=0).encode()
-        for name, rows in content.items()
-    }
-    files[map_file] = tiny_png()  # NuScenes() asserts it exists; pixels load lazily
-    return files
+    return sd_rows, ego_rows

@@ -106,10 +106,7 @@ def edge_distance(
     step = _step_of_gaps(gap_rad, count) if step_rad is None else float(step_rad)
     range_m = np.linalg.norm(xyz, axis=1)[order]
     gap = gap_rad / step
-    spacing = np.ones(n)
-    for s, c in zip(*np.unique(start, return_counts=True), strict=True):
-        if c >= 3:  # each ring's returns are one contiguous run of the sorted order
-            spacing[s : s + c] = max(float(np.median(gap[s : s + c])), 1.0)
+    spacing = _ring_spacing(gap, start)
     missing = (count >= 3) & (gap > EDGE_GAP_SPACINGS * spacing)
     jump = (np.abs(range_m[nxt] - range_m) > jump_m) & ~missing
     # Each ring gets its own stretch of one axis, far enough apart that no ring's edge is
@@ -127,6 +124,35 @@ def edge_distance(
     width = np.maximum(np.concatenate([gap[jump], spacing[missing], spacing[missing]]) - 1.0, 0.0)
     if edges.size == 0:
         return out, span_out
+    dist, span = _nearest_edge(edges, width, pos, period, cap)
+    out[order] = dist.astype(np.float32)
+    span_out[order] = span.astype(np.float32)
+    return out, span_out
+
+
+def _ring_spacing(
+    gap: npt.NDArray[np.float64], start: npt.NDArray[np.int64]
+) -> npt.NDArray[np.float64]:
+    """(N,) median spacing of returns (in azimuth steps, >= 1) of each return's ring; 1 for
+    rings of fewer than 3 returns. `gap`: steps to the next return in ring order; `start`:
+    where each return's ring starts in that order."""
+    spacing = np.ones(gap.size)
+    for s, c in zip(*np.unique(start, return_counts=True), strict=True):
+        if c >= 3:  # each ring's returns are one contiguous run of the sorted order
+            spacing[s : s + c] = max(float(np.median(gap[s : s + c])), 1.0)
+    return spacing
+
+
+def _nearest_edge(
+    edges: npt.NDArray[np.float64],
+    width: npt.NDArray[np.float64],
+    pos: npt.NDArray[np.float64],
+    period: float,
+    cap: float,
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    """Per position `pos` (in azimuth steps along the rings' axis), the distance in beams
+    to the nearest edge, clipped to [0, cap], and that edge's span (0 beyond `cap`); the
+    edges are copied one `period` either side so 0 and 2 pi meet."""
     edges = np.concatenate([edges - period, edges, edges + period])
     width = np.tile(width, 3)
     by_pos = np.argsort(edges, kind="stable")
@@ -136,9 +162,7 @@ def edge_distance(
     take_right = np.abs(edges[right] - pos) < np.abs(pos - edges[left])
     nearest = np.where(take_right, right, left)
     dist = np.clip(np.abs(edges[nearest] - pos) - 0.5, 0.0, cap)
-    out[order] = dist.astype(np.float32)
-    span_out[order] = np.where(dist < cap, width[nearest], 0.0).astype(np.float32)
-    return out, span_out
+    return dist, np.where(dist < cap, width[nearest], 0.0)
 
 
 def _ring_order(

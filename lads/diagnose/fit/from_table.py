@@ -275,36 +275,13 @@ def _design(
     sim_shift: npt.NDArray[np.float64],
     like: Design | None = None,
 ) -> Design:
-    h, step, top = t.sensor.half_step, t.sensor.step, t.sensor.max_value
-    clip = clip_level(i_real[returned], step, top) if like is None else like.real_clip
-    if clip is not None:
-        top = clip
-    y = np.where(returned, np.log(i_real + h), 0.0)
-    censor = np.zeros(len(i_real), dtype=np.int64)
-    censor[returned & (i_real < LOW_STEPS * step)] = 1
-    censor[returned & (i_real < 0.5 * step)] = 2
-    censor[returned & (i_real > top - 0.5 * step)] = 3
-    y_lo = np.log(np.maximum(i_real - 0.5 * step, 0.0) + h)
-    y_hi = np.log(i_real + 0.5 * step + h)
-    if like is None:
-        classes = tuple(int(c) for c in np.unique(t.class_id[t.class_id >= 0]))
-        class_names = tuple(t.class_names.get(c, str(c)) for c in classes)
-    else:
-        classes, class_names = like.classes, like.class_names
-    lookup = {c: i for i, c in enumerate(classes)}
-    class_index = np.array([lookup.get(int(c), -1) for c in t.class_id], dtype=np.int64)
+    clip, y, y_lo, y_hi, censor = _observations(t, i_real, returned, like)
+    classes, class_names, class_index = _class_indices(t, like)
     cos = np.clip(t.cos_incidence.astype(np.float64), 0.0, 1.0)
     ln_cos = np.where(t.normal_ok, np.log(np.maximum(cos, COS_FLOOR)), 0.0)
     scans = t.scan.astype(np.int64)
     n_scans = len(t.scans)
-    if like is not None and like.paired:
-        scan_mean = np.zeros(n_scans)
-        scan_mean[like.scan.numpy()] = like.scan_ln_mean.numpy()
-    else:
-        sums = np.bincount(scans, weights=ln_sim, minlength=n_scans)
-        counts = np.maximum(np.bincount(scans, minlength=n_scans), 1)
-        scan_mean = sums / counts
-        scan_mean = scan_mean - np.average(scan_mean, weights=counts)
+    scan_mean = _scan_means(scans, n_scans, ln_sim, like)
 
     def f64(a: npt.ArrayLike) -> torch.Tensor:
         return torch.as_tensor(np.asarray(a, dtype=np.float64))
@@ -346,3 +323,65 @@ def _design(
         real_clip=clip,
         label_set=t.sensor.label_set,
     )
+
+
+def _observations(
+    t: BeamTable,
+    i_real: npt.NDArray[np.float64],
+    returned: npt.NDArray[np.bool_],
+    like: Design | None,
+) -> tuple[
+    float | None,
+    npt.NDArray[np.float64],
+    npt.NDArray[np.float64],
+    npt.NDArray[np.float64],
+    npt.NDArray[np.int64],
+]:
+    """The real intensity as the likelihood sees it: the clip level (`like`'s, else found in
+    the returns), ln(I + h), the bounds of its quantisation interval and the censoring code
+    per row (0 none, 1 low, 2 below half a step, 3 at the top)."""
+    h, step, top = t.sensor.half_step, t.sensor.step, t.sensor.max_value
+    clip = clip_level(i_real[returned], step, top) if like is None else like.real_clip
+    if clip is not None:
+        top = clip
+    y = np.where(returned, np.log(i_real + h), 0.0)
+    censor = np.zeros(len(i_real), dtype=np.int64)
+    censor[returned & (i_real < LOW_STEPS * step)] = 1
+    censor[returned & (i_real < 0.5 * step)] = 2
+    censor[returned & (i_real > top - 0.5 * step)] = 3
+    y_lo = np.log(np.maximum(i_real - 0.5 * step, 0.0) + h)
+    y_hi = np.log(i_real + 0.5 * step + h)
+    return clip, y, y_lo, y_hi, censor
+
+
+def _class_indices(
+    t: BeamTable, like: Design | None
+) -> tuple[tuple[int, ...], tuple[str, ...], npt.NDArray[np.int64]]:
+    """The classes (`like`'s, else the table's labelled ones), their names, and each row's
+    index among them (-1: none)."""
+    if like is None:
+        classes = tuple(int(c) for c in np.unique(t.class_id[t.class_id >= 0]))
+        class_names = tuple(t.class_names.get(c, str(c)) for c in classes)
+    else:
+        classes, class_names = like.classes, like.class_names
+    lookup = {c: i for i, c in enumerate(classes)}
+    class_index = np.array([lookup.get(int(c), -1) for c in t.class_id], dtype=np.int64)
+    return classes, class_names, class_index
+
+
+def _scan_means(
+    scans: npt.NDArray[np.int64],
+    n_scans: int,
+    ln_sim: npt.NDArray[np.float64],
+    like: Design | None,
+) -> npt.NDArray[np.float64]:
+    """(n_scans,) mean ln I_sim per scan, centred on the count-weighted mean (a paired
+    `like`'s own means where it has them, 0 elsewhere)."""
+    if like is not None and like.paired:
+        scan_mean = np.zeros(n_scans)
+        scan_mean[like.scan.numpy()] = like.scan_ln_mean.numpy()
+        return scan_mean
+    sums = np.bincount(scans, weights=ln_sim, minlength=n_scans)
+    counts = np.maximum(np.bincount(scans, minlength=n_scans), 1)
+    scan_mean = sums / counts
+    return scan_mean - np.average(scan_mean, weights=counts)

@@ -60,20 +60,7 @@ def write_corrected(
             )
     _clear_previous(out_root, Path(pair.sim_root))
     shutil.copytree(pair.sim_root, out_root)
-    if design.paired:
-        parts = [design]
-        saturated = saturated_rows(table)
-        if saturated.size:
-            parts.append(prediction_design(table, saturated, design))
-    else:
-        if sim_table is None:
-            raise DiagnoseError(
-                "an unpaired corrected tree needs the simulated tree's table "
-                "(write_corrected(..., sim_table=...))."
-            )
-        table = sim_table
-        rows = np.flatnonzero(table.ret_sim & np.isfinite(table.i_sim))
-        parts = [prediction_design(table, rows, design)]
+    table, parts = _parts_to_predict(table, design, sim_table)
     predicted = [fit.predictions(part) for part in parts]
     mu = np.concatenate([m for m, _, _ in predicted])
     p = np.concatenate([q for _, _, q in predicted])
@@ -104,6 +91,30 @@ def write_corrected(
         )
         written += 1
     return written
+
+
+def _parts_to_predict(
+    table: BeamTable, design: Design, sim_table: BeamTable | None
+) -> tuple[BeamTable, list[Design]]:
+    """The table whose beams are rewritten and the designs to predict them from: paired,
+    `design` and the saturated beams; unpaired, every simulated return of `sim_table`.
+
+    Raises:
+        DiagnoseError: unpaired without `sim_table`.
+    """
+    if design.paired:
+        parts = [design]
+        saturated = saturated_rows(table)
+        if saturated.size:
+            parts.append(prediction_design(table, saturated, design))
+        return table, parts
+    if sim_table is None:
+        raise DiagnoseError(
+            "an unpaired corrected tree needs the simulated tree's table "
+            "(write_corrected(..., sim_table=...))."
+        )
+    rows = np.flatnonzero(sim_table.ret_sim & np.isfinite(sim_table.i_sim))
+    return sim_table, [prediction_design(sim_table, rows, design)]
 
 
 def _clear_previous(out_root: Path, sim_root: Path) -> None:

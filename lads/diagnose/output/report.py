@@ -102,6 +102,22 @@ def _fmt(v: Any) -> str:
 
 def markdown(doc: dict[str, Any]) -> str:
     """A person's summary of the report (the template sentence of §5.6 per effect)."""
+    lines = [
+        *_md_header(doc),
+        *_md_localization(doc),
+        *_md_effects(doc),
+        *_md_alternatives(doc),
+        *_md_noise_model(doc),
+        *_md_heldout(doc),
+        *_md_selection_trace(doc),
+    ]
+    if doc.get("figures"):
+        lines += ["", "## Figures", ""] + [f"![{f}]({f})" for f in doc["figures"]]
+    return "\n".join(lines) + "\n"
+
+
+def _md_header(doc: dict[str, Any]) -> list[str]:
+    """Title, inputs, size and verdict."""
     lines = ["# lads diagnose report", ""]
     lines.append(
         f"- simulation: `{doc.get('sim_root')}`; real: `{doc.get('real_root')}`; "
@@ -115,12 +131,22 @@ def markdown(doc: dict[str, Any]) -> str:
         f"- **verdict: {doc['verdict']}**"
         + (f" ({'; '.join(doc['verdict_reasons'])})" if doc["verdict_reasons"] else "")
     )
-    lines += ["", "## Where simulation and reality differ", ""]
+    return lines
+
+
+def _md_localization(doc: dict[str, Any]) -> list[str]:
+    """Where the simulation and the real data differ."""
+    lines = ["", "## Where simulation and reality differ", ""]
     for s in doc["localization"] or []:
         lines.append(f"- {s.get('text')}")
     if not doc["localization"]:
         lines.append("- no feature shows a significant difference (BH q < 0.05)")
-    lines += ["", "## Missing physics", ""]
+    return lines
+
+
+def _md_effects(doc: dict[str, Any]) -> list[str]:
+    """The selected effects with their parameters, and the possible ones."""
+    lines = ["", "## Missing physics", ""]
     if not doc["effects"]:
         lines.append(
             "None: no catalogue effect improved the held-out fit by more than three "
@@ -145,6 +171,12 @@ def markdown(doc: dict[str, Any]) -> str:
             f"- possible: {p['id']} `{p['key']}` ({p['label']}), selected in "
             f"{p['selection_frequency']:.0%} of resamples"
         )
+    return lines
+
+
+def _md_alternatives(doc: dict[str, Any]) -> list[str]:
+    """Ambiguity sets and alternatives that fit as well (nothing if none)."""
+    lines: list[str] = []
     if doc["ambiguity_sets"] or doc["alternatives"]:
         lines += ["", "## Alternatives that fit as well", ""]
         for s in doc["ambiguity_sets"]:
@@ -156,8 +188,13 @@ def markdown(doc: dict[str, Any]) -> str:
                 f"held-out loss {a['delta_loss']:+.4f} (SE {a['se']:.4f}); separate "
                 f"with {a['separating_data']}"
             )
+    return lines
+
+
+def _md_noise_model(doc: dict[str, Any]) -> list[str]:
+    """The fitted noise model and the point noise."""
     nm = doc["noise_model"]
-    lines += [
+    lines = [
         "",
         "## Noise model",
         "",
@@ -178,8 +215,13 @@ def markdown(doc: dict[str, Any]) -> str:
         )
     elif pn:
         lines.append(f"- point noise: {pn['kind']} ({pn.get('reason', '')})")
+    return lines
+
+
+def _md_heldout(doc: dict[str, Any]) -> list[str]:
+    """The held-out test groups' table."""
     h = doc["heldout"]
-    lines += [
+    lines = [
         "",
         f"## Held-out test groups ({h['groups']} groups, {h['rows']} beams)",
         "",
@@ -199,7 +241,12 @@ def markdown(doc: dict[str, Any]) -> str:
         "constant return rate); `after`: with the selected effects.",
         "",
     ]
-    lines += [
+    return lines
+
+
+def _md_selection_trace(doc: dict[str, Any]) -> list[str]:
+    """The forward selection, step by step."""
+    lines = [
         "## Selection trace",
         "",
         "Δ held-out loss: mean NLL gain per beam on the validation groups, with its "
@@ -214,9 +261,7 @@ def markdown(doc: dict[str, Any]) -> str:
             f" | {s.get('z', float('nan')):.1f} | {s['delta_bic']:.1f} | {s['at_bound']}"
             f" | {s['accepted']} |"
         )
-    if doc.get("figures"):
-        lines += ["", "## Figures", ""] + [f"![{f}]({f})" for f in doc["figures"]]
-    return "\n".join(lines) + "\n"
+    return lines
 
 
 def _interval(ci: list[float]) -> str:

@@ -110,22 +110,9 @@ def target_stats(
     med_low, med_high = (median, median)
     if sorted_y is not None and rep_z is not None:
         med_low, med_high = _woodruff(sorted_y, count, rep_z)
-    share = count >= max(MIN_BIN_SHARE * rows.size, 1)
-    effect_bins = np.flatnonzero(share & (n_groups >= MIN_EFFECT_GROUPS))
-    testable = share & (n_groups >= MIN_TEST_GROUPS)
-    if y.size and np.all((y == 0) | (y == 1)):  # rare binary outcomes: need events
-        rate = float(y.mean())
-        testable &= np.minimum(rate, 1 - rate) * count >= MIN_TEST_EVENTS
-    test_bins = np.flatnonzero(testable)
+    effect_bins, test_bins = _usable_bins(y, count, n_groups)
     p_omnibus = _wald_equal_means(cells, sums[1], sums[0], mean, count, test_bins, k)
-    slope = slope_se = p_trend = math.nan
-    if feature.ordered and binning.value is not None:
-        x = binning.value[rows]
-        slope, slope_se, p_trend = _cluster_slope(x, y, boot.gid[rows], boot.n_groups)
-    p_value = p_omnibus
-    if feature.ordered:
-        finite = [p for p in (p_trend, p_omnibus) if math.isfinite(p)]
-        p_value = min(1.0, 2.0 * min(finite)) if finite else math.nan
+    slope, slope_se, p_trend, p_value = _trend_test(feature, binning, rows, y, boot, p_omnibus)
     effect, extremes, direction = _effect(
         mean, effect_bins, binning.labels, feature.ordered, slope, p_trend
     )
@@ -151,6 +138,35 @@ def target_stats(
         direction=direction,
         agreement=agreement,
     )
+
+
+def _usable_bins(y: F64, count: I64, n_groups: I64) -> tuple[I64, I64]:
+    """The bins with enough rows and groups to report an effect, and those (with enough
+    events, for a binary y) to test; both as bin indices."""
+    share = count >= max(MIN_BIN_SHARE * y.size, 1)
+    effect_bins = np.flatnonzero(share & (n_groups >= MIN_EFFECT_GROUPS))
+    testable = share & (n_groups >= MIN_TEST_GROUPS)
+    if y.size and np.all((y == 0) | (y == 1)):  # rare binary outcomes: need events
+        rate = float(y.mean())
+        testable &= np.minimum(rate, 1 - rate) * count >= MIN_TEST_EVENTS
+    return effect_bins, np.flatnonzero(testable)
+
+
+def _trend_test(
+    feature: Feature, binning: Binning, rows: I64, y: F64, boot: GroupBootstrap, p_omnibus: float
+) -> tuple[float, float, float, float]:
+    """(slope, its SE, trend p-value, the feature's p-value): for an ordered feature the
+    cluster-robust slope of y on the bin value, and the Bonferroni pair of trend and
+    omnibus tests; otherwise NaNs and the omnibus p-value."""
+    slope = slope_se = p_trend = math.nan
+    if feature.ordered and binning.value is not None:
+        x = binning.value[rows]
+        slope, slope_se, p_trend = _cluster_slope(x, y, boot.gid[rows], boot.n_groups)
+    p_value = p_omnibus
+    if feature.ordered:
+        finite = [p for p in (p_trend, p_omnibus) if math.isfinite(p)]
+        p_value = min(1.0, 2.0 * min(finite)) if finite else math.nan
+    return slope, slope_se, p_trend, p_value
 
 
 def _sorted_by_bin(y_all: F64, order: I64, rows: I64, index: I64, k: int) -> F64:

@@ -214,17 +214,47 @@ def localize(
     if drop_residual is not None:
         d = _per_row(drop_residual, n, "drop_residual")
     d = np.where(table.ret_sim, d, np.nan)
-    groups, gid = np.unique(table.group, return_inverse=True)
-    n_groups = groups.size
-    weights = rng.multinomial(n_groups, np.full(n_groups, 1.0 / n_groups), size=n_boot)
-    weights_t = np.ascontiguousarray(weights.T, np.float64)
-    boot = GroupBootstrap(gid.astype(np.int64), n_groups, weights_t)
-
+    boot = _group_bootstrap(table, rng, n_boot)
     binnings: dict[str, tuple[Feature, Binning]] = {}
     for feature in FEATURES:
         binning = feature.bin(table)
         if binning is not None:
             binnings[feature.name] = (feature, binning)
+    features = _feature_profiles(table, r, d, binnings, boot)
+    heatmaps = {
+        key: _heatmap(r, binnings[a][1], binnings[b][1], a, b)
+        for key, a, b in HEATMAPS
+        if a in binnings and b in binnings
+    }
+    return Localization(
+        features,
+        _statements(features, max_statements),
+        heatmaps,
+        n,
+        boot.n_groups,
+        n_boot,
+        residual is not None,
+    )
+
+
+def _group_bootstrap(table: BeamTable, rng: np.random.Generator, n_boot: int) -> GroupBootstrap:
+    """`n_boot` cluster bootstrap replicates: multinomial weights over the table's groups."""
+    groups, gid = np.unique(table.group, return_inverse=True)
+    n_groups = groups.size
+    weights = rng.multinomial(n_groups, np.full(n_groups, 1.0 / n_groups), size=n_boot)
+    weights_t = np.ascontiguousarray(weights.T, np.float64)
+    return GroupBootstrap(gid.astype(np.int64), n_groups, weights_t)
+
+
+def _feature_profiles(
+    table: BeamTable,
+    r: npt.NDArray[np.float64],
+    d: npt.NDArray[np.float64],
+    binnings: dict[str, tuple[Feature, Binning]],
+    boot: GroupBootstrap,
+) -> dict[str, FeatureProfile]:
+    """Per binned feature, the binned statistics of the (N,) intensity residual `r` and
+    dropout residual `d`, with BH q-values over every feature and target together."""
     order = np.argsort(r, kind="stable")  # NaN last; one sort serves every feature's medians
     raw = {}
     for name, (feature, binning) in binnings.items():
@@ -244,20 +274,7 @@ def localize(
             per["intensity"],
             per["dropout"],
         )
-    heatmaps = {
-        key: _heatmap(r, binnings[a][1], binnings[b][1], a, b)
-        for key, a, b in HEATMAPS
-        if a in binnings and b in binnings
-    }
-    return Localization(
-        features,
-        _statements(features, max_statements),
-        heatmaps,
-        n,
-        n_groups,
-        n_boot,
-        residual is not None,
-    )
+    return features
 
 
 def to_json(loc: Localization) -> dict[str, Any]:
