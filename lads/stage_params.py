@@ -103,28 +103,34 @@ def _check_value(kind: str, value: Any, where: str) -> None:
                 f"{where}: expected a list of channel ids (integers >= 0), got {value!r}."
             )
         return
-    if kind in ("optional_number", "optional_period") and value is None:
-        return
     if kind == "return_mode":
         if value not in RETURN_MODES:
             raise ConfigError(f"{where}: mode is {value!r}; expected one of {RETURN_MODES}.")
         return
+    if kind in ("optional_number", "optional_period") and value is None:
+        return
+    _check_number(kind, value, where)
+
+
+# The numeric kinds: what each accepts, and how a refusal reads.
+_NUMBER_RULES: dict[str, tuple[Any, str]] = {
+    "nonneg": (lambda v: 0 <= v < math.inf, "rate must be a finite number >= 0 mm/h"),
+    "film": (lambda v: 0 <= v < math.inf, "water film must be a finite thickness >= 0 mm"),
+    "reflectance": (lambda v: 0 < v <= 1, "expected a reflectance in (0, 1]"),
+    "share": (lambda v: 0 <= v <= 1, "expected a share in [0, 1]"),
+    "speed": (math.isfinite, "expected a finite number"),
+    "optional_number": (math.isfinite, "expected a finite number"),
+    "optional_period": (lambda v: 0 < v < 10, "expected a sweep period in (0, 10) s"),
+    "visibility": (lambda v: v > 0, "visibility must be > 0 m (inf = clear air)"),
+}
+
+
+def _check_number(kind: str, value: Any, where: str) -> None:
     if isinstance(value, bool) or not isinstance(value, int | float) or math.isnan(value):
         raise ConfigError(f"{where}: expected a number, got {value!r}.")
-    if kind == "nonneg" and not (0 <= value < math.inf):
-        raise ConfigError(f"{where}: rate must be a finite number >= 0 mm/h, got {value}.")
-    if kind == "film" and not (0 <= value < math.inf):
-        raise ConfigError(f"{where}: water film must be a finite thickness >= 0 mm, got {value}.")
-    if kind == "reflectance" and not 0 < value <= 1:
-        raise ConfigError(f"{where}: expected a reflectance in (0, 1], got {value}.")
-    if kind == "share" and not 0 <= value <= 1:
-        raise ConfigError(f"{where}: expected a share in [0, 1], got {value}.")
-    if kind in ("speed", "optional_number") and not math.isfinite(value):
-        raise ConfigError(f"{where}: expected a finite number, got {value}.")
-    if kind == "optional_period" and not 0 < value < 10:
-        raise ConfigError(f"{where}: expected a sweep period in (0, 10) s, got {value}.")
-    if kind == "visibility" and not value > 0:
-        raise ConfigError(f"{where}: visibility must be > 0 m (inf = clear air), got {value}.")
+    accepts, refusal = _NUMBER_RULES.get(kind, (lambda v: True, ""))
+    if not accepts(value):
+        raise ConfigError(f"{where}: {refusal}, got {value}.")
 
 
 def resolved(name: str, params: dict[str, Any], where: str) -> dict[str, Any]:
