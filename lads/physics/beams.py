@@ -17,6 +17,7 @@ import numpy as np
 import numpy.typing as npt
 
 from lads.errors import InvalidPointsError
+from lads.physics.detection import resolve_detection
 from lads.physics.kernels import survivors
 from lads.physics.result import Outcome, WeatherResult
 from lads.sensors.profile import SensorProfile, load_profile
@@ -213,4 +214,40 @@ def unchanged(beams: Beams, sensor: SensorProfile) -> WeatherResult:
         lost_index=np.zeros(0, dtype=np.int64),
         extinction_per_m=0.0,
         detection_threshold=auto_threshold(beams) if n else 0.0,
+    )
+
+
+def dimmed(
+    beams: Beams,
+    profile: SensorProfile,
+    ratio: npt.NDArray[np.float64],
+    active: npt.NDArray[np.bool_],
+    detection: str | float,
+    rng: np.random.Generator,
+) -> WeatherResult:
+    """Returns whose power and intensity a surface change scales by `ratio` (a water film, a
+    darker paint): each `active` return is still detected or lost by the detection rule,
+    conditioned on its clear-air detection; every other point is KEPT.
+
+    Args:
+        ratio: (N,) power factor per beam, 1 where nothing changes.
+        active: (N,) the beams the change acts on.
+        detection: the rule (`lads.physics.detection.resolve_detection`).
+    """
+    rule = resolve_detection(
+        detection, profile.detection.power, profile.detection.spread_ln, auto_threshold(beams)
+    )
+    detected, _ = rule.targets_detected(beams.clear_power, np.log(ratio), active, rng)
+    outcome = np.full(beams.range_m.size, Outcome.KEPT, dtype=np.uint8)
+    outcome[active] = Outcome.LOST
+    outcome[active & detected] = Outcome.ATTENUATED
+    reflectivity = profile.intensity.to_reflectivity(beams.intensity) * ratio
+    return assemble(
+        beams,
+        profile,
+        outcome=outcome,
+        range_m=beams.range_m,
+        reflectivity=reflectivity,
+        extinction_per_m=0.0,
+        detection_threshold=rule.threshold,
     )

@@ -23,8 +23,7 @@ from typing import Any
 import numpy as np
 
 from lads.errors import ConfigError
-from lads.physics.beams import assemble, auto_threshold, prepare_beams, resolve_sensor, unchanged
-from lads.physics.detection import resolve_detection
+from lads.physics.beams import assemble, dimmed, prepare_beams, resolve_sensor, unchanged
 from lads.physics.materials import class_ids, class_roles, reflectance_for_labels
 from lads.physics.result import Outcome, WeatherResult
 from lads.sensors.profile import SensorProfile
@@ -72,23 +71,7 @@ def incomplete_echo(
         return unchanged(beams, profile)
     ratio = np.ones(beams.range_m.size)
     ratio[glossy] = paint_reflectance / material[glossy]
-    rule = resolve_detection(
-        detection, profile.detection.power, profile.detection.spread_ln, auto_threshold(beams)
-    )
-    detected, _ = rule.targets_detected(beams.clear_power, np.log(ratio), glossy, rng)
-    outcome = np.full(beams.range_m.size, Outcome.KEPT, dtype=np.uint8)
-    outcome[glossy] = Outcome.LOST
-    outcome[glossy & detected] = Outcome.ATTENUATED
-    reflectivity = profile.intensity.to_reflectivity(beams.intensity) * ratio
-    return assemble(
-        beams,
-        profile,
-        outcome=outcome,
-        range_m=beams.range_m,
-        reflectivity=reflectivity,
-        extinction_per_m=0.0,
-        detection_threshold=rule.threshold,
-    )
+    return dimmed(beams, profile, ratio, glossy, detection, rng)
 
 
 def crosstalk(

@@ -38,10 +38,9 @@ import numpy as np
 import numpy.typing as npt
 
 from lads.errors import ConfigError
-from lads.physics.beams import assemble, auto_threshold, prepare_beams, resolve_sensor, unchanged
-from lads.physics.detection import resolve_detection
+from lads.physics.beams import dimmed, prepare_beams, resolve_sensor, unchanged
 from lads.physics.materials import reflectance_for_labels, wet_surface_for_labels
-from lads.physics.result import Outcome, WeatherResult
+from lads.physics.result import WeatherResult
 from lads.sensors.profile import SensorProfile
 
 # Water at 905 nm: refractive index (as the fog droplets, docs/physics.md §2) and absorption
@@ -163,20 +162,4 @@ def wet_ground(
     cos_i[wet] = -beams.xyz[wet, 2].astype(np.float64) / beams.range_m[wet]
     ratio = np.ones(beams.range_m.size)
     ratio[wet] = wet_ratio(cos_i[wet], albedo[wet], depth_mm[wet], params)
-    rule = resolve_detection(
-        detection, profile.detection.power, profile.detection.spread_ln, auto_threshold(beams)
-    )
-    detected, _ = rule.targets_detected(beams.clear_power, np.log(ratio), wet, rng)
-    outcome = np.full(beams.range_m.size, Outcome.KEPT, dtype=np.uint8)
-    outcome[wet] = Outcome.LOST
-    outcome[wet & detected] = Outcome.ATTENUATED
-    reflectivity = profile.intensity.to_reflectivity(beams.intensity) * ratio
-    return assemble(
-        beams,
-        profile,
-        outcome=outcome,
-        range_m=beams.range_m,
-        reflectivity=reflectivity,
-        extinction_per_m=0.0,
-        detection_threshold=rule.threshold,
-    )
+    return dimmed(beams, profile, ratio, wet, detection, rng)
