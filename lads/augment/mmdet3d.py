@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from lads.augment.boxes import BOX_LABEL_SET, vehicle_labels
 from lads.augment.core import Corruption
 from lads.errors import AugmentInputError
 
@@ -35,6 +36,7 @@ except ImportError:  # pragma: no cover - depends on the environment
 
 # Keys of mmdet3d's results dict this transform reads and writes.
 POINTS_KEY, SEMANTIC_KEY, INSTANCE_KEY = "points", "pts_semantic_mask", "pts_instance_mask"
+BOXES_KEY, BOX_CLASSES_KEY = "gt_bboxes_3d", "gt_labels_3d"
 
 
 def sample_id_of(results: dict[str, Any]) -> str:
@@ -62,11 +64,23 @@ class LadsCorruption(_Base):  # type: ignore[misc]
             as `Corruption`; mmdet3d's remapped masks need `particle_label` (e.g. the
             ignore index) rather than `dataset`.
         probability: share of samples corrupted (drawn from the sample's generator).
+        vehicle_classes: for detection data without point masks: the `gt_labels_3d` values
+            of vehicle boxes; incomplete echo then finds the vehicles' points inside those
+            boxes (`gt_bboxes_3d`: gravity_center, dims, yaw).
     """
 
-    def __init__(self, corruption: str, probability: float = 1.0, **options: Any) -> None:
+    def __init__(
+        self,
+        corruption: str,
+        probability: float = 1.0,
+        vehicle_classes: list[int] | None = None,
+        **options: Any,
+    ) -> None:
         if not 0.0 <= probability <= 1.0:
             raise AugmentInputError(f"LadsCorruption: probability {probability}; expected [0, 1].")
+        self.vehicle_classes = None if vehicle_classes is None else frozenset(vehicle_classes)
+        if self.vehicle_classes is not None:
+            options.setdefault("dataset", BOX_LABEL_SET)
         self.corruption = Corruption(corruption, **options)
         self.probability = float(probability)
         self.epoch = 0
@@ -85,17 +99,31 @@ class LadsCorruption(_Base):  # type: ignore[misc]
         is_tensor = hasattr(tensor, "detach")
         points = tensor.detach().cpu().numpy() if is_tensor else np.asarray(tensor)
         labels, instance = results.get(SEMANTIC_KEY), results.get(INSTANCE_KEY)
+        given = labels
+        if labels is None and self.vehicle_classes is not None:
+            labels = self._box_labels(results, points)
         out = self.corruption.apply(points, labels, instance, rng, sample_id)
         new = out.points
         if is_tensor:
             new = tensor.new_tensor(new)
         results[POINTS_KEY] = holder.new_point(new) if hasattr(holder, "new_point") else new
-        if labels is not None:
+        if given is not None:
             results[SEMANTIC_KEY] = out.labels
         if instance is not None:
             results[INSTANCE_KEY] = out.instance
         results["lads_outcome"] = out.info.outcome
         return results
+
+    def _box_labels(self, results: dict[str, Any], points: np.ndarray) -> np.ndarray:
+        """SemanticKITTI ids from the boxes: car inside boxes of `vehicle_classes`."""
+        boxes = results.get(BOXES_KEY)
+        if boxes is None:
+            return vehicle_labels(points[:, :3], np.zeros((0, 7)), [])
+        centre = np.asarray(boxes.gravity_center)
+        layout = np.column_stack([centre, np.asarray(boxes.dims), np.asarray(boxes.yaw)])
+        classes = np.asarray(results.get(BOX_CLASSES_KEY, np.zeros(len(layout), int)))
+        vehicles = self.vehicle_classes or frozenset()
+        return vehicle_labels(points[:, :3], layout, [int(c) in vehicles for c in classes])
 
     def __repr__(self) -> str:
         return f"LadsCorruption({self.corruption!r}, probability={self.probability})"

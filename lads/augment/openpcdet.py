@@ -12,7 +12,9 @@ dataset config then lists
 Other keys: SEED, PROBABILITY, DATASET, PARTICLE_LABEL, RING_COLUMN, EPOCH_KEY and PARAMS (a
 dict of stage parameters). The entry corrupts `data_dict['points']` (N, 3 + C features,
 x, y, z, intensity first) and keeps `gt_boxes`, `gt_names` and any other key; the sample is
-named by `data_dict['frame_id']`.
+named by `data_dict['frame_id']`. Incomplete echo finds the vehicles through the boxes whose
+`gt_names` are vehicle classes (`lads.augment.boxes`); wet ground needs point labels, which
+OpenPCDet's data_dict does not carry.
 """
 
 from __future__ import annotations
@@ -20,7 +22,11 @@ from __future__ import annotations
 from functools import partial
 from typing import Any
 
+import numpy as np
+
+from lads.augment.boxes import BOX_LABEL_SET, VEHICLE_NAMES, vehicle_labels
 from lads.augment.core import Corruption
+from lads.corruptions import corruption_spec
 from lads.errors import AugmentInputError
 
 # Config keys of an entry, mapped to `Corruption` arguments.
@@ -29,6 +35,8 @@ _KEYS = {
     "DATASET": "dataset", "PARTICLE_LABEL": "particle_label", "RING_COLUMN": "ring_column",
 }  # fmt: skip
 _OWN_KEYS = {"NAME", "PROBABILITY", "PARAMS", "EPOCH_KEY"}
+# The corruption that reads the vehicles from the boxes.
+BOXED = "incomplete_echo"
 
 
 class OpenPCDetCorruption:
@@ -50,6 +58,14 @@ class OpenPCDetCorruption:
                 f"{sorted(set(_KEYS) | _OWN_KEYS)}."
             )
         options = {_KEYS[k]: v for k, v in given.items() if k in _KEYS}
+        self.from_boxes = corruption_spec(str(options.get("corruption"))).name == BOXED
+        if self.from_boxes:
+            options.setdefault("dataset", BOX_LABEL_SET)
+        elif corruption_spec(str(options.get("corruption"))).needs_labels:
+            raise AugmentInputError(
+                f"lads_corruption: {options.get('corruption')} lies on point classes, which "
+                "OpenPCDet's data_dict does not carry; choose another corruption."
+            )
         self.corruption = Corruption(**options, **dict(given.get("PARAMS") or {}))
         self.probability = float(given.get("PROBABILITY", 1.0))
         self.epoch_key = given.get("EPOCH_KEY", "epoch")
@@ -66,7 +82,13 @@ class OpenPCDetCorruption:
         rng = self.corruption.rng(sample_id, epoch)
         if self.probability < 1.0 and rng.random() >= self.probability:
             return data_dict
-        out = self.corruption.apply(data_dict["points"], None, None, rng, sample_id)
+        points = data_dict["points"]
+        labels = None
+        if self.from_boxes:
+            boxes = data_dict.get("gt_boxes", np.zeros((0, 7)))
+            names = data_dict.get("gt_names", [])
+            labels = vehicle_labels(points[:, :3], boxes, [n in VEHICLE_NAMES for n in names])
+        out = self.corruption.apply(points, labels, None, rng, sample_id)
         data_dict["points"] = out.points
         return data_dict
 

@@ -143,3 +143,72 @@ def test_openpcdet_entry_corrupts_points_and_keeps_boxes():
     assert out["gt_boxes"] is boxes
     again = FakeDataAugmentor([config]).forward({"points": points, "frame_id": "000123"})
     np.testing.assert_array_equal(again["points"], out["points"])
+
+
+def _box_around(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A 5 x 3 x 4 m box (heading 30 deg) centred on the street point nearest (15, 0, 0),
+    and which points it holds."""
+    from lads.augment.boxes import points_in_boxes
+
+    centre = points[np.argmin(np.linalg.norm(points[:, :3] - (15.0, 0.0, 0.0), axis=1)), :3]
+    box = np.array([[*centre, 5.0, 3.0, 4.0, np.radians(30.0)]])
+    return box, points_in_boxes(points[:, :3], box)
+
+
+def test_points_in_a_turned_box():
+    from lads.augment.boxes import points_in_boxes
+
+    box = np.array([[10.0, 0.0, 0.0, 4.0, 2.0, 2.0, np.pi / 2]])  # long side along y
+    pts = np.array([[10.0, 1.9, 0.0], [11.9, 0.0, 0.0], [10.0, 0.0, 1.1], [10.5, -1.5, 0.5]])
+    np.testing.assert_array_equal(points_in_boxes(pts, box), [True, False, False, True])
+
+
+def test_openpcdet_incomplete_echo_finds_vehicles_by_their_boxes():
+    from lads.augment.openpcdet import OpenPCDetCorruption
+    from lads.errors import AugmentInputError
+
+    xyz, intensity = street_frame(load_profile("hdl64e"), azimuths=720)
+    points = np.column_stack([xyz, intensity]).astype(np.float32)
+    box, inside = _box_around(points)
+    assert inside.sum() > 20
+    config = {"NAME": "lads_corruption", "CORRUPTION": "incomplete_echo", "SEVERITY": "heavy",
+              "SENSOR": "hdl64e"}  # fmt: skip
+    entry = OpenPCDetCorruption(config)
+    car = entry({"points": points, "gt_boxes": box, "gt_names": np.array(["Car"]), "frame_id": "1"})
+    sign = entry(
+        {"points": points, "gt_boxes": box, "gt_names": np.array(["Pedestrian"]), "frame_id": "1"}
+    )
+    assert car["points"].shape[0] < points.shape[0]
+    rows = {tuple(r) for r in car["points"].tolist()}
+    assert all(tuple(r) in rows for r in points[~inside].tolist())  # the rest is untouched
+    np.testing.assert_array_equal(sign["points"], points)  # not a vehicle: untouched
+    with pytest.raises(AugmentInputError, match="point classes"):
+        OpenPCDetCorruption({**config, "CORRUPTION": "wet_ground"})
+
+
+class FakeBoxes:
+    """mmdet3d's BaseInstance3DBoxes as LadsCorruption reads it."""
+
+    def __init__(self, box: np.ndarray) -> None:
+        self.gravity_center = torch.from_numpy(box[:, :3])
+        self.dims = torch.from_numpy(box[:, 3:6])
+        self.yaw = torch.from_numpy(box[:, 6])
+
+
+def test_mmdet3d_incomplete_echo_from_boxes_without_point_masks():
+    from lads.augment.mmdet3d import LadsCorruption
+
+    xyz, intensity = street_frame(load_profile("hdl64e"), azimuths=720)
+    points = np.column_stack([xyz, intensity]).astype(np.float32)
+    box, inside = _box_around(points)
+    t = LadsCorruption("incomplete_echo", severity="heavy", sensor="hdl64e", vehicle_classes=[0])
+    results = {
+        "points": torch.from_numpy(points),
+        "gt_bboxes_3d": FakeBoxes(box),
+        "gt_labels_3d": np.array([0]),
+        "sample_idx": 3,
+    }
+    out = t.transform(results)
+    assert out["points"].shape[0] < points.shape[0] and "pts_semantic_mask" not in out
+    changed = out["lads_outcome"] != Outcome.KEPT
+    assert changed.sum() + (points.shape[0] - out["points"].shape[0]) <= inside.sum()
