@@ -17,6 +17,7 @@ sensor_transfer.json  sensor transfer vs the target's direct render (ground trut
 sensor_transfer_real.json  sensor transfer of real scans, ring statistics vs real target scans
 sensor_build_speed.json    lads build --variant sensor-hdl32e: frames/s, memory, Dask bytes
 augment_speed.json    lads.augment corruptions through each loader adapter: frames/s, one core
+ground_fit.json       the ground fit (wet ground without labels) against labelled real frames
 """
 
 from __future__ import annotations
@@ -50,6 +51,7 @@ BENCHMARKS = (
     "sensor_transfer_real",
     "sensor_build_speed",
     "augment_speed",
+    "ground_fit",
 )
 
 

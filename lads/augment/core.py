@@ -10,12 +10,14 @@ comes from (seed, sample id, epoch), never from the worker that happens to run i
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, NamedTuple
 
 import numpy as np
 import numpy.typing as npt
 
+from lads.augment.pseudo_labels import BOX_LABEL_SET as PSEUDO_LABEL_SET
+from lads.augment.pseudo_labels import ground_labels
 from lads.config import StageConfig
 from lads.corruptions import CorruptionSpec, corruption_spec
 from lads.errors import AugmentInputError, ConfigError
@@ -35,6 +37,8 @@ ANONYMOUS_DATASET = "augment"
 LEADING_COLUMNS = ("x", "y", "z", "intensity")
 # The stage of a sensor transfer (cross-sensor): its output beams are the target's.
 SENSOR_STAGE = "sensor"
+# The corruption that, given no labels, lies on the fitted ground (lads.physics.ground_fit).
+GROUND_FROM_FIT = "wet_ground"
 
 
 @dataclass(frozen=True, slots=True)
@@ -188,6 +192,8 @@ class Corruption:
                 labels without a class for particle returns.
         """
         _check_arrays(points, labels, instance, self.ring_column, self.profile, sample_id)
+        if labels is None and self.spec.name == GROUND_FROM_FIT:
+            return self._on_fitted_ground(points, instance, rng, sample_id)
         if labels is not None and self.spec.adds_particles and self.particle_label is None:
             raise AugmentInputError(
                 f"sample {sample_id!r}: {self.spec.name} adds particle returns, but labels "
@@ -196,12 +202,30 @@ class Corruption:
             )
         if self.spec.needs_labels and (labels is None or self.dataset is None):
             raise AugmentInputError(
-                f"sample {sample_id!r}: {self.spec.name} lies on ground classes: pass labels "
-                "and dataset=<reader name> whose class ids they hold (e.g. 'semantickitti')."
+                f"sample {sample_id!r}: {self.spec.name} reads point classes: pass labels and "
+                "dataset=<reader name> whose class ids they hold (e.g. 'semantickitti')."
             )
         frame = self._frame(points, labels, instance, sample_id)
         out = self.stage(frame, rng)
         return self._result(points, out)
+
+    def _on_fitted_ground(
+        self,
+        points: npt.NDArray[np.floating[Any]],
+        instance: npt.NDArray[np.generic] | None,
+        rng: np.random.Generator,
+        sample_id: str | int,
+    ) -> Augmented:
+        """Wet ground on a cloud without labels: the road is the fitted ground
+        (`lads.augment.pseudo_labels.ground_labels`); the result has no labels either."""
+        labels = ground_labels(points[:, :3])
+        frame = replace(
+            self._frame(points, labels, instance, sample_id),
+            item=Item(dataset=PSEUDO_LABEL_SET, relpath=str(sample_id)),
+        )
+        out = self._result(points, self.stage(frame, rng))
+        info = replace(out.info, conditions={**out.info.conditions, "ground": "fitted"})
+        return Augmented(out.points, None, out.instance, info)
 
     def _frame(
         self,

@@ -19,8 +19,8 @@ from typing import Any
 
 import numpy as np
 
-from lads.augment.boxes import BOX_LABEL_SET, vehicle_labels
 from lads.augment.core import Corruption
+from lads.augment.pseudo_labels import BOX_LABEL_SET, vehicle_labels
 from lads.errors import AugmentInputError
 
 try:  # mmcv's base class when it is installed; the contract is the same without it.

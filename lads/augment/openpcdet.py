@@ -12,9 +12,9 @@ dataset config then lists
 Other keys: SEED, PROBABILITY, DATASET, PARTICLE_LABEL, RING_COLUMN, EPOCH_KEY and PARAMS (a
 dict of stage parameters). The entry corrupts `data_dict['points']` (N, 3 + C features,
 x, y, z, intensity first) and keeps `gt_boxes`, `gt_names` and any other key; the sample is
-named by `data_dict['frame_id']`. Incomplete echo finds the vehicles through the boxes whose
-`gt_names` are vehicle classes (`lads.augment.boxes`); wet ground needs point labels, which
-OpenPCDet's data_dict does not carry.
+named by `data_dict['frame_id']`. OpenPCDet's data_dict carries no point labels: incomplete
+echo finds the vehicles through the boxes whose `gt_names` are vehicle classes, and wet ground
+lies on the fitted ground (`lads.augment.pseudo_labels`).
 """
 
 from __future__ import annotations
@@ -24,8 +24,8 @@ from typing import Any
 
 import numpy as np
 
-from lads.augment.boxes import BOX_LABEL_SET, VEHICLE_NAMES, vehicle_labels
 from lads.augment.core import Corruption
+from lads.augment.pseudo_labels import BOX_LABEL_SET, VEHICLE_NAMES, vehicle_labels
 from lads.corruptions import corruption_spec
 from lads.errors import AugmentInputError
 
@@ -61,11 +61,6 @@ class OpenPCDetCorruption:
         self.from_boxes = corruption_spec(str(options.get("corruption"))).name == BOXED
         if self.from_boxes:
             options.setdefault("dataset", BOX_LABEL_SET)
-        elif corruption_spec(str(options.get("corruption"))).needs_labels:
-            raise AugmentInputError(
-                f"lads_corruption: {options.get('corruption')} lies on point classes, which "
-                "OpenPCDet's data_dict does not carry; choose another corruption."
-            )
         self.corruption = Corruption(**options, **dict(given.get("PARAMS") or {}))
         self.probability = float(given.get("PROBABILITY", 1.0))
         self.epoch_key = given.get("EPOCH_KEY", "epoch")

@@ -130,7 +130,7 @@ def test_bad_configuration_and_encoding_raise_named_errors(cloud):
         Corruption("fog", "light", sensor="hdl64e", rate_mm_h=3.0)
     with pytest.raises(AugmentInputError, match="particle_label"):
         Corruption("snow", "light", sensor="hdl64e")(points, labels, sample_id="x")
-    with pytest.raises(AugmentInputError, match="ground classes"):
+    with pytest.raises(AugmentInputError, match="reads point classes"):
         Corruption("wet_ground", "light", sensor="hdl64e")(points, labels, sample_id="x")
     scaled = points.copy()
     scaled[:, 3] *= 255.0
@@ -162,3 +162,15 @@ def test_cross_sensor_rescans_with_the_target_and_keeps_the_layout(cloud):
     assert np.unique(channel).size > 16  # many of the target's rings, not the source's 64
     with pytest.raises(ConfigError, match="no severities"):
         Corruption("cross_sensor", "heavy", sensor="hdl64e", target="hdl32e")
+
+
+def test_wet_ground_without_labels_lies_on_the_fitted_ground(cloud):
+    points, labels, _ = cloud
+    out = Corruption("wet_ground", "heavy", sensor="hdl64e")(points, sample_id="g")
+    assert out.labels is None and out.info.conditions["ground"] == "fitted"
+    changed = np.zeros(points.shape[0], bool)
+    changed[out.info.lost_index] = True
+    changed[out.info.source_index[out.info.outcome != Outcome.KEPT]] = True
+    assert changed.sum() > 0.2 * (labels == 40).sum()
+    # What the wet road changed is ground: the street's road class, not the buildings.
+    assert (labels[changed] == 40).mean() > 0.9

@@ -1,9 +1,11 @@
-"""Per-point classes from 3D boxes, for detection data that has boxes but no point labels
-(OpenPCDet's gt_boxes, mmdetection3d's gt_bboxes_3d): incomplete echo finds the vehicles'
-clear-coat points through them (docs/augment.md §2).
+"""Per-point classes from geometry, for data without point labels (detection data):
+- from 3D boxes (OpenPCDet's gt_boxes, mmdetection3d's gt_bboxes_3d): incomplete echo finds
+  the vehicles' clear-coat points through them;
+- from the ground fit (`lads.physics.ground_fit`): wet ground finds the road.
+(docs/augment.md §2.)
 
-The classes come out as SemanticKITTI ids (car inside a vehicle box, unlabeled elsewhere), so
-the corruption reads the materials of the `semantickitti` label set.
+The classes come out as SemanticKITTI ids (car inside a vehicle box, road on the fitted
+ground, unlabeled elsewhere), so the corruption reads the `semantickitti` materials.
 """
 
 from __future__ import annotations
@@ -14,6 +16,7 @@ import numpy as np
 import numpy.typing as npt
 
 from lads.errors import AugmentInputError
+from lads.physics.ground_fit import ground_mask
 
 # Detection class names (KITTI, nuScenes, Waymo, as the frameworks spell them) whose boxes
 # hold painted vehicle bodies.
@@ -23,7 +26,7 @@ VEHICLE_NAMES = frozenset(
 )  # fmt: skip
 # The label set the box classes are written in, and its ids for a car and for nothing.
 BOX_LABEL_SET = "semantickitti"
-CAR_ID, UNLABELED_ID = 10, 0
+CAR_ID, ROAD_ID, UNLABELED_ID = 10, 40, 0
 
 
 def points_in_boxes(
@@ -76,3 +79,9 @@ def vehicle_labels(
         return np.full(len(xyz), UNLABELED_ID, dtype=np.uint32)
     inside = points_in_boxes(xyz, boxes[np.asarray(is_vehicle, dtype=bool)])
     return np.where(inside, CAR_ID, UNLABELED_ID).astype(np.uint32)
+
+
+def ground_labels(xyz: npt.NDArray[np.floating[Any]]) -> npt.NDArray[np.uint32]:
+    """(N,) SemanticKITTI ids: road on the fitted ground (`lads.physics.ground_fit`, whose
+    ground also holds terrain: asphalt is assumed for all of it), unlabeled elsewhere."""
+    return np.where(ground_mask(xyz), ROAD_ID, UNLABELED_ID).astype(np.uint32)
