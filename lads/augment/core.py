@@ -91,7 +91,8 @@ class Corruption:
         sensor: the sensor profile the points were recorded with (`lads profiles`); it sets
             the intensity encoding, beams and detection limit.
         dataset: the reader whose label ids `labels` holds (e.g. "semantickitti",
-            "nuscenes"); wet ground needs it to find the ground classes, and particle returns
+            "nuscenes"); wet ground and incomplete echo read their classes through it
+            (without labels, wet ground lies on the fitted ground), and particle returns
             take its particle label unless `particle_label` is given.
         particle_label: label of particle (rain, snow, fog) returns, e.g. the ignore index of
             a training config; instance ids of particle returns are 0.
@@ -99,7 +100,8 @@ class Corruption:
             it instead of the nearest elevation.
         seed: root seed of `__call__`'s per-sample generators.
         **params: further stage parameters (`lads.stage_params.STAGE_PARAMS`), e.g.
-            mode="dual" for weather, channels=[3, 17] for beam_missing.
+            mode="dual" for weather, channels=[3, 17] for beam_missing, target="hdl32e"
+            for cross_sensor (required there).
 
     Raises:
         ConfigError: unknown corruption, severity, sensor, dataset or parameter.
