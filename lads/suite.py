@@ -23,6 +23,7 @@ from lads.runner import BuildReport, run_build
 from lads.variant_families import CORRUPTION_PREFIX, SENSOR_PIPELINE, corruption_variants
 
 SUITE_FILE = "suite.json"
+SUITE_README = "README.md"
 # The corruption whose trees are the sensor-<profile> variants.
 CROSS_SENSOR = "cross_sensor"
 
@@ -99,10 +100,35 @@ def build_suite(
         report = run_build(source, source_root, out_root / variant, pipeline, **build_options)
         builds.append((variant, report))
     suite = SuiteReport(out_root, tuple(builds))
-    atomic_write(
-        out_root / SUITE_FILE, (json.dumps(_summary(source, suite), indent=2) + "\n").encode()
-    )
+    summary = _summary(source, suite)
+    atomic_write(out_root / SUITE_FILE, (json.dumps(summary, indent=2) + "\n").encode())
+    atomic_write(out_root / SUITE_README, _readme(summary).encode())
     return suite
+
+
+def _readme(summary: dict[str, Any]) -> str:
+    """The suite's front page: one row per tree, linking its dataset card."""
+    lines = [
+        f"# Robustness suite of {summary['source']}",
+        "",
+        "Built by `lads suite` (docs/augment.md of lads): one tree per corruption and severity,",
+        "each with its own dataset card, manifest and provenance; `suite.json` holds this table.",
+        "",
+        "| tree | corruption | severity | physical value | items | complete |",
+        "|---|---|---|---|---|---|",
+    ]
+    for row in summary["variants"]:
+        spec = corruption_spec(row["corruption"])
+        value = (
+            f"target {row['target']}"
+            if row["severity"] is None
+            else (f"{spec.parameter} = {row[spec.parameter]:g}")
+        )
+        lines.append(
+            f"| [{row['tree']}]({row['tree']}/README.md) | {row['corruption']} | "
+            f"{row['severity'] or '-'} | {value} | {row['items']} | {row['complete']} |"
+        )
+    return "\n".join(lines) + "\n"
 
 
 def _summary(source: str, suite: SuiteReport) -> dict[str, Any]:

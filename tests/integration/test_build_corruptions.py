@@ -96,6 +96,8 @@ def test_suite_command_builds_the_chosen_set_with_its_summary(street, tmp_path):
         "C-motion_distortion-light",
     ]
     assert summary["complete"] and summary["variants"][1]["speed_m_s"] == 5.0
+    front = (out / "README.md").read_text()
+    assert "[C-motion_distortion-light](C-motion_distortion-light/README.md)" in front
     for variant in ("C-beam_missing-light", "C-motion_distortion-light"):
         assert verify_tree(out / variant, street).ok
     scan = np.fromfile(out / "C-beam_missing-light" / "sequences/00/velodyne/000000.bin", "<f4")
