@@ -320,22 +320,13 @@ def build(
     )
     if device is not None:
         pipeline = pipeline.with_overrides(device=device)
-    options: dict[str, Any] = {}
-    if sequences:
-        options["sequences"] = [s.strip() for s in sequences.split(",") if s.strip()]
-    if nuscenes_version:
-        options["version"] = nuscenes_version
-    if include_sweeps:
-        options["include_sweeps"] = True
-    if source_sensor:
-        options["sensor"] = source_sensor
     report = run_build(
         source,
         source_root,
         out_root,
         pipeline,
         seed=seed,
-        reader_options=options,
+        reader_options=_reader_options(sequences, nuscenes_version, include_sweeps, source_sensor),
         jobs=jobs,
         backend=backend,
         scheduler=scheduler,
@@ -349,6 +340,25 @@ def build(
     click.echo(report.summary_text())
     if not report.complete:
         sys.exit(EXIT_INCOMPLETE)
+
+
+def _reader_options(
+    sequences: str | None,
+    nuscenes_version: str | None,
+    include_sweeps: bool,
+    source_sensor: str | None,
+) -> dict[str, Any]:
+    """The reader options `build`'s flags give (`--sequences` is comma-separated)."""
+    options: dict[str, Any] = {}
+    if sequences:
+        options["sequences"] = [s.strip() for s in sequences.split(",") if s.strip()]
+    if nuscenes_version:
+        options["version"] = nuscenes_version
+    if include_sweeps:
+        options["include_sweeps"] = True
+    if source_sensor:
+        options["sensor"] = source_sensor
+    return options
 
 
 @main.command()

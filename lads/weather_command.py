@@ -3,12 +3,18 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import click
 import numpy as np
+import numpy.typing as npt
 
 from lads.errors import ConfigError
 from lads.files import atomic_write
+
+if TYPE_CHECKING:  # the command imports the physics only when it runs (start-up time)
+    from lads.physics.result import WeatherResult
+    from lads.sensors.profile import SensorProfile
 
 
 @click.command("weather")
@@ -56,7 +62,6 @@ def weather_command(
 
     Extra columns (e.g. the nuScenes ring) and labels follow each output point's source beam.
     """
-    from lads.physics import weather as wx
     from lads.readers.base import read_labels, read_records
     from lads.sensors.profile import load_profile
 
@@ -69,25 +74,7 @@ def weather_command(
     what = f"a scan of {ncol} float32 columns (pass --columns with the file's column count)"
     points = read_records(scan, np.float32, ncol, what)
     rng = np.random.default_rng(seed)
-    if rain_mm_h is not None:
-        result = wx.rain(
-            points[:, :3], points[:, 3], rate_mm_h=rain_mm_h, sensor=profile, rng=rng, mode=mode
-        )
-    elif snow_mm_h is not None:
-        result = wx.snow(
-            points[:, :3], points[:, 3], rate_mm_h=snow_mm_h, sensor=profile, rng=rng, mode=mode
-        )
-    else:
-        if visibility_m is None:  # exactly one of the three is given (checked above)
-            raise ConfigError("give exactly one of --rain, --snow, --fog")
-        result = wx.fog(
-            points[:, :3],
-            points[:, 3],
-            visibility_m=visibility_m,
-            sensor=profile,
-            rng=rng,
-            mode=mode,
-        )
+    result = _apply_weather(points, profile, rng, rain_mm_h, snow_mm_h, visibility_m, mode)
     out = points[result.source_index].copy()
     out[:, :3] = result.xyz
     out[:, 3] = result.intensity
@@ -100,4 +87,37 @@ def weather_command(
     click.echo(
         f"{output}: {out.shape[0]} points (attenuated {c['attenuated']}, particle {c['particle']}, "
         f"lost {c['lost']}); alpha = {result.extinction_per_m:.3e} 1/m"
+    )
+
+
+def _apply_weather(
+    points: npt.NDArray[np.float32],
+    profile: SensorProfile,
+    rng: np.random.Generator,
+    rain_mm_h: float | None,
+    snow_mm_h: float | None,
+    visibility_m: float | None,
+    mode: str,
+) -> WeatherResult:
+    """The one weather given (rain or snow in mm/h, fog by visibility in m) on `points`
+    (N, C) float32: x, y, z in m, then the intensity."""
+    from lads.physics import weather as wx
+
+    if rain_mm_h is not None:
+        return wx.rain(
+            points[:, :3], points[:, 3], rate_mm_h=rain_mm_h, sensor=profile, rng=rng, mode=mode
+        )
+    if snow_mm_h is not None:
+        return wx.snow(
+            points[:, :3], points[:, 3], rate_mm_h=snow_mm_h, sensor=profile, rng=rng, mode=mode
+        )
+    if visibility_m is None:  # exactly one of the three is given (checked by the command)
+        raise ConfigError("give exactly one of --rain, --snow, --fog")
+    return wx.fog(
+        points[:, :3],
+        points[:, 3],
+        visibility_m=visibility_m,
+        sensor=profile,
+        rng=rng,
+        mode=mode,
     )

@@ -52,6 +52,17 @@ def pooled_retro(contexts: list[PointContext]) -> npt.NDArray[np.bool_] | None:
     )
 
 
+def pooled_context(contexts: list[PointContext]) -> PointContext:
+    """The points of all `contexts` (frames sharing one encoding) as one context."""
+    return PointContext(
+        real=np.concatenate([c.real for c in contexts]),
+        full_scale=contexts[0].full_scale,
+        cls=np.concatenate([c.cls for c in contexts]),
+        cell=np.concatenate([c.cell for c in contexts]),
+        retro=pooled_retro(contexts),
+    )
+
+
 def metrics(
     ctx: PointContext, prediction: npt.ArrayLike, class_names: tuple[str, ...]
 ) -> dict[str, Any]:

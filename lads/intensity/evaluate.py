@@ -42,7 +42,7 @@ from lads.intensity.eval_metrics import (
     PointContext,
     jsonable,
     metrics,
-    pooled_retro,
+    pooled_context,
     summarise,
 )
 from lads.intensity.features import FrameImage, frame_image
@@ -271,21 +271,8 @@ def evaluate(
         )
     _check_heldout(frames)
     vocabulary: dict[str, int] = {}
-    contexts, per_frame, predictions = [], {}, {}
-    for frame in frames:
-        ctx = _context(frame, vocabulary)
-        preds = {name: _checked(name, method(frame), frame) for name, method in methods.items()}
-        contexts.append(ctx)
-        predictions[frame.name] = preds
-        names = tuple(vocabulary)
-        per_frame[frame.name] = {m: metrics(ctx, p, names) for m, p in preds.items()}
-    pooled_ctx = PointContext(
-        real=np.concatenate([c.real for c in contexts]),
-        full_scale=contexts[0].full_scale,
-        cls=np.concatenate([c.cls for c in contexts]),
-        cell=np.concatenate([c.cell for c in contexts]),
-        retro=pooled_retro(contexts),
-    )
+    contexts, per_frame, predictions = _score_frames(frames, methods, vocabulary)
+    pooled_ctx = pooled_context(contexts)
     names = tuple(vocabulary)
     pooled = {
         m: metrics(pooled_ctx, np.concatenate([predictions[f.name][m] for f in frames]), names)
@@ -312,6 +299,25 @@ def evaluate(
         class_names=names,
         encoding=frames[0].profile.name,
     )
+
+
+def _score_frames(
+    frames: list[EvalFrame], methods: Mapping[str, Method], vocabulary: dict[str, int]
+) -> tuple[
+    list[PointContext], dict[str, dict[str, dict[str, Any]]], dict[str, dict[str, FloatArray]]
+]:
+    """Each frame's point context, every method's metrics on it (frame -> method -> metrics)
+    and its checked predictions (frame -> method -> (N,) float32); classes join `vocabulary`
+    in the order met."""
+    contexts, per_frame, predictions = [], {}, {}
+    for frame in frames:
+        ctx = _context(frame, vocabulary)
+        preds = {name: _checked(name, method(frame), frame) for name, method in methods.items()}
+        contexts.append(ctx)
+        predictions[frame.name] = preds
+        names = tuple(vocabulary)
+        per_frame[frame.name] = {m: metrics(ctx, p, names) for m, p in preds.items()}
+    return contexts, per_frame, predictions
 
 
 def _check_heldout(frames: list[EvalFrame]) -> None:

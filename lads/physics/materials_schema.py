@@ -133,42 +133,10 @@ def _label_set(
         raise ConfigError(f"{ctx} must be a mapping.")
     required = {"description", "instance_bits", "classes"}
     _require_keys(spec, required, ctx, optional=frozenset({"extends"}))
-    classes: dict[int, tuple[str, str]] = {}
-    grounds: set[int] = set()
-    flats: set[int] = set()
-    movers: set[int] = set()
-    egos: set[int] = set()
-    if "extends" in spec:
-        base = sets_raw.get(spec["extends"])
-        if not isinstance(base, dict) or "extends" in base:
-            raise ConfigError(f"{ctx}.extends must name a label set that extends nothing.")
-        inherited, flags = _classes(base.get("classes"), f"{where}: label_sets.{spec['extends']}")
-        classes.update(inherited)
-        grounds |= flags["ground"]
-        flats |= flags["flat"]
-        movers |= flags["moving"]
-        egos |= flags["ego"]
-    own, own_flags = _classes(spec["classes"], ctx)
-    classes.update(own)
-    grounds = (grounds - set(own)) | own_flags["ground"]
-    flats = (flats - set(own)) | own_flags["flat"]
-    movers = (movers - set(own)) | own_flags["moving"]
-    egos = (egos - set(own)) | own_flags["ego"]
-    lookup = np.full(OUT_OF_RANGE + 1, default.reflectance, dtype=np.float32)
-    known = np.zeros(OUT_OF_RANGE + 1, dtype=bool)
-    order = {m: i for i, m in enumerate(materials)}
-    material_of = np.full(OUT_OF_RANGE + 1, order[default.name], dtype=np.int16)
+    classes, flags = _merged_classes(spec, sets_raw, ctx, where)
+    lookup, known, material_of = _class_tables(classes, materials, default, ctx)
     ground = np.zeros(OUT_OF_RANGE + 1, dtype=bool)
-    ground[sorted(grounds)] = True
-    for class_id, (class_name, material) in classes.items():
-        if material not in materials:
-            raise ConfigError(
-                f"{ctx}: class {class_id} ({class_name}) maps to unknown material "
-                f"'{material}'; defined materials: {', '.join(sorted(materials))}."
-            )
-        lookup[class_id] = materials[material].reflectance
-        known[class_id] = True
-        material_of[class_id] = order[material]
+    ground[sorted(flags["ground"])] = True
     for table in (lookup, known, material_of, ground):
         table.flags.writeable = False
     return LabelSet(
@@ -179,10 +147,52 @@ def _label_set(
         known,
         material_of,
         ground,
-        frozenset(flats),
-        frozenset(movers),
-        frozenset(egos),
+        frozenset(flags["flat"]),
+        frozenset(flags["moving"]),
+        frozenset(flags["ego"]),
     )
+
+
+def _merged_classes(
+    spec: dict[str, Any], sets_raw: dict[str, Any], ctx: str, where: str
+) -> tuple[dict[int, tuple[str, str]], dict[str, set[int]]]:
+    """`_classes` of a label set over those of the set it `extends` (if any): a class of its
+    own replaces the inherited entry and flags of that id."""
+    classes: dict[int, tuple[str, str]] = {}
+    flags: dict[str, set[int]] = {f: set() for f in CLASS_FLAGS}
+    if "extends" in spec:
+        base = sets_raw.get(spec["extends"])
+        if not isinstance(base, dict) or "extends" in base:
+            raise ConfigError(f"{ctx}.extends must name a label set that extends nothing.")
+        inherited, flags = _classes(base.get("classes"), f"{where}: label_sets.{spec['extends']}")
+        classes.update(inherited)
+    own, own_flags = _classes(spec["classes"], ctx)
+    classes.update(own)
+    return classes, {f: (flags[f] - set(own)) | own_flags[f] for f in CLASS_FLAGS}
+
+
+def _class_tables(
+    classes: dict[int, tuple[str, str]],
+    materials: dict[str, Material],
+    default: Material,
+    ctx: str,
+) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.bool_], npt.NDArray[np.int16]]:
+    """(OUT_OF_RANGE + 1,) tables by class id: reflectance (float32; `default`'s where a
+    class has no entry), known (bool) and material (int16 index into `materials`)."""
+    lookup = np.full(OUT_OF_RANGE + 1, default.reflectance, dtype=np.float32)
+    known = np.zeros(OUT_OF_RANGE + 1, dtype=bool)
+    order = {m: i for i, m in enumerate(materials)}
+    material_of = np.full(OUT_OF_RANGE + 1, order[default.name], dtype=np.int16)
+    for class_id, (class_name, material) in classes.items():
+        if material not in materials:
+            raise ConfigError(
+                f"{ctx}: class {class_id} ({class_name}) maps to unknown material "
+                f"'{material}'; defined materials: {', '.join(sorted(materials))}."
+            )
+        lookup[class_id] = materials[material].reflectance
+        known[class_id] = True
+        material_of[class_id] = order[material]
+    return lookup, known, material_of
 
 
 def _classes(raw: Any, ctx: str) -> tuple[dict[int, tuple[str, str]], dict[str, set[int]]]:

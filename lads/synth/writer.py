@@ -107,14 +107,7 @@ def write_synthetic_dataset(
             not overwrite.
         BuildError: a file cannot be written.
     """
-    if layout not in LAYOUTS:
-        raise ConfigError(f"layout '{layout}' is unknown; use one of: {', '.join(LAYOUTS)}.")
-    if not isinstance(frames, int) or frames < 1:
-        raise ConfigError(f"frames={frames!r}; give an integer >= 1 (e.g. 20).")
-    if not re.fullmatch(r"\d+", sequence):
-        raise ConfigError(f"sequence '{sequence}' must be digits only, e.g. '00'.")
-    if seed < 0:
-        raise ConfigError(f"seed={seed}; give a non-negative integer.")
+    _check_arguments(layout, frames, sequence, seed)
     profile = load_profile(DEFAULT_SENSOR[layout] if sensor is None else sensor)
     out_root = Path(out_root)
     write_frame, frame_dirs, finish = _LAYOUT_WRITERS[layout](out_root, sequence, seed, profile)
@@ -139,6 +132,18 @@ def write_synthetic_dataset(
         points_per_frame=tuple(points),
         files=tuple(sorted(p.relative_to(out_root).as_posix() for p in written)),
     )
+
+
+def _check_arguments(layout: str, frames: int, sequence: str, seed: int) -> None:
+    """Raise ConfigError for the first of `write_synthetic_dataset`'s arguments out of range."""
+    if layout not in LAYOUTS:
+        raise ConfigError(f"layout '{layout}' is unknown; use one of: {', '.join(LAYOUTS)}.")
+    if not isinstance(frames, int) or frames < 1:
+        raise ConfigError(f"frames={frames!r}; give an integer >= 1 (e.g. 20).")
+    if not re.fullmatch(r"\d+", sequence):
+        raise ConfigError(f"sequence '{sequence}' must be digits only, e.g. '00'.")
+    if seed < 0:
+        raise ConfigError(f"seed={seed}; give a non-negative integer.")
 
 
 def _atomic_write(path: Path, payload: bytes) -> Path:

@@ -47,6 +47,19 @@ def local_ground_cos(
     if idx.size < MIN_POINTS:
         return cos, ok
     p = xyz[idx]
+    a, b, good = _tile_planes(_support_moments(p))
+    normal = np.stack([-a, -b, np.ones_like(a)], axis=1)
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    ray = p / np.maximum(np.linalg.norm(p, axis=1, keepdims=True), 1e-9)
+    c = np.abs(np.sum(ray * normal, axis=1))
+    cos[idx[good]] = np.clip(c[good], 0.0, 1.0)
+    ok[idx[good]] = True
+    return cos, ok
+
+
+def _support_moments(p: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+    """(9, P) float64 sums (1, x, y, z, xx, xy, yy, xz, yz) over the ground points of each
+    point's 3 x 3 support of TILE_M tiles (`p`: (P, 3) ground coordinates in m)."""
     cell = np.floor(p[:, :2] / TILE_M).astype(np.int64)
     lo = cell.min(axis=0) - 1
     cell -= lo
@@ -69,7 +82,16 @@ def local_ground_cos(
             for t in terms
         ]
     )
-    m = moments[:, cell[:, 0], cell[:, 1]]  # (9, P) support moments of each point's tile
+    return moments[:, cell[:, 0], cell[:, 1]]
+
+
+def _tile_planes(
+    m: npt.NDArray[np.float64],
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], npt.NDArray[np.bool_]]:
+    """The least-squares plane z = a x + b y + c of each support from its (9, P) moments:
+    a and b (P,) float64 (NaN or inf where singular), and good (P,) bool: at least MIN_POINTS
+    points, a horizontal spread of at least MIN_SPREAD_M (standard deviation along the thinner
+    axis) and a tilt of at most MAX_TILT_DEG."""
     count, sx, sy, sz, sxx, sxy, syy, sxz, syz = m
     with np.errstate(invalid="ignore", divide="ignore"):
         mx, my, mz = sx / count, sy / count, sz / count
@@ -85,13 +107,7 @@ def local_ground_cos(
     thin = half_trace - np.sqrt(np.maximum(half_trace**2 - det, 0.0))  # smaller eigenvalue
     good = (count >= MIN_POINTS) & (thin >= MIN_SPREAD_M**2) & np.isfinite(a) & np.isfinite(b)
     good &= np.hypot(a, b) <= math.tan(math.radians(MAX_TILT_DEG))
-    normal = np.stack([-a, -b, np.ones_like(a)], axis=1)
-    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
-    ray = p / np.maximum(np.linalg.norm(p, axis=1, keepdims=True), 1e-9)
-    c = np.abs(np.sum(ray * normal, axis=1))
-    cos[idx[good]] = np.clip(c[good], 0.0, 1.0)
-    ok[idx[good]] = True
-    return cos, ok
+    return a, b, good
 
 
 def _box3(grid: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:

@@ -7,9 +7,7 @@ effective sample size of LiDAR residuals is the number of independent surfaces (
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from dataclasses import dataclass, field
-from typing import Any
+from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
@@ -29,6 +27,7 @@ from lads.diagnose.selection.compare import (
     design_effect_scale,
     gain_on,
 )
+from lads.diagnose.selection.result import Selection, Step
 from lads.diagnose.selection.support import (
     class_rows,
     crossfit_support,
@@ -67,72 +66,6 @@ SHORTLIST = CONFIG.select.shortlist
 SHORTLIST_CONFINED = CONFIG.select.shortlist_confined
 CLAIM_FREQUENCY = CONFIG.select.claim_frequency
 POSSIBLE_FREQUENCY = CONFIG.select.possible_frequency
-
-
-@dataclass
-class Step:
-    """One candidate evaluated at one forward step (the selection trace)."""
-
-    step: int
-    candidate: str
-    delta_loss: float
-    se: float
-    delta_bic: float
-    at_bound: bool
-    accepted: bool = False
-    support: Comparison | None = None
-    screened: bool = False  # fitted on the screening rows only (not shortlisted)
-    z: float = 0.0  # the held-out directional score in cluster SEs (the acceptance test)
-    crossfit: bool = False  # support pooled with cross-fitted training groups
-
-    @classmethod
-    def of(cls, step: int, label: str, c: Comparison, at_bound: bool, **kw: Any) -> Step:
-        return cls(step, label, c.delta, c.se, c.delta_bic, at_bound, z=c.z, **kw)
-
-    def to_json(self) -> dict[str, Any]:
-        out = {
-            "step": self.step,
-            "candidate": self.candidate,
-            "delta_loss": self.delta_loss,
-            "se": self.se,
-            "z": self.z,
-            "delta_bic": self.delta_bic,
-            "at_bound": self.at_bound,
-            "accepted": self.accepted,
-            "screened": self.screened,
-        }
-        if self.support is not None:
-            out["class_rows"] = {
-                "delta_loss": self.support.delta,
-                "se": self.support.se,
-                "t": self.support.delta / max(self.support.se, 1e-300),
-                "groups": self.support.groups,
-                "statistic": "mean of group mean gains"
-                + (", held-out and cross-fitted training groups" if self.crossfit else ""),
-            }
-        return out
-
-
-@dataclass
-class Selection:
-    """Result of forward + backward selection on one training sample."""
-
-    fit: Fit
-    baseline: Fit
-    trace: list[Step] = field(default_factory=list)
-    first_step: dict[str, Comparison] = field(default_factory=dict)
-    # Every model fitted on all the training rows, and those fitted on the screening rows
-    # only, by set of effects: the starts of the stability resamples (`parallel.fit_warm`).
-    fitted: dict[frozenset[str], Fit] = field(default_factory=dict)
-    screened_fits: dict[frozenset[str], Fit] = field(default_factory=dict)
-    floor: float = MIN_GAIN_NATS  # the held-out gain an effect had to beat (`gain_floor`)
-
-    def starts(self) -> dict[frozenset[str], Fit]:
-        return {**self.screened_fits, **self.fitted}
-
-    @property
-    def labels(self) -> list[str]:
-        return [e.label for e in self.fit.model.effects]
 
 
 def _passes(
@@ -223,6 +156,153 @@ def _simplest_within_one_se(
     return min(tied, key=lambda r: (r[0].size, -r[2].delta))
 
 
+# One fully fitted candidate of a forward step: the effect, its fit, its held-out comparison,
+# whether a parameter sits at a bound, and its comparison on its own rows (if confined).
+_Result = tuple[Effect, Fit, Comparison, bool, Comparison | None]
+
+
+@dataclass(frozen=True)
+class _Problem:
+    """What every forward step reads: the design `d`, its training `weights` and starting
+    base parameters `base`, the `held_out` rows, the comparison's design-effect `scale` and
+    training row count `n_fit`, each candidate's held-out class rows (`supports`, by label),
+    the screening weights (None: no screening) and the acceptance bars."""
+
+    d: Design
+    weights: npt.NDArray[np.float64]
+    base: npt.NDArray[np.float64]
+    held_out: Design
+    scale: float
+    n_fit: float
+    supports: dict[str, Design | None]
+    screen_w: npt.NDArray[np.float64] | None
+    z_accept: float
+    floor: float
+    jobs: int
+    warm: dict[frozenset[str], Fit] | None
+
+    def assess(
+        self, cand: Effect, f: Fit, n_w: float, ref: Fit, incumbent: Incumbent
+    ) -> tuple[Comparison, Comparison | None]:
+        """`f` against `ref` on all held-out rows, and on `cand`'s own rows if it is confined."""
+        c = compare_on(f, ref, self.held_out, self.scale, n_w, incumbent)
+        sub = self.supports[cand.label]
+        if sub is None:
+            sub = domain_rows(self.held_out, cand, f)
+        return c, None if sub is None else compare_groups(f, ref, sub)
+
+
+@dataclass
+class _Search:
+    """What the forward steps change: the accepted fit `current` and its held-out
+    `incumbent`, the candidates not yet accepted (`remaining`) and the traced selection."""
+
+    p: _Problem
+    sel: Selection
+    current: Fit
+    incumbent: Incumbent
+    remaining: list[Effect]
+
+    def step(self, step: int) -> bool:
+        """Forward step `step`: fit and test the candidates and accept the best passing one
+        (or a simpler one within one SE of it). False when none passes."""
+        p = self.p
+        listed = list(self.remaining)
+        if p.screen_w is not None and len(self.remaining) > SHORTLIST:
+            listed = self._screen(step, p.screen_w)
+        results = self._evaluate(step, listed)
+        ok = [r for r in results if _passes(r[2], r[3], p.z_accept, p.floor, r[4])]
+        if not ok:
+            return False
+        self._accept(step, _simplest_within_one_se(ok, p.held_out))
+        return True
+
+    def _screen(self, step: int, screen_w: npt.NDArray[np.float64]) -> list[Effect]:
+        """The shortlist of one forward step: every candidate fitted on the screening rows and
+        scored; the others are traced as screened out."""
+        p, current = self.p, self.current
+        fits = fit_models(
+            [current.model.with_effect(c) for c in self.remaining],
+            p.d,
+            screen_w,
+            p.base,
+            current,
+            p.jobs,
+            p.warm,
+        )
+        # Against the incumbent refitted on the same screening rows: against the one fitted on
+        # all rows, the base parameters' own sampling noise (the return rate) moved every
+        # held-out group alike and could give every candidate the same gain, far beyond the z
+        # bar, with no effect present.
+        screen_ref = fit(current.model, p.d, screen_w, current.theta)
+        screen_inc = Incumbent.of(screen_ref, p.held_out)
+        screened: list[tuple[Effect, Fit, Comparison, Comparison | None]] = []
+        for cand, f in zip(self.remaining, fits, strict=True):
+            self.sel.screened_fits[f.model.key] = f
+            screened.append(
+                (cand, f, *p.assess(cand, f, float(screen_w.sum()), screen_ref, screen_inc))
+            )
+        shortlist = _shortlist(screened)
+        for cand, f, c, support in screened:
+            if cand.label in shortlist:
+                continue
+            bound = cand.label in f.binding_bounds(p.d, screen_w)
+            self.sel.trace.append(
+                Step.of(step, cand.label, c, bound, support=support, screened=True)
+            )
+            if step == 1:
+                self.sel.first_step[cand.label] = c
+        return [c for c in self.remaining if c.label in shortlist]
+
+    def _evaluate(self, step: int, listed: list[Effect]) -> list[_Result]:
+        """Every listed candidate fitted on all the training rows, tested and traced."""
+        p, current = self.p, self.current
+        fits = fit_models(
+            [current.model.with_effect(c) for c in listed],
+            p.d,
+            p.weights,
+            p.base,
+            current,
+            p.jobs,
+            p.warm,
+        )
+        fold_refs: dict[bytes, Fit] = {}
+        return [self._test(step, cand, f, fold_refs) for cand, f in zip(listed, fits, strict=True)]
+
+    def _test(self, step: int, cand: Effect, f: Fit, fold_refs: dict[bytes, Fit]) -> _Result:
+        """One full fit tested against the incumbent, its support cross-fitted when a
+        class-confined effect fails on too few held-out groups (`worth_crossfit`)."""
+        p = self.p
+        self.sel.fitted[f.model.key] = f
+        c, support = p.assess(cand, f, p.n_fit, self.current, self.incumbent)
+        bound = cand.label in f.binding_bounds(p.d, p.weights)
+        crossfit = not _passes(c, bound, p.z_accept, p.floor, support) and worth_crossfit(
+            c, support, cand
+        )
+        if crossfit:
+            class_sub = p.supports[cand.label]
+            if class_sub is None:  # a class-confined support is its class's held-out rows
+                raise DiagnoseError(f"{cand.label}: cross-fit without held-out class rows.")
+            support = crossfit_support(
+                f, self.current, p.d, p.weights, class_sub, cand.class_index, fold_refs
+            )
+        self.sel.trace.append(
+            Step.of(step, cand.label, c, bound, support=support, crossfit=crossfit)
+        )
+        if step == 1:
+            self.sel.first_step[cand.label] = c
+        return cand, f, c, bound, support
+
+    def _accept(self, step: int, best: _Result) -> None:
+        """Mark `best` accepted in this step's trace and make it the incumbent."""
+        for s in self.sel.trace:
+            if s.step == step:
+                s.accepted = s.candidate == best[0].label
+        self.current = best[1]
+        self.incumbent = Incumbent.of(self.current, self.p.held_out)
+        self.remaining = [c for c in self.remaining if c.label != best[0].label]
+
+
 def forward_backward(
     d: Design,
     pool: list[Effect],
@@ -256,115 +336,23 @@ def forward_backward(
     refs = refs if refs is not None else reference_levels(d)
     model = Model([], refs[0], refs[1], heteroscedastic)
     baseline = fit_warm(model, d, weights, base, None, warm)
-    current = baseline
     held_out = d.subset(validation)
-    incumbent = Incumbent.of(current, held_out)
+    incumbent = Incumbent.of(baseline, held_out)
     if floor is None:
         floor = gain_floor(float(np.mean(incumbent.terms.half_deviance(held_out))))
-    sel = Selection(current, baseline, floor=floor)
+    sel = Selection(baseline, baseline, floor=floor)
     sel.fitted[model.key] = baseline
-    remaining = list(pool)
     supports = {e.label: class_rows(held_out, e) for e in pool}
     screen_w = screening_weights(weights, screen_rows)
-
-    def assess(cand: Effect, f: Fit, n_w: float, ref: Fit, incumbent: Incumbent) -> tuple:
-        c = compare_on(f, ref, held_out, scale, n_w, incumbent)
-        sub = supports[cand.label]
-        if sub is None:
-            sub = domain_rows(held_out, cand, f)
-        return c, None if sub is None else compare_groups(f, ref, sub)
-
-    for step in range(1, k_max + 1):
-        results = []
-        listed = list(remaining)
-        if screen_w is not None and len(remaining) > SHORTLIST:
-            listed = _screen(
-                step, remaining, current, d, screen_w, base, held_out, sel, assess, jobs, warm
-            )
-        fits = fit_models(
-            [current.model.with_effect(c) for c in listed], d, weights, base, current, jobs, warm
-        )
-        fold_refs: dict[bytes, Fit] = {}
-        for cand, f in zip(listed, fits, strict=True):
-            sel.fitted[f.model.key] = f
-            c, support = assess(cand, f, n_fit, current, incumbent)
-            bound = cand.label in f.binding_bounds(d, weights)
-            crossfit = not _passes(c, bound, z_accept, floor, support) and worth_crossfit(
-                c, support, cand
-            )
-            if crossfit:
-                class_sub = supports[cand.label]
-                if class_sub is None:  # a class-confined support is its class's held-out rows
-                    raise DiagnoseError(f"{cand.label}: cross-fit without held-out class rows.")
-                support = crossfit_support(
-                    f, current, d, weights, class_sub, cand.class_index, fold_refs
-                )
-            results.append((cand, f, c, bound, support))
-            sel.trace.append(
-                Step.of(step, cand.label, c, bound, support=support, crossfit=crossfit)
-            )
-            if step == 1:
-                sel.first_step[cand.label] = c
-        # The best held-out gain, or a simpler effect within one SE of it.
-        ok = [r for r in results if _passes(r[2], r[3], z_accept, floor, r[4])]
-        if not ok:
-            break
-        best = _simplest_within_one_se(ok, held_out)
-        for s in sel.trace:
-            if s.step == step:
-                s.accepted = s.candidate == best[0].label
-        current = best[1]
-        incumbent = Incumbent.of(current, held_out)
-        remaining = [c for c in remaining if c.label != best[0].label]
-    sel.fit = _backward(current, d, weights, base, warm, held_out, scale, n_fit)
-    return sel
-
-
-def _screen(
-    step: int,
-    remaining: list[Effect],
-    current: Fit,
-    d: Design,
-    screen_w: npt.NDArray[np.float64],
-    base: npt.NDArray[np.float64],
-    held_out: Design,
-    sel: Selection,
-    assess: Callable[[Effect, Fit, float, Fit, Incumbent], tuple[Any, ...]],
-    jobs: int,
-    warm: dict[frozenset[str], Fit] | None,
-) -> list[Effect]:
-    """The shortlist of one forward step: every candidate fitted on the screening rows and
-    scored; the others are traced as screened out."""
-    screened = []
-    fits = fit_models(
-        [current.model.with_effect(c) for c in remaining], d, screen_w, base, current, jobs, warm
+    p = _Problem(
+        d, weights, base, held_out, scale, n_fit, supports, screen_w, z_accept, floor, jobs, warm
     )
-    # Against the incumbent refitted on the same screening rows: against the one fitted on
-    # all rows, the base parameters' own sampling noise (the return rate) moved every
-    # held-out group alike and could give every candidate the same gain, far beyond the z
-    # bar, with no effect present.
-    screen_ref = fit(current.model, d, screen_w, current.theta)
-    screen_inc = Incumbent.of(screen_ref, held_out)
-    for cand, f in zip(remaining, fits, strict=True):
-        sel.screened_fits[f.model.key] = f
-        screened.append((cand, f, *assess(cand, f, float(screen_w.sum()), screen_ref, screen_inc)))
-    shortlist = _shortlist(screened)
-    for cand, f, c, support in screened:
-        if cand.label in shortlist:
-            continue
-        sel.trace.append(
-            Step.of(
-                step,
-                cand.label,
-                c,
-                cand.label in f.binding_bounds(d, screen_w),
-                support=support,
-                screened=True,
-            )
-        )
-        if step == 1:
-            sel.first_step[cand.label] = c
-    return [c for c in remaining if c.label in shortlist]
+    search = _Search(p, sel, baseline, incumbent, list(pool))
+    for step in range(1, k_max + 1):
+        if not search.step(step):
+            break
+    sel.fit = _backward(search.current, d, weights, base, warm, held_out, scale, n_fit)
+    return sel
 
 
 def _backward(

@@ -13,9 +13,10 @@ from lads.diagnose.config import CONFIG
 from lads.diagnose.effects.base import Effect
 from lads.diagnose.effects.catalogue import CATALOGUE
 from lads.diagnose.fit.design import Design
+from lads.diagnose.fit.likelihood import Model
 from lads.diagnose.fit.model import initial_base
 from lads.diagnose.fit.parallel import fit_models
-from lads.diagnose.selection.compare import gain_on
+from lads.diagnose.selection.compare import Comparison, gain_on
 from lads.diagnose.selection.grouping import Split
 from lads.diagnose.selection.select import CLAIM_FREQUENCY, POSSIBLE_FREQUENCY, Selection
 
@@ -48,18 +49,8 @@ def swap_ambiguity(
     if not chosen.model.effects:
         return alternatives, sets
     base = initial_base(d, np.flatnonzero(weights > 0))
-    selected = set(sel.labels)
-    ranked = sorted(sel.first_step.items(), key=lambda kv: -kv[1].delta)
-    top = {label for label, _ in ranked[:4]}
     held_out = d.subset(split.validation)
-    swaps = []
-    for e in chosen.model.effects:
-        for cand in pool:
-            # Another parametrisation of the same catalogue effect is not an alternative.
-            if cand.label in selected or cand.info.id == e.info.id:
-                continue
-            if cand.info.id in e.info.confounds or cand.label in top:
-                swaps.append((e, cand, chosen.model.without(e.label).with_effect(cand)))
+    swaps = _swaps(sel, pool)
     # A swapped model the selection already fitted on these rows is not fitted again.
     todo = [m for _, _, m in swaps if m.key not in sel.fitted]
     fits = dict(
@@ -74,19 +65,7 @@ def swap_ambiguity(
             c = gain_on(chosen, swapped, held_out)
             if abs(c.delta) <= c.se:
                 members.append(cand.info.id)
-                alternatives.append(
-                    {
-                        "id": cand.info.id,
-                        "key": cand.info.key,
-                        "label": cand.label,
-                        "ids": [cand.info.id],
-                        "keys": [cand.info.key],
-                        "instead_of": [e.info.id],
-                        "delta_loss": c.delta,
-                        "se": c.se,
-                        "separating_data": separating_data(e.info.id, cand.info.id),
-                    }
-                )
+                alternatives.append(_alternative(e, cand, c))
         if len(members) > 1:
             sets.append(
                 {
@@ -97,6 +76,40 @@ def swap_ambiguity(
                 }
             )
     return alternatives, sets
+
+
+def _swaps(sel: Selection, pool: list[Effect]) -> list[tuple[Effect, Effect, Model]]:
+    """(selected effect, candidate, the chosen model with the candidate in its place) for
+    every unselected candidate that confounds with a selected effect or was among the four
+    best first steps."""
+    chosen = sel.fit
+    selected = set(sel.labels)
+    ranked = sorted(sel.first_step.items(), key=lambda kv: -kv[1].delta)
+    top = {label for label, _ in ranked[:4]}
+    swaps = []
+    for e in chosen.model.effects:
+        for cand in pool:
+            # Another parametrisation of the same catalogue effect is not an alternative.
+            if cand.label in selected or cand.info.id == e.info.id:
+                continue
+            if cand.info.id in e.info.confounds or cand.label in top:
+                swaps.append((e, cand, chosen.model.without(e.label).with_effect(cand)))
+    return swaps
+
+
+def _alternative(e: Effect, cand: Effect, c: Comparison) -> dict[str, Any]:
+    """The report entry of `cand` fitting within one SE (`c`) of the selected effect `e`."""
+    return {
+        "id": cand.info.id,
+        "key": cand.info.key,
+        "label": cand.label,
+        "ids": [cand.info.id],
+        "keys": [cand.info.key],
+        "instead_of": [e.info.id],
+        "delta_loss": c.delta,
+        "se": c.se,
+        "separating_data": separating_data(e.info.id, cand.info.id),
+    }
 
 
 def resample_swaps(

@@ -118,24 +118,14 @@ def _diagnose_design(
     possible = _possible(pool, final, stable)
 
     phase(PHASES[3])
-    alternatives, sets = swap_ambiguity(d, selection, pool, weights, split, settings.jobs)
     reasons: list[str] = []
-    sets += range_band_rule(d, selection, reasons)
-    sets += resample_swaps(selection.labels, stable.chosen_sets, pool, stable.family, sets)
-    sets += ground_only_rule(d, selection, reasons)
-    if settings.resamples > 0:
-        ids_by_label = {e.label: e.info.id for e in pool}
-        chosen_ids = [{ids_by_label[label] for label in labels} for labels in stable.chosen_sets]
-        reasons += claim_with_sets(effects, sets, chosen_ids)
+    alternatives, sets = _ambiguity(
+        d, selection, pool, weights, split, settings, stable, effects, reasons
+    )
     noise = noise_model(final, d, boot, selection, weights, split)
     heldout = heldout_metrics(d, split.test, selection.baseline, final)
     beyond = _beyond_bounds(selection)
-    reasons += [
-        f"{label} would improve the held-out fit by {z:.1f} SE but a parameter sits at "
-        "its catalogue bound: the mismatch it describes is larger than the catalogue "
-        "allows for it, or another effect is missing"
-        for label, z in beyond
-    ]
+    reasons += _bound_reasons(beyond)
     test_gain = compare(final, selection.baseline, d, split.test, 1.0, 1.0)
     heldout["test_gain_nats"] = {"delta": test_gain.delta, "se": test_gain.se}
     verdict = _verdict(effects, possible, sets, test_gain, bool(beyond), reasons)
@@ -153,6 +143,41 @@ def _diagnose_design(
         reasons,
         stable.frequency,
     )
+
+
+def _ambiguity(
+    d: Design,
+    selection: Selection,
+    pool: list[Effect],
+    weights: npt.NDArray[np.float64],
+    split: Split,
+    settings: Settings,
+    stable: Stability,
+    effects: list[EffectReport],
+    reasons: list[str],
+) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
+    """(alternatives, ambiguity sets): the swaps within one SE, then the sets of the range
+    band, the stability resamples and the ground-only rule. The rules' reasons, and those
+    of claims the sets demote (`claim_with_sets`), are appended to `reasons`."""
+    alternatives, sets = swap_ambiguity(d, selection, pool, weights, split, settings.jobs)
+    sets += range_band_rule(d, selection, reasons)
+    sets += resample_swaps(selection.labels, stable.chosen_sets, pool, stable.family, sets)
+    sets += ground_only_rule(d, selection, reasons)
+    if settings.resamples > 0:
+        ids_by_label = {e.label: e.info.id for e in pool}
+        chosen_ids = [{ids_by_label[label] for label in labels} for labels in stable.chosen_sets]
+        reasons += claim_with_sets(effects, sets, chosen_ids)
+    return alternatives, sets
+
+
+def _bound_reasons(beyond: list[tuple[str, float]]) -> list[str]:
+    """A reason for each (label, z) of `_beyond_bounds`."""
+    return [
+        f"{label} would improve the held-out fit by {z:.1f} SE but a parameter sits at "
+        "its catalogue bound: the mismatch it describes is larger than the catalogue "
+        "allows for it, or another effect is missing"
+        for label, z in beyond
+    ]
 
 
 def _effect_reports(

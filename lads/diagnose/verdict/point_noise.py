@@ -208,12 +208,8 @@ def point_noise(
     exceeds `z_accept` and a slope exceeds `min_slope`, "homoscedastic" otherwise, or
     "undetermined" with a reason when too few pairs exist; and by_range (`by_range`)."""
     pairs = neighbour_pairs(d, mu)
-    in_fit = np.zeros(len(d), dtype=bool)
-    in_fit[fit_rows] = True
-    in_test = np.zeros(len(d), dtype=bool)
-    in_test[test_rows] = True
-    train = pairs.take(np.flatnonzero(in_fit[pairs.i] & in_fit[pairs.j]))
-    test = pairs.take(np.flatnonzero(in_test[pairs.i] & in_test[pairs.j]))
+    train = _pairs_within(pairs, fit_rows, len(d))
+    test = _pairs_within(pairs, test_rows, len(d))
     out: dict[str, Any] = {
         "method": "differences of neighbouring returns on one ring and surface, Student t "
         f"(nu = {NU:g}), rounding variance removed",
@@ -229,20 +225,8 @@ def point_noise(
         return out
     train = train.take(evenly_spaced(len(train), FIT_PAIRS))
     x = _Regressors.of(d, train, ln_range_ref, ln_sim_ref)
-    # Start at the robust scale of the differences: MAD / 0.6745 of d is sqrt(2) sigma.
-    mad = float(np.median(np.abs(train.d))) / 0.6745
-    start = np.array([math.log(max(mad, 1e-3) / math.sqrt(2.0)), 0.0, 0.0])
-    free_all = np.ones(3, dtype=bool)
-    flat_only = np.array([True, False, False])
-    sloped = _fit(x, train, start, free_all)
-    flat = _fit(x, train, start, flat_only)
-    cov = _sandwich(sloped, x, train)
-    se = np.sqrt(np.maximum(np.diag(cov), 0.0))
-    out["t_scale_ln_i"] = float(math.exp(sloped[0]))
-    out["sigma_ln_i_if_gaussian"] = float(math.exp(sloped[0]) / GAUSS_SCALE)
-    for k, name in ((1, "range_slope"), (2, "level_slope")):
-        out[name] = float(sloped[k])
-        out[f"{name}_ci95"] = [float(sloped[k] - Z95 * se[k]), float(sloped[k] + Z95 * se[k])]
+    sloped, flat = _fit_laws(x, train)
+    out.update(_law_fields(sloped, _sandwich(sloped, x, train)))
     xt = _Regressors.of(d, test, ln_range_ref, ln_sim_ref)
     gain = _nll_terms(flat, xt, test)[0] - _nll_terms(sloped, xt, test)[0]
     c = by_rows(gain, gain, test.group)
@@ -250,6 +234,42 @@ def point_noise(
     big = max(abs(sloped[1]), abs(sloped[2])) > min_slope
     out["kind"] = "heteroscedastic" if big and c.z > z_accept else "homoscedastic"
     out["by_range"] = by_range(d, train, sloped, ln_range_ref, ln_sim_ref)
+    return out
+
+
+def _pairs_within(pairs: Pairs, rows: npt.NDArray[np.int64], n_rows: int) -> Pairs:
+    """The pairs whose two rows are both among `rows` (numpy row indices of a design of
+    `n_rows` rows)."""
+    inside = np.zeros(n_rows, dtype=bool)
+    inside[rows] = True
+    return pairs.take(np.flatnonzero(inside[pairs.i] & inside[pairs.j]))
+
+
+def _fit_laws(
+    x: _Regressors, train: Pairs
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    """(3,) theta of the sloped law and of the constant scale (slopes held at 0), both fitted
+    on the training pairs from the robust scale of their differences."""
+    # MAD / 0.6745 of d is sqrt(2) sigma.
+    mad = float(np.median(np.abs(train.d))) / 0.6745
+    start = np.array([math.log(max(mad, 1e-3) / math.sqrt(2.0)), 0.0, 0.0])
+    sloped = _fit(x, train, start, np.ones(3, dtype=bool))
+    flat = _fit(x, train, start, np.array([True, False, False]))
+    return sloped, flat
+
+
+def _law_fields(sloped: npt.NDArray[np.float64], cov: npt.NDArray[np.float64]) -> dict[str, Any]:
+    """The report's fields of the sloped law `sloped` (3,) with covariance `cov` (3, 3): its
+    t scale at the reference range and level, that scale's Gaussian sigma, and both slopes
+    with their ci95."""
+    se = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    out: dict[str, Any] = {
+        "t_scale_ln_i": float(math.exp(sloped[0])),
+        "sigma_ln_i_if_gaussian": float(math.exp(sloped[0]) / GAUSS_SCALE),
+    }
+    for k, name in ((1, "range_slope"), (2, "level_slope")):
+        out[name] = float(sloped[k])
+        out[f"{name}_ci95"] = [float(sloped[k] - Z95 * se[k]), float(sloped[k] + Z95 * se[k])]
     return out
 
 
