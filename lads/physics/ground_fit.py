@@ -21,10 +21,14 @@ from typing import Any
 
 import numpy as np
 import numpy.typing as npt
+from numba import njit
 
 # Cells whose lowest point sets the reference ground height: near the sensor, where a street
 # scan always sees road (m, horizontal distance).
 NEAR_RANGE_M = (3.0, 15.0)
+# Points farther than this from the sensor along x or y are never ground: it bounds the grid
+# (m; beyond every shipped sensor's range).
+EXTENT_M = 250.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -48,50 +52,55 @@ def ground_mask(
     """(N,) bool: the points that lie on the ground (see the module docstring).
 
     Args:
-        xyz: (N, 3) points in the sensor frame, m, z up. Zero-range rows are never ground.
+        xyz: (N, 3) points in the sensor frame, m, z up. Zero-range rows, and points beyond
+            EXTENT_M horizontally, are never ground.
         fit: the settings.
     """
     p = np.asarray(xyz, dtype=np.float64)
-    n = p.shape[0]
-    valid = np.isfinite(p).all(axis=1) & (np.einsum("ij,ij->i", p, p) > 0)
+    valid = (
+        np.isfinite(p).all(axis=1)
+        & (np.einsum("ij,ij->i", p, p) > 0)
+        & (np.abs(p[:, 0]) < EXTENT_M)
+        & (np.abs(p[:, 1]) < EXTENT_M)
+    )
     if not valid.any():
-        return np.zeros(n, dtype=bool)
-    cx = np.floor(p[:, 0] / fit.cell_m).astype(np.int64)
-    cy = np.floor(p[:, 1] / fit.cell_m).astype(np.int64)
-    cells, cell_of = _cells(cx, cy, valid)
-    lowest = np.full(len(cells), np.inf)
-    np.minimum.at(lowest, cell_of[valid], p[valid, 2])
-    centre = (cells + 0.5) * fit.cell_m
-    distance = np.hypot(centre[:, 0], centre[:, 1])
-    near = (distance >= NEAR_RANGE_M[0]) & (distance <= NEAR_RANGE_M[1])
-    h0 = float(np.median(lowest[near])) if near.any() else float(np.min(lowest))
-    candidate = lowest <= h0 + fit.height_tol_m + distance * fit.max_slope
-    ground = np.zeros(n, dtype=bool)
-    for dx in (-1, 0, 1):
-        for dy in (-1, 0, 1):
-            neighbour = _lookup(cells, cx + dx, cy + dy)
-            ok = valid & (neighbour >= 0)
-            k = neighbour[ok]
-            near_floor = p[ok, 2] - lowest[k] <= fit.height_tol_m
-            ground[np.flatnonzero(ok)[candidate[k] & near_floor]] = True
-    return ground
+        return np.zeros(p.shape[0], dtype=bool)
+    cx = np.floor(np.where(valid, p[:, 0], 0.0) / fit.cell_m).astype(np.int64)
+    cy = np.floor(np.where(valid, p[:, 1], 0.0) / fit.cell_m).astype(np.int64)
+    x0, y0 = int(cx[valid].min()), int(cy[valid].min())
+    shape = (int(cx[valid].max()) - x0 + 1, int(cy[valid].max()) - y0 + 1)
+    z = np.ascontiguousarray(p[:, 2])
+    lowest = _lowest_per_cell(cx - x0, cy - y0, z, valid, shape[0], shape[1])
+    gx, gy = np.meshgrid(np.arange(shape[0]) + x0, np.arange(shape[1]) + y0, indexing="ij")
+    distance = np.hypot((gx + 0.5) * fit.cell_m, (gy + 0.5) * fit.cell_m)
+    occupied = np.isfinite(lowest)
+    near = occupied & (distance >= NEAR_RANGE_M[0]) & (distance <= NEAR_RANGE_M[1])
+    h0 = float(np.median(lowest[near])) if near.any() else float(lowest[occupied].min())
+    candidate = occupied & (lowest <= h0 + fit.height_tol_m + distance * fit.max_slope)
+    return _near_candidate_floor(cx - x0, cy - y0, z, valid, lowest, candidate, fit.height_tol_m)
 
 
-def _cells(
-    cx: npt.NDArray[np.int64], cy: npt.NDArray[np.int64], valid: npt.NDArray[np.bool_]
-) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64]]:
-    """(C, 2) the occupied cells, sorted, and (N,) each point's cell index (-1 if invalid)."""
-    cells, inverse = np.unique(np.column_stack([cx[valid], cy[valid]]), axis=0, return_inverse=True)
-    cell_of = np.full(cx.size, -1, dtype=np.int64)
-    cell_of[valid] = inverse.ravel()
-    return cells, cell_of
+@njit(cache=True)
+def _lowest_per_cell(cx, cy, z, valid, nx, ny):  # type: ignore[no-untyped-def]
+    """(nx, ny) the lowest z of each cell's valid points, +inf where a cell has none."""
+    lowest = np.full((nx, ny), np.inf)
+    for i in range(z.size):
+        if valid[i] and z[i] < lowest[cx[i], cy[i]]:
+            lowest[cx[i], cy[i]] = z[i]
+    return lowest
 
 
-def _lookup(
-    cells: npt.NDArray[np.int64], cx: npt.NDArray[np.int64], cy: npt.NDArray[np.int64]
-) -> npt.NDArray[np.int64]:
-    """(N,) index of the cell (cx, cy) in `cells`, -1 where it is not occupied."""
-    keys = cells[:, 0] * (1 << 32) + cells[:, 1]
-    wanted = cx * (1 << 32) + cy
-    pos = np.clip(np.searchsorted(keys, wanted), 0, len(keys) - 1)
-    return np.where(keys[pos] == wanted, pos, -1)
+@njit(cache=True)
+def _near_candidate_floor(cx, cy, z, valid, lowest, candidate, tol):  # type: ignore[no-untyped-def]
+    """(N,) whether a valid point lies within `tol` above the lowest point of a candidate
+    cell among its own and the eight around it."""
+    nx, ny = lowest.shape
+    out = np.zeros(z.size, dtype=np.bool_)
+    for i in range(z.size):
+        if not valid[i]:
+            continue
+        for a in range(max(cx[i] - 1, 0), min(cx[i] + 2, nx)):
+            for b in range(max(cy[i] - 1, 0), min(cy[i] + 2, ny)):
+                if candidate[a, b] and z[i] - lowest[a, b] <= tol:
+                    out[i] = True
+    return out
