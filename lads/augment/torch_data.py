@@ -108,7 +108,10 @@ class CorruptedDataset(Dataset):  # type: ignore[type-arg]
                 out[key] = _like(value, given[1])
         if self.info_key is not None and isinstance(out, dict):
             out[self.info_key] = info
-        return out if isinstance(sample, Mapping) else type(sample)(out)
+        if isinstance(sample, Mapping):
+            return out
+        # A named tuple takes its fields as arguments; a tuple or list takes one iterable.
+        return type(sample)(*out) if hasattr(sample, "_fields") else type(sample)(out)
 
 
 def worker_init_fn(worker_id: int) -> None:

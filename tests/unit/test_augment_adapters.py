@@ -213,3 +213,17 @@ def test_mmdet3d_incomplete_echo_from_boxes_without_point_masks():
     assert out["points"].shape[0] < points.shape[0] and "pts_semantic_mask" not in out
     changed = out["lads_outcome"] != Outcome.KEPT
     assert changed.sum() + (points.shape[0] - out["points"].shape[0]) <= inside.sum()
+
+
+def test_dataset_wrapper_keeps_tuple_and_named_tuple_samples():
+    from collections import namedtuple
+
+    Sample = namedtuple("Sample", "points labels")
+    base = Clouds()
+    plain = [(base[0]["points"], base[0]["labels"])]
+    named = [Sample(base[0]["points"], base[0]["labels"])]
+    corruption = Corruption("beam_missing", "light", sensor="hdl64e", seed=2)
+    for samples in (plain, named):
+        out = CorruptedDataset(samples, corruption, points_key=0, labels_key=1)[0]
+        assert type(out) is type(samples[0]) and out[0].shape[0] == out[1].shape[0]
+        assert out[0].shape[0] < samples[0][0].shape[0]
