@@ -13,6 +13,7 @@ from typing import Any
 
 import click
 
+from lads.cli_options import SOURCE, SOURCE_ROOT, reader_options
 from lads.correspondence import POINT_MODES
 from lads.errors import LadsError
 from lads.exit_codes import EXIT_INCOMPLETE, EXIT_LADS_ERROR
@@ -147,7 +148,7 @@ def variants() -> None:
 
 
 @main.command()
-@click.option("--source", required=True, type=click.Choice(sorted(READERS)), help="Reader.")
+@SOURCE
 @click.option(
     "--variant",
     help="Variant: snow, rain, fog, wet-ground, intensity-kitti, intensity-nuscenes or "
@@ -160,13 +161,7 @@ def variants() -> None:
     type=click.Path(exists=True, dir_okay=False, path_type=Path),
     help="Use this pipeline YAML instead of --variant.",
 )
-@click.option(
-    "--in",
-    "source_root",
-    required=True,
-    type=click.Path(exists=True, file_okay=False, path_type=Path),
-    help="Source dataset root.",
-)
+@SOURCE_ROOT
 @click.option(
     "--out",
     "out_root",
@@ -326,7 +321,7 @@ def build(
         out_root,
         pipeline,
         seed=seed,
-        reader_options=_reader_options(sequences, nuscenes_version, include_sweeps, source_sensor),
+        reader_options=reader_options(sequences, nuscenes_version, include_sweeps, source_sensor),
         jobs=jobs,
         backend=backend,
         scheduler=scheduler,
@@ -340,25 +335,6 @@ def build(
     click.echo(report.summary_text())
     if not report.complete:
         sys.exit(EXIT_INCOMPLETE)
-
-
-def _reader_options(
-    sequences: str | None,
-    nuscenes_version: str | None,
-    include_sweeps: bool,
-    source_sensor: str | None,
-) -> dict[str, Any]:
-    """The reader options `build`'s flags give (`--sequences` is comma-separated)."""
-    options: dict[str, Any] = {}
-    if sequences:
-        options["sequences"] = [s.strip() for s in sequences.split(",") if s.strip()]
-    if nuscenes_version:
-        options["version"] = nuscenes_version
-    if include_sweeps:
-        options["include_sweeps"] = True
-    if source_sensor:
-        options["sensor"] = source_sensor
-    return options
 
 
 @main.command()

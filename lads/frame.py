@@ -14,6 +14,9 @@ import numpy.typing as npt
 
 from lads.physics.result import Outcome
 
+# The frame column that holds each point's laser (channel), where the format stores one.
+RING_COLUMN = "ring"
+
 
 @dataclass(frozen=True, slots=True)
 class Item:

@@ -20,7 +20,7 @@ from lads.errors import ConfigError
 from lads.files import atomic_write
 from lads.physics.severity import SEVERITIES
 from lads.runner import BuildReport, run_build
-from lads.variant_families import CORRUPTION_PREFIX, SENSOR_PIPELINE, corruption_variants
+from lads.variant_families import SENSOR_PIPELINE, corruption_variants, split_corruption_variant
 
 SUITE_FILE = "suite.json"
 SUITE_README = "README.md"
@@ -75,8 +75,7 @@ def _corruption_of(variant: str) -> tuple[str, str | None]:
     """(corruption, severity) of a suite variant; cross-sensor has no severity."""
     if variant.startswith(f"{SENSOR_PIPELINE}-"):
         return CROSS_SENSOR, None
-    name, _, severity = variant[len(CORRUPTION_PREFIX) :].rpartition("-")
-    return name, severity
+    return split_corruption_variant(variant)
 
 
 def build_suite(

@@ -7,24 +7,14 @@ from pathlib import Path
 
 import click
 
+from lads.cli_options import SOURCE, SOURCE_ROOT, comma_list, reader_options
 from lads.exit_codes import EXIT_INCOMPLETE
 from lads.physics.severity import SEVERITIES
-from lads.readers import READERS
-
-
-def _names(value: str | None) -> list[str] | None:
-    return None if value is None else [v.strip() for v in value.split(",") if v.strip()]
 
 
 @click.command("suite")
-@click.option("--source", required=True, type=click.Choice(sorted(READERS)), help="Reader.")
-@click.option(
-    "--in",
-    "source_root",
-    required=True,
-    type=click.Path(exists=True, file_okay=False, path_type=Path),
-    help="Source dataset root.",
-)
+@SOURCE
+@SOURCE_ROOT
 @click.option(
     "--out",
     "out_root",
@@ -61,12 +51,8 @@ def suite_command(
     source: one verified tree with its card per C-<corruption>-<severity> variant."""
     from lads.suite import build_suite, suite_variants
 
-    options: dict[str, object] = {}
-    if sequences:
-        options["sequences"] = _names(sequences)
-    if nuscenes_version:
-        options["version"] = nuscenes_version
-    variants = suite_variants(source, _names(corruptions), _names(severities))
+    options = reader_options(sequences, nuscenes_version)
+    variants = suite_variants(source, comma_list(corruptions), comma_list(severities))
     report = build_suite(
         source,
         source_root,

@@ -47,13 +47,20 @@ def corruption_variants(source: str) -> list[str]:
     ]
 
 
+def split_corruption_variant(variant: str) -> tuple[str, str]:
+    """(corruption, severity) of a `C-<corruption>-<severity>` name; the corruption name may
+    hold underscores but no dashes, so the severity is what follows the last dash."""
+    name, _, severity = variant[len(CORRUPTION_PREFIX) :].rpartition("-")
+    return name, severity
+
+
 def corruption_stage(variant: str) -> tuple[str, dict[str, Any], str]:
     """(stage name, its parameters, a description) of a `C-<corruption>-<severity>` variant.
 
     Raises:
         ConfigError: not such a variant, or an unknown corruption or severity.
     """
-    name, _, severity = variant[len(CORRUPTION_PREFIX) :].rpartition("-")
+    name, severity = split_corruption_variant(variant)
     if not variant.startswith(CORRUPTION_PREFIX) or severity not in SEVERITIES:
         raise ConfigError(
             f"variant {variant!r}: expected {CORRUPTION_PREFIX}<corruption>-<severity> with a "
@@ -73,7 +80,7 @@ def describe_variants(variants: list[str]) -> str:
     suite = [v for v in variants if v.startswith(CORRUPTION_PREFIX)]
     others = [v for v in variants if not v.startswith(CORRUPTION_PREFIX)]
     if suite:
-        names = sorted({v[len(CORRUPTION_PREFIX) :].rpartition("-")[0] for v in suite})
+        names = sorted({split_corruption_variant(v)[0] for v in suite})
         others.append(
             f"{CORRUPTION_PREFIX}<corruption>-<{'|'.join(SEVERITIES)}> for {'|'.join(names)}"
         )
@@ -85,5 +92,4 @@ def fold_severity(variant: str) -> str:
     (`C-fog-<light|moderate|heavy>`); any other variant unchanged."""
     if not variant.startswith(CORRUPTION_PREFIX):
         return variant
-    name = variant[len(CORRUPTION_PREFIX) :].rpartition("-")[0]
-    return f"{CORRUPTION_PREFIX}{name}-<{'|'.join(SEVERITIES)}>"
+    return f"{CORRUPTION_PREFIX}{split_corruption_variant(variant)[0]}-<{'|'.join(SEVERITIES)}>"

@@ -16,12 +16,11 @@ from typing import Any, NamedTuple
 import numpy as np
 import numpy.typing as npt
 
-from lads.augment.pseudo_labels import BOX_LABEL_SET as PSEUDO_LABEL_SET
-from lads.augment.pseudo_labels import ground_labels
+from lads.augment.pseudo_labels import PSEUDO_LABEL_SET, ground_labels
 from lads.config import StageConfig
 from lads.corruptions import CorruptionSpec, corruption_spec
 from lads.errors import AugmentInputError, ConfigError
-from lads.frame import Frame, Item
+from lads.frame import RING_COLUMN, Frame, Item
 from lads.physics.result import Outcome
 from lads.physics.severity import SEVERITIES
 from lads.seeding import augment_rng
@@ -29,7 +28,6 @@ from lads.sensors.profile import SensorProfile, load_profile
 from lads.stage_params import check_stage, resolved
 from lads.stages import build_stage
 from lads.stages.base import Stage
-from lads.stages.sensor_faults import RING_COLUMN
 
 # Item.dataset of arrays that name no dataset.
 ANONYMOUS_DATASET = "augment"

@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from lads.augment.core import Corruption
-from lads.augment.pseudo_labels import BOX_LABEL_SET, vehicle_labels
+from lads.augment.pseudo_labels import PSEUDO_LABEL_SET, vehicle_labels
 from lads.errors import AugmentInputError
 
 try:  # mmcv's base class when it is installed; the contract is the same without it.
@@ -80,7 +80,7 @@ class LadsCorruption(_Base):  # type: ignore[misc]
             raise AugmentInputError(f"LadsCorruption: probability {probability}; expected [0, 1].")
         self.vehicle_classes = None if vehicle_classes is None else frozenset(vehicle_classes)
         if self.vehicle_classes is not None:
-            options.setdefault("dataset", BOX_LABEL_SET)
+            options.setdefault("dataset", PSEUDO_LABEL_SET)
         self.corruption = Corruption(corruption, **options)
         self.probability = float(probability)
         self.epoch = 0

@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from lads.augment.core import Corruption
-from lads.augment.pseudo_labels import BOX_LABEL_SET, VEHICLE_NAMES, vehicle_labels
+from lads.augment.pseudo_labels import PSEUDO_LABEL_SET, VEHICLE_NAMES, vehicle_labels
 from lads.corruptions import corruption_spec
 from lads.errors import AugmentInputError
 
@@ -60,7 +60,7 @@ class OpenPCDetCorruption:
         options = {_KEYS[k]: v for k, v in given.items() if k in _KEYS}
         self.from_boxes = corruption_spec(str(options.get("corruption"))).name == BOXED
         if self.from_boxes:
-            options.setdefault("dataset", BOX_LABEL_SET)
+            options.setdefault("dataset", PSEUDO_LABEL_SET)
         self.corruption = Corruption(**options, **dict(given.get("PARAMS") or {}))
         self.probability = float(given.get("PROBABILITY", 1.0))
         self.epoch_key = given.get("EPOCH_KEY", "epoch")

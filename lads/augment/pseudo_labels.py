@@ -25,7 +25,7 @@ VEHICLE_NAMES = frozenset(
      "construction_vehicle", "Vehicle", "vehicle"}
 )  # fmt: skip
 # The label set the box classes are written in, and its ids for a car and for nothing.
-BOX_LABEL_SET = "semantickitti"
+PSEUDO_LABEL_SET = "semantickitti"
 CAR_ID, ROAD_ID, UNLABELED_ID = 10, 40, 0
 
 

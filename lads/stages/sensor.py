@@ -20,7 +20,7 @@ import numpy.typing as npt
 
 from lads.config import StageConfig
 from lads.errors import InputDataError
-from lads.frame import Frame
+from lads.frame import RING_COLUMN, Frame
 from lads.physics.result import Outcome
 from lads.readers import label_set_for
 from lads.sensors.profile import load_profile
@@ -31,7 +31,7 @@ from lads.transfer.window import DEFAULT_NEIGHBOURS
 # Bump when the stage's output bytes change for the same input.
 SENSOR_STAGE_VERSION = "2"  # 2: nuScenes classes of things that move come from the frame only
 # Point columns the stage knows how to fill; any other column of a source format is refused.
-_KNOWN_COLUMNS = ("x", "y", "z", "intensity", "ring")
+_KNOWN_COLUMNS = ("x", "y", "z", "intensity", RING_COLUMN)
 
 
 @dataclass(frozen=True, slots=True)
@@ -68,7 +68,11 @@ class SensorStage:
         (deterministic: the worker computes them once per scan and lends them to every
         window that holds it)."""
         _check_columns(frame)
-        ring = frame.points[:, frame.columns.index("ring")] if "ring" in frame.columns else None
+        ring = (
+            frame.points[:, frame.columns.index(RING_COLUMN)]
+            if RING_COLUMN in frame.columns
+            else None
+        )
         scan = WindowScan(frame.xyz, frame.intensity, frame.labels, ring, np.eye(4))
         label_set = label_set_for(frame.item.dataset)
         surfels = window_surfels(scan, 0, load_profile(frame.sensor), label_set)
@@ -116,8 +120,8 @@ class SensorStage:
         points = np.zeros((out.xyz.shape[0], len(frame.columns)), np.float32)
         points[:, :3] = out.xyz
         points[:, 3] = out.intensity
-        if "ring" in frame.columns:
-            points[:, frame.columns.index("ring")] = out.ring
+        if RING_COLUMN in frame.columns:
+            points[:, frame.columns.index(RING_COLUMN)] = out.ring
         labels = None if frame.labels is None else out.labels.astype(frame.labels.dtype)
         m = out.xyz.shape[0]
         return replace(

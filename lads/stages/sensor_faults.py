@@ -9,18 +9,16 @@ import numpy as np
 
 from lads.config import StageConfig
 from lads.errors import ConfigError
-from lads.frame import Frame
+from lads.frame import RING_COLUMN, Frame
 from lads.physics import sensor_faults as faults
 from lads.physics.echo_faults import crosstalk, incomplete_echo
-from lads.physics.projection import range_m
+from lads.physics.projection import channels_of, range_m
 from lads.physics.result import WeatherResult
 from lads.readers import label_set_for
 from lads.sensors.profile import SensorProfile, load_profile
 
 # Bump when the output bytes change for the same input and seed.
 SENSOR_FAULT_STAGE_VERSION = "1"
-# The frame column that holds each point's laser, when the format stores one.
-RING_COLUMN = "ring"
 
 
 def _apply(
@@ -37,11 +35,12 @@ def _apply(
 
 def frame_channels(frame: Frame, profile: SensorProfile) -> np.ndarray:
     """(M,) int64 laser of each point: the ring column when the frame has one, else the
-    nearest elevation of the profile's table."""
-    if RING_COLUMN in frame.columns:
-        ring = frame.points[:, frame.columns.index(RING_COLUMN)]
-        return np.clip(np.rint(ring), 0, profile.channels - 1).astype(np.int64)
-    return profile.channel_of(frame.xyz)
+    nearest elevation of the profile's table (`lads.physics.projection.channels_of`, which
+    refuses a ring outside the profile's channels)."""
+    ring = (
+        frame.points[:, frame.columns.index(RING_COLUMN)] if RING_COLUMN in frame.columns else None
+    )
+    return channels_of(frame.xyz.astype(np.float64), profile, ring)
 
 
 @dataclass(frozen=True, slots=True)

@@ -13,9 +13,9 @@ import pytest
 
 from lads.augment import CORRUPTIONS, Corruption
 from lads.config import pipeline_for, variants_for
+from lads.frame import RING_COLUMN
 from lads.readers import get_reader, label_set_for
 from lads.runner import run_build
-from lads.stages.sensor_faults import RING_COLUMN
 from lads.verify import verify_tree
 from tests.real_trees import REAL_SOURCES
 
