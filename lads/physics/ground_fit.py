@@ -23,6 +23,8 @@ import numpy as np
 import numpy.typing as npt
 from numba import njit
 
+from lads.physics.projection import MIN_RANGE_M
+
 # Cells whose lowest point sets the reference ground height: near the sensor, where a street
 # scan always sees road (m, horizontal distance).
 NEAR_RANGE_M = (3.0, 15.0)
@@ -52,14 +54,14 @@ def ground_mask(
     """(N,) bool: the points that lie on the ground (see the module docstring).
 
     Args:
-        xyz: (N, 3) points in the sensor frame, m, z up. Zero-range rows, and points beyond
-            EXTENT_M horizontally, are never ground.
+        xyz: (N, 3) points in the sensor frame, m, z up. Rows at zero range (within
+            MIN_RANGE_M), and points beyond EXTENT_M horizontally, are never ground.
         fit: the settings.
     """
     p = np.asarray(xyz, dtype=np.float64)
     valid = (
         np.isfinite(p).all(axis=1)
-        & (np.einsum("ij,ij->i", p, p) > 0)
+        & (np.einsum("ij,ij->i", p, p) > MIN_RANGE_M**2)
         & (np.abs(p[:, 0]) < EXTENT_M)
         & (np.abs(p[:, 1]) < EXTENT_M)
     )

@@ -12,7 +12,7 @@ from lads.errors import ConfigError
 from lads.frame import RING_COLUMN, Frame
 from lads.physics import sensor_faults as faults
 from lads.physics.echo_faults import crosstalk, incomplete_echo
-from lads.physics.projection import channels_of, range_m
+from lads.physics.projection import MIN_RANGE_M, channels_of, range_m
 from lads.physics.result import WeatherResult
 from lads.readers import label_set_for
 from lads.sensors.profile import SensorProfile, load_profile
@@ -137,7 +137,7 @@ class MotionDistortionStage:
             forward_azimuth_deg=forward,
             seam_azimuth_deg=seam,
         )
-        empty = range_m(frame.xyz) == 0.0
+        empty = range_m(frame.xyz) <= MIN_RANGE_M
         if empty.any():
             result.xyz[empty] = frame.xyz[empty]
             result.outcome[empty] = 0
