@@ -15,6 +15,8 @@ from lads.physics.severity import PRESETS, SEVERITIES, with_severity
 from lads.transfer.window import check_neighbours
 
 RETURN_MODES = ("strongest", "last", "dual")
+# Where a motion-distortion stage may take the vehicle's motion from besides its parameters.
+EGO_MOTIONS = ("poses",)
 
 # Parameters each stage accepts, with a validator per parameter.
 _WEATHER_PARAMS = {
@@ -34,8 +36,11 @@ STAGE_PARAMS: dict[str, dict[str, str]] = {
         "severity": "severity",
     },
     "motion_distortion": {
-        "speed_m_s": "speed",
+        "speed_m_s": "optional_number",
         "yaw_rate_deg_s": "optional_number",
+        "velocity_m_s": "vector3",
+        "angular_velocity_deg_s": "vector3",
+        "ego_motion": "ego_motion",
         "sweep_period_s": "optional_period",
         "seam_azimuth_deg": "optional_number",
         "severity": "severity",
@@ -48,7 +53,8 @@ STAGE_PARAMS: dict[str, dict[str, str]] = {
     "crosstalk": {"interfered_share": "share", "severity": "severity"},
 }
 _OPTIONAL_KINDS = {"return_mode", "optional_text", "device", "severity", "settings", "detection",
-                   "neighbours", "channel_list", "optional_number", "optional_period"}  # fmt: skip
+                   "neighbours", "channel_list", "optional_number", "optional_period",
+                   "vector3", "ego_motion"}  # fmt: skip
 # Weather stages, and the sensor faults and artefacts that are not weather.
 WEATHER_STAGES = ("rain", "snow", "fog", "wet_ground")
 FAULT_STAGES = ("beam_missing", "motion_distortion", "incomplete_echo", "crosstalk")
@@ -103,6 +109,22 @@ def _check_value(kind: str, value: Any, where: str) -> None:
                 f"{where}: expected a list of channel ids (integers >= 0), got {value!r}."
             )
         return
+    if kind == "vector3":
+        ok = value is None or (
+            isinstance(value, list | tuple)
+            and len(value) == 3
+            and all(
+                isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
+                for v in value
+            )
+        )
+        if not ok:
+            raise ConfigError(f"{where}: expected three finite numbers [x, y, z], got {value!r}.")
+        return
+    if kind == "ego_motion":
+        if value not in (None, *EGO_MOTIONS):
+            raise ConfigError(f"{where}: ego_motion {value!r}; expected one of {EGO_MOTIONS}.")
+        return
     if kind == "return_mode":
         if value not in RETURN_MODES:
             raise ConfigError(f"{where}: mode is {value!r}; expected one of {RETURN_MODES}.")
@@ -118,7 +140,6 @@ _NUMBER_RULES: dict[str, tuple[Any, str]] = {
     "film": (lambda v: 0 <= v < math.inf, "water film must be a finite thickness >= 0 mm"),
     "reflectance": (lambda v: 0 < v <= 1, "expected a reflectance in (0, 1]"),
     "share": (lambda v: 0 <= v <= 1, "expected a share in [0, 1]"),
-    "speed": (math.isfinite, "expected a finite number"),
     "optional_number": (math.isfinite, "expected a finite number"),
     "optional_period": (lambda v: 0 < v < 10, "expected a sweep period in (0, 10) s"),
     "visibility": (lambda v: v > 0, "visibility must be > 0 m (inf = clear air)"),

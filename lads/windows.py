@@ -1,5 +1,6 @@
 """A sensor transfer's window, read for the worker: neighbouring scans, their poses and their
-surfels (`lads.stages.sensor`, docs/transfer.md §3).
+surfels (`lads.stages.sensor`, docs/transfer.md §3); and the poses around a frame for a
+stage that takes the vehicle's motion from them (`run_track_stage`).
 
 The worker owns this I/O; the stage stays a pure function of the scans it is handed. Each
 worker process keeps the surfels of the scans it read last, so a build that walks a
@@ -126,6 +127,27 @@ def run_window_stage(
         tuple(it.relpath for it in window),
         rng,
     )
+
+
+def run_track_stage(
+    stage: Any, reader: Reader, item: Item, frame: Frame, rng: np.random.Generator
+) -> Frame:
+    """`frame` through a stage that needs its scan's poses and times (`stage.call_track`:
+    motion distortion from poses), with the reader's `pose_track` of the item.
+
+    Raises:
+        InputDataError: the reader has no poses (the message says which readers do).
+        CorruptItemError: a pose file is missing or malformed (the reader's own message).
+    """
+    track = getattr(reader, "pose_track", None)
+    if track is None:
+        raise InputDataError(
+            f"{item.relpath}: the {stage.name} stage takes the vehicle's motion from the "
+            f"sequence's poses, which source {type(reader).__name__} does not read; use a "
+            "source with poses (semantickitti, nuscenes, nuscenes-kitti) or give the motion "
+            "(speed_m_s or a severity)."
+        )
+    return stage.call_track(frame, track(item), rng)  # type: ignore[no-any-return]
 
 
 def _stamp(reader: Reader, item: Item) -> tuple[str, int]:

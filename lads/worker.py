@@ -8,11 +8,14 @@ from __future__ import annotations
 
 import functools
 import json
+import math
 import resource
 import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from lads import correspondence, provenance
 from lads.built_tree import BuildPlan, plan_from_tree, state_path
@@ -25,7 +28,7 @@ from lads.readers.base import EncodedFile, Reader
 from lads.seeding import rng_for, seed_entropy
 from lads.stages import build_stage
 from lads.stages.base import Stage
-from lads.windows import run_window_stage, window_source_rows
+from lads.windows import run_track_stage, run_window_stage, window_source_rows
 
 
 @functools.lru_cache(maxsize=4)
@@ -78,7 +81,8 @@ def _run_stages(
     item: Item, plan: BuildPlan, frame: Frame, stages: tuple[Stage, ...], clock: _Clock
 ) -> Frame:
     """`frame` through `stages` in order, each with its own rng; one lap per stage. A stage
-    that transfers from a window (the sensor stage) gets the window read here."""
+    that transfers from a window (the sensor stage) gets the window read here, and one that
+    needs the frame's poses (motion from poses) its reader's pose track."""
     for stage in stages:
         if hasattr(stage, "call_window"):
             key = f"{plan.pipeline.config_hash()}:{stage.name}"
@@ -90,6 +94,8 @@ def _run_stages(
                 frame,
                 _rng(plan, item, stage),
             )
+        elif getattr(stage, "needs_track", False):
+            frame = run_track_stage(stage, reader_for(plan), item, frame, _rng(plan, item, stage))
         else:
             frame = stage(frame, _rng(plan, item, stage))
         clock.lap(f"stage:{stage.name}")
@@ -152,8 +158,21 @@ def transform(
             source.n_source, outcome, frame.lost_index.size, source_index
         ),
         "stages": stage_rows,
+        "conditions": _conditions(frame),
     }
     return encoded_frame, files, fields, (source_index, outcome, source.n_source)
+
+
+def _conditions(frame: Frame) -> dict[str, str | float]:
+    """What the stages did to the whole frame (`Frame.conditions`, the last value of a key
+    wins), JSON-safe: finite numbers as numbers, anything else as text."""
+    out: dict[str, str | float] = {}
+    for key, value in frame.conditions:
+        if isinstance(value, int | float | np.floating) and not isinstance(value, bool):
+            out[key] = float(value) if math.isfinite(value) else str(value)
+        else:
+            out[key] = str(value)
+    return out
 
 
 def _source_rows(item: Item, root: Path) -> list[dict[str, Any]]:

@@ -142,6 +142,12 @@ class Corruption:
         self.params: dict[str, Any] = resolved(self.spec.stage, given, where)
         check_stage(self.spec.stage, self.params, where)
         self.stage: Stage = build_stage(StageConfig(self.spec.stage, self.params))
+        if getattr(self.stage, "needs_track", False):
+            raise ConfigError(
+                f"{where}: ego_motion {self.params.get('ego_motion')!r} needs a sequence's poses, "
+                "which a single cloud has not; give velocity_m_s (and angular_velocity_deg_s): "
+                "lads.augment.ego_motion_from_poses makes them from your poses."
+            )
 
     def __repr__(self) -> str:
         return (

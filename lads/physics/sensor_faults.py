@@ -13,6 +13,7 @@ import numpy as np
 import numpy.typing as npt
 
 from lads.errors import ConfigError
+from lads.physics.ego_motion import EgoMotion, rotate_about
 from lads.physics.result import Outcome, WeatherResult
 
 FloatArray = npt.NDArray[np.float32]
@@ -80,45 +81,34 @@ def motion_distortion(
     xyz: FloatArray,
     intensity: FloatArray,
     *,
-    speed_m_s: float,
-    yaw_rate_deg_s: float,
+    motion: EgoMotion,
     sweep_period_s: float,
-    forward_azimuth_deg: float,
     seam_azimuth_deg: float,
 ) -> WeatherResult:
     """The sweep as an uncompensated sensor reports it while the vehicle moves.
 
     The frame is taken as the static scene seen at the middle of the sweep. A point measured
-    at sweep time t (`sweep_time_s`) was seen from the sensor pose of time t: moved by
-    v t along the forward direction and turned by omega t about z. Its reported position is
-    the scene point in that pose's frame, p_t = R(-omega t) (P - v t f), written as if it
-    were the mid-sweep frame; points behind the vehicle (at the seam) move most, by up to
-    v T / 2 each way, which opens or overlaps the seam by v T.
+    at sweep time t (`sweep_time_s`) was seen from the sensor pose of time t: moved by v t
+    and turned by R(omega t) (constant motion over the sweep). Its reported position is the
+    scene point in that pose's frame, p_t = R(omega t)^T (P - v t), written as if it were
+    the mid-sweep frame; points at the seam move most, by up to |v| T / 2 each way, which
+    opens or overlaps the seam by |v| T.
 
     Args:
         xyz: (N, 3) float32 m. intensity: (N,) float32, unchanged.
-        speed_m_s: forward speed v, m/s (negative: reversing).
-        yaw_rate_deg_s: turn rate omega about z, deg/s (positive: to the left).
+        motion: the sensor's velocity (m/s) and angular velocity (deg/s) in its own frame
+            (`lads.physics.ego_motion`: given, a preset's straight drive, or from poses).
         sweep_period_s: T, one revolution, s.
-        forward_azimuth_deg: the vehicle's forward direction in the sensor frame, deg.
         seam_azimuth_deg: where the sweep starts and ends, deg.
 
     Returns:
-        WeatherResult with every point, outcome DISPLACED where it moved (KEPT where v t
-        and omega t are both zero), nothing lost.
+        WeatherResult with every point, outcome DISPLACED where it moved (KEPT where the
+        motion is zero), nothing lost.
     """
     t = sweep_time_s(xyz, sweep_period_s=sweep_period_s, seam_azimuth_deg=seam_azimuth_deg)
-    forward = math.radians(forward_azimuth_deg)
-    p = xyz.astype(np.float64)
-    shift = speed_m_s * t
-    x = p[:, 0] - shift * math.cos(forward)
-    y = p[:, 1] - shift * math.sin(forward)
-    angle = -np.radians(yaw_rate_deg_s) * t
-    cos, sin = np.cos(angle), np.sin(angle)
-    out = np.empty_like(xyz, dtype=np.float32)
-    out[:, 0] = cos * x - sin * y
-    out[:, 1] = sin * x + cos * y
-    out[:, 2] = xyz[:, 2]
+    shifted = xyz.astype(np.float64) - t[:, None] * np.asarray(motion.velocity_m_s)
+    turned = rotate_about(shifted, motion.angular_velocity_deg_s, -t)
+    out = turned.astype(np.float32)
     moved = np.any(out != xyz, axis=1)
     n = xyz.shape[0]
     return WeatherResult(

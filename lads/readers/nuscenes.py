@@ -47,6 +47,7 @@ from lads.readers.base import (
     read_labels,
     read_records,
 )
+from lads.readers.poses import PoseTrack
 
 TABLES = (
     "category",
@@ -120,6 +121,8 @@ class NuScenesReader:
         # turned into matrices only when a sensor transfer asks (`sensor_poses`).
         self._pose_rows: dict[str, int] = {}
         self._pose_table = np.zeros((0, 14))
+        # Per scene, (timestamp us, relpath) of its items in time order (`pose_track`).
+        self._scenes: dict[str, list[tuple[int, str]]] = {}
 
     def __repr__(self) -> str:
         return (
@@ -167,7 +170,12 @@ class NuScenesReader:
             )
         self._pose_rows = {rel: k for k, rel in enumerate(rows)}
         self._pose_table = np.array(list(rows.values()), dtype=np.float64).reshape(-1, 14)
-        return sorted(_numbered(items), key=lambda it: it.relpath)
+        numbered = _numbered(items)
+        self._scenes = {}
+        for it in sorted(numbered, key=lambda it: int(dict(it.meta)["scan_number"])):
+            meta = dict(it.meta)
+            self._scenes.setdefault(meta["scene"], []).append((int(meta["timestamp"]), it.relpath))
+        return sorted(numbered, key=lambda it: it.relpath)
 
     def _devkit(self, table_root: Path, version: str) -> Any:
         """The devkit's NuScenes database of `version`, after checking its tables exist.
@@ -247,19 +255,32 @@ class NuScenesReader:
     def sensor_poses(self, items: list[Item]) -> dict[str, npt.NDArray[np.float64]]:
         """(4, 4) lidar -> global pose of each item: its sample_data's ego_pose times its
         calibrated_sensor (lists the items first when this reader has not)."""
-        from pyquaternion import Quaternion  # nuscenes-devkit's own quaternion library
-
         if any(it.relpath not in self._pose_rows for it in items):
             self.items()
-        out = {}
-        for it in items:
-            row = self._pose_table[self._pose_rows[it.relpath]]
-            ego = Quaternion(row[3:7]).transformation_matrix
-            ego[:3, 3] = row[0:3]
-            calib = Quaternion(row[10:14]).transformation_matrix
-            calib[:3, 3] = row[7:10]
-            out[it.relpath] = ego @ calib
-        return out
+        return {it.relpath: self._pose_of(it.relpath) for it in items}
+
+    def _pose_of(self, relpath: str) -> npt.NDArray[np.float64]:
+        from pyquaternion import Quaternion  # nuscenes-devkit's own quaternion library
+
+        row = self._pose_table[self._pose_rows[relpath]]
+        ego = Quaternion(row[3:7]).transformation_matrix
+        ego[:3, 3] = row[0:3]
+        calib = Quaternion(row[10:14]).transformation_matrix
+        calib[:3, 3] = row[7:10]
+        return ego @ calib  # type: ignore[no-any-return]
+
+    def pose_track(self, item: Item) -> PoseTrack:
+        """The item and the items of its scene just before and after it in time (the listed
+        ones: keyframes, and sweeps when included), with their poses and timestamps."""
+        if item.relpath not in self._pose_rows:
+            self.items()
+        meta = dict(item.meta)
+        scene = self._scenes[meta["scene"]]
+        k = [rel for _, rel in scene].index(item.relpath)
+        times = np.array([t for t, _ in scene], dtype=np.float64) * 1e-6
+        poses = np.stack([self._pose_of(rel) for _, rel in scene[max(k - 1, 0) : k + 2]])
+        lo = max(k - 1, 0)
+        return PoseTrack(times[lo : lo + len(poses)], poses, k - lo, f"scene {meta['scene']}")
 
     def copied_files(self) -> list[str]:
         """Every file of `<version>/` (the JSON tables) and of `maps/`, recursively."""

@@ -33,9 +33,12 @@ from lads.readers.base import (
     present,
     read_scan_and_labels,
 )
-from lads.readers.poses import read_pose_lines
+from lads.readers.poses import PoseTrack, pose_lines, track_around
 
 SCANS, LABELS = "velodyne", "sem_labels"
+# nuScenes annotates keyframes at 2 Hz; the export keeps no timestamps, so keyframe k is
+# taken at k times this period (the real spacing varies by a few ms).
+KEYFRAME_PERIOD_S = 0.5
 
 
 class NuScenesKittiReader:
@@ -149,7 +152,7 @@ class NuScenesKittiReader:
         out: dict[str, npt.NDArray[np.float64]] = {}
         for scene in sorted({it.relpath.rsplit("/", 2)[0] for it in items}):
             path = self.root / scene / "poses.txt"
-            poses = read_pose_lines(path, "the scene's lidar -> global poses")
+            poses = pose_lines(path, "the scene's lidar -> global poses")
             for it in items:
                 if it.relpath.rsplit("/", 2)[0] != scene:
                     continue
@@ -161,3 +164,15 @@ class NuScenesKittiReader:
                     )
                 out[it.relpath] = poses[k]
         return out
+
+    def pose_track(self, item: Item) -> PoseTrack:
+        """The item's keyframe and the keyframes before and after it: lidar -> global poses
+        from the scene's poses.txt, times k x KEYFRAME_PERIOD_S (the export has no times).
+
+        Raises:
+            CorruptItemError: poses.txt missing or malformed, or no pose for the keyframe.
+        """
+        path = self.root / item.relpath.rsplit("/", 2)[0] / "poses.txt"
+        poses = pose_lines(path, "the scene's lidar -> global poses")
+        times = np.arange(len(poses), dtype=np.float64) * KEYFRAME_PERIOD_S
+        return track_around(times, poses, int(Path(item.relpath).stem), str(path))

@@ -9,7 +9,9 @@ nuScenes tables store it as ego_pose (ego -> global) times calibrated_sensor (li
 
 from __future__ import annotations
 
+import functools
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import numpy.typing as npt
@@ -29,8 +31,9 @@ def read_pose_lines(path: Path, what: str) -> F64:
         text = path.read_text(encoding="utf-8")
     except OSError as exc:
         raise CorruptItemError(
-            f"{path}: cannot read {what} ({exc.strerror or exc}); a sensor transfer needs the "
-            "sequence's poses: put them there (one 3 x 4 row-major pose per scan)."
+            f"{path}: cannot read {what} ({exc.strerror or exc}); a sensor transfer and motion "
+            "from poses need the sequence's poses: put them there (one 3 x 4 row-major pose "
+            "per scan)."
         ) from exc
     rows = [line.split() for line in text.splitlines() if line.strip()]
     bad = [k for k, r in enumerate(rows) if len(r) != 12]
@@ -61,8 +64,8 @@ def kitti_velodyne_to_camera(calib: Path) -> F64:
     except OSError as exc:
         raise CorruptItemError(
             f"{calib}: cannot read the calibration ({exc.strerror or exc}); a sensor transfer "
-            "of KITTI scans needs its Tr (Velodyne -> camera) to turn the camera poses into "
-            "Velodyne poses."
+            "or motion from poses of KITTI scans needs its Tr (Velodyne -> camera) to turn "
+            "the camera poses into Velodyne poses."
         ) from exc
     for line in lines:
         key, _, rest = line.partition(":")
@@ -76,3 +79,69 @@ def kitti_velodyne_to_camera(calib: Path) -> F64:
         f"{calib}: no 'Tr:' line of 12 numbers; some KITTI downloads ship a calib.txt without "
         "it: take calib.txt from the KITTI odometry calibration archive."
     )
+
+
+class PoseTrack(NamedTuple):
+    """A frame's scan and its neighbours in time, as a reader gives them for motion from
+    poses (`lads.physics.ego_motion.from_poses`).
+
+    Attributes:
+        times_s: (K,) float64 s, increasing; K is 2 or 3 (before, own, after; one side is
+            missing at a sequence's ends).
+        poses: (K, 4, 4) float64 sensor -> world poses of the same scans.
+        centre: index of the frame's own scan.
+        where: the pose file or scene, for messages.
+    """
+
+    times_s: F64
+    poses: F64
+    centre: int
+    where: str
+
+
+def track_around(times_s: F64, poses: F64, k: int, where: str) -> PoseTrack:
+    """Scan `k` and the scans just before and after it of a sequence's (times, poses).
+
+    Raises:
+        CorruptItemError: no pose or time for scan k.
+    """
+    if not 0 <= k < min(len(poses), len(times_s)):
+        raise CorruptItemError(
+            f"{where}: {len(poses)} poses and {len(times_s)} times, none for scan {k}; "
+            "expected one line per scan of the sequence."
+        )
+    lo, hi = max(k - 1, 0), min(k + 1, len(poses) - 1, len(times_s) - 1)
+    return PoseTrack(times_s[lo : hi + 1], poses[lo : hi + 1], k - lo, where)
+
+
+@functools.lru_cache(maxsize=16)
+def _pose_lines_cached(path: str, what: str, mtime_ns: int) -> F64:
+    return read_pose_lines(Path(path), what)
+
+
+def pose_lines(path: Path, what: str) -> F64:
+    """`read_pose_lines`, read once per state of the file in a process (a build asks for
+    one sequence's poses once per frame). Do not modify the returned array."""
+    try:
+        mtime_ns = path.stat().st_mtime_ns
+    except OSError:
+        return read_pose_lines(path, what)  # raises the reader's own message
+    return _pose_lines_cached(str(path), what, mtime_ns)
+
+
+def read_times(path: Path) -> F64:
+    """(K,) float64 s of a KITTI `times.txt` (one number per scan).
+
+    Raises:
+        CorruptItemError: unreadable, not numbers, or not increasing.
+    """
+    try:
+        text = path.read_text(encoding="utf-8")
+        values = np.array([float(v) for v in text.split()], dtype=np.float64)
+    except (OSError, ValueError) as exc:
+        raise CorruptItemError(
+            f"{path}: cannot read the scan times ({exc}); expected one time in s per line."
+        ) from exc
+    if values.size > 1 and not (np.diff(values) > 0).all():
+        raise CorruptItemError(f"{path}: scan times do not increase; expected one per scan.")
+    return values

@@ -33,7 +33,14 @@ from lads.readers.base import (
     read_scan_and_labels,
     select_sequences,
 )
-from lads.readers.poses import kitti_velodyne_to_camera, read_pose_lines
+from lads.readers.poses import (
+    PoseTrack,
+    kitti_velodyne_to_camera,
+    pose_lines,
+    read_times,
+    track_around,
+)
+from lads.sensors.profile import load_profile
 
 
 class SemanticKittiReader:
@@ -141,7 +148,7 @@ class SemanticKittiReader:
         out: dict[str, npt.NDArray[np.float64]] = {}
         for seq in sorted({it.relpath.split("/")[1] for it in items}):
             base = self.root / "sequences" / seq
-            poses = read_pose_lines(base / "poses.txt", "the sequence's camera poses")
+            poses = pose_lines(base / "poses.txt", "the sequence's camera poses")
             tr = kitti_velodyne_to_camera(base / "calib.txt")
             tr_inv = np.linalg.inv(tr)
             for it in items:
@@ -155,3 +162,29 @@ class SemanticKittiReader:
                     )
                 out[it.relpath] = tr_inv @ poses[k] @ tr
         return out
+
+    def pose_track(self, item: Item) -> PoseTrack:
+        """The item's scan and the scans before and after it: Velodyne poses (as
+        `sensor_poses`) and times from times.txt, or, without times.txt, the scan number
+        times the sensor's sweep period (KITTI records one scan per revolution).
+
+        Raises:
+            CorruptItemError: poses.txt, calib.txt or times.txt missing or malformed, or no
+                pose for the scan.
+        """
+        base = self.root / "sequences" / item.relpath.split("/")[1]
+        poses = pose_lines(base / "poses.txt", "the sequence's camera poses")
+        tr = kitti_velodyne_to_camera(base / "calib.txt")
+        if (base / "times.txt").is_file():
+            times = read_times(base / "times.txt")
+        else:
+            period = load_profile(self.sensor).sweep_period_s
+            if period is None:
+                raise CorruptItemError(
+                    f"{base / 'times.txt'}: missing, and sensor profile {self.sensor} has no "
+                    "sweep_period_s to time the scans by; put the sequence's times.txt there."
+                )
+            times = np.arange(len(poses), dtype=np.float64) * period
+        track = track_around(times, poses, int(Path(item.relpath).stem), str(base / "poses.txt"))
+        velodyne = np.linalg.inv(tr) @ track.poses @ tr
+        return track._replace(poses=velodyne)

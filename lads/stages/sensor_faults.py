@@ -12,13 +12,16 @@ from lads.errors import ConfigError
 from lads.frame import RING_COLUMN, Frame
 from lads.physics import sensor_faults as faults
 from lads.physics.echo_faults import crosstalk, incomplete_echo
+from lads.physics.ego_motion import EgoMotion, from_poses, straight
+from lads.physics.materials import class_ids, class_roles
 from lads.physics.projection import MIN_RANGE_M, channels_of, range_m
-from lads.physics.result import WeatherResult
+from lads.physics.result import Outcome, WeatherResult
 from lads.readers import label_set_for
+from lads.readers.poses import PoseTrack
 from lads.sensors.profile import SensorProfile, load_profile
 
 # Bump when the output bytes change for the same input and seed.
-SENSOR_FAULT_STAGE_VERSION = "1"
+SENSOR_FAULT_STAGE_VERSION = "2"
 
 
 def _apply(
@@ -41,6 +44,20 @@ def frame_channels(frame: Frame, profile: SensorProfile) -> np.ndarray:
         frame.points[:, frame.columns.index(RING_COLUMN)] if RING_COLUMN in frame.columns else None
     )
     return channels_of(frame.xyz.astype(np.float64), profile, ring)
+
+
+def _ego_body(frame: Frame) -> np.ndarray:
+    """(M,) bool: returns of the recording vehicle's own body (classes materials.yaml marks
+    `ego`); all False without labels."""
+    label_set = label_set_for(frame.item.dataset)
+    if frame.labels is None or label_set is None:
+        return np.zeros(frame.points.shape[0], dtype=bool)
+    ego = sorted(class_roles(label_set).ego)
+    return (
+        np.isin(class_ids(frame.labels, label_set), ego)
+        if ego
+        else np.zeros(len(frame.labels), bool)
+    )
 
 
 @dataclass(frozen=True, slots=True)
@@ -83,12 +100,20 @@ class BeamMissingStage:
 
 @dataclass(frozen=True, slots=True)
 class MotionDistortionStage:
-    """The sweep as an uncompensated sensor reports it at `speed_m_s` (docs/augment.md §3).
+    """The sweep as an uncompensated sensor reports it while moving (docs/augment.md §3).
+
+    The motion is one of: `speed_m_s` (with `yaw_rate_deg_s`) along the profile's forward
+    azimuth, as the severity presets give it; `velocity_m_s` and `angular_velocity_deg_s`
+    in the sensor frame; or `ego_motion: poses`, the motion recorded by the sequence's poses
+    (a build reads them: `needs_track`).
 
     Attributes:
         name: "motion_distortion".
         speed_m_s: forward speed, m/s.
-        yaw_rate_deg_s: turn rate about z, deg/s (positive: to the left).
+        yaw_rate_deg_s: turn rate about z with `speed_m_s`, deg/s (positive: to the left).
+        velocity_m_s: (3,) sensor velocity in its own frame, m/s.
+        angular_velocity_deg_s: (3,) with `velocity_m_s`, deg/s.
+        ego_motion: "poses", or None for a motion given by the parameters above.
         sweep_period_s: one revolution, s; None = the sensor profile's.
         seam_azimuth_deg: where the sweep starts and ends, deg; None = behind the vehicle
             (the profile's forward azimuth + 180).
@@ -96,8 +121,11 @@ class MotionDistortionStage:
     """
 
     name: str
-    speed_m_s: float = 0.0
-    yaw_rate_deg_s: float = 0.0
+    speed_m_s: float | None = None
+    yaw_rate_deg_s: float | None = None
+    velocity_m_s: tuple[float, float, float] | None = None
+    angular_velocity_deg_s: tuple[float, float, float] | None = None
+    ego_motion: str | None = None
     sweep_period_s: float | None = None
     seam_azimuth_deg: float | None = None
     severity: str | None = None
@@ -105,43 +133,94 @@ class MotionDistortionStage:
 
     @classmethod
     def from_config(cls, config: StageConfig) -> MotionDistortionStage:
-        return cls(name=config.stage, **config.params)
+        """Raises ConfigError unless exactly one motion is given."""
+        params = dict(config.params)
+        for key in ("velocity_m_s", "angular_velocity_deg_s"):
+            if params.get(key) is not None:
+                params[key] = tuple(float(v) for v in params[key])
+        given = [
+            k for k in ("speed_m_s", "velocity_m_s", "ego_motion") if params.get(k) is not None
+        ]
+        pairs = (("yaw_rate_deg_s", "speed_m_s"), ("angular_velocity_deg_s", "velocity_m_s"))
+        stray = [k for k, needs in pairs if params.get(k) is not None and needs not in given]
+        if len(given) != 1 or stray:
+            raise ConfigError(
+                f"motion_distortion: motion given by {given or 'nothing'}"
+                f"{f', and {stray} without their speed or velocity' if stray else ''}; give one "
+                "of speed_m_s (or severity), velocity_m_s, or ego_motion: poses."
+            )
+        return cls(name=config.stage, **params)
 
-    def timing(self, profile: SensorProfile) -> tuple[float, float, float]:
-        """(sweep period s, forward azimuth deg, seam azimuth deg) for this sensor.
+    @property
+    def needs_track(self) -> bool:
+        """True when a build must hand the stage the frame's poses (`call_track`)."""
+        return self.ego_motion is not None
+
+    def timing(self, profile: SensorProfile) -> tuple[float, float | None, float]:
+        """(sweep period s, forward azimuth deg or None, seam azimuth deg) for this sensor.
 
         Raises:
-            ConfigError: the profile lacks a value the stage was not given.
+            ConfigError: the profile lacks a value the stage needs and was not given.
         """
         period = self.sweep_period_s if self.sweep_period_s is not None else profile.sweep_period_s
         forward = profile.forward_azimuth_deg
-        if period is None or forward is None:
+        seam = self.seam_azimuth_deg
+        if seam is None and forward is not None:
+            seam = forward + 180.0
+        if period is None or seam is None:
             raise ConfigError(
                 f"motion_distortion: sensor profile '{profile.name}' has no sweep_period_s or "
                 "forward_azimuth_deg; add them to the profile (see lads/sensors/hdl64e.yaml) "
-                "or pass sweep_period_s."
+                "or pass sweep_period_s and seam_azimuth_deg."
             )
-        seam = self.seam_azimuth_deg if self.seam_azimuth_deg is not None else forward + 180.0
-        return float(period), float(forward), float(seam)
+        return float(period), forward, float(seam)
+
+    def given_motion(self, forward_azimuth_deg: float | None) -> EgoMotion:
+        """The motion the parameters give (not `ego_motion: poses`)."""
+        if self.velocity_m_s is not None:
+            return EgoMotion(self.velocity_m_s, self.angular_velocity_deg_s or (0.0, 0.0, 0.0))
+        if self.ego_motion is not None:
+            raise ConfigError(
+                "motion_distortion: ego_motion: poses needs the sequence's poses, which a build "
+                "of a source with poses hands the stage; on single clouds give velocity_m_s "
+                "(lads.augment.ego_motion_from_poses makes it from your poses)."
+            )
+        if forward_azimuth_deg is None:
+            raise ConfigError(
+                "motion_distortion: speed_m_s needs the profile's forward_azimuth_deg; give "
+                "velocity_m_s in the sensor frame instead."
+            )
+        speed, yaw = float(self.speed_m_s or 0.0), float(self.yaw_rate_deg_s or 0.0)
+        return straight(speed, yaw, forward_azimuth_deg)
 
     def __call__(self, frame: Frame, rng: np.random.Generator) -> Frame:
         """Every point moved to where the moving sensor reported it; zero-range rows (no
         return) stay where they are. Uses no randomness."""
-        period, forward, seam = self.timing(load_profile(frame.sensor))
+        profile = load_profile(frame.sensor)
+        return self._distort(frame, self.given_motion(self.timing(profile)[1]), profile)
+
+    def call_track(self, frame: Frame, track: PoseTrack, rng: np.random.Generator) -> Frame:
+        """As `__call__`, with the motion of `track` (the reader's poses around the frame)."""
+        motion = from_poses(track.times_s, track.poses, track.centre, track.where)
+        return self._distort(frame, motion, load_profile(frame.sensor))
+
+    def _distort(self, frame: Frame, motion: EgoMotion, profile: SensorProfile) -> Frame:
+        period, _, seam = self.timing(profile)
         result = faults.motion_distortion(
-            frame.xyz,
-            frame.intensity,
-            speed_m_s=float(self.speed_m_s),
-            yaw_rate_deg_s=float(self.yaw_rate_deg_s),
-            sweep_period_s=period,
-            forward_azimuth_deg=forward,
-            seam_azimuth_deg=seam,
+            frame.xyz, frame.intensity, motion=motion, sweep_period_s=period, seam_azimuth_deg=seam
         )
-        empty = range_m(frame.xyz) <= MIN_RANGE_M
-        if empty.any():
-            result.xyz[empty] = frame.xyz[empty]
-            result.outcome[empty] = 0
-        conditions = (("speed_m_s", float(self.speed_m_s)), ("sweep_period_s", period))
+        # No return, or a return of the vehicle's own body, which moves with the sensor.
+        still = (range_m(frame.xyz) <= MIN_RANGE_M) | _ego_body(frame)
+        if still.any():
+            result.xyz[still] = frame.xyz[still]
+            result.outcome[still] = Outcome.KEPT
+        vx, vy, vz = motion.velocity_m_s
+        conditions = (
+            ("speed_m_s", round(motion.speed_m_s, 6)),
+            ("velocity_m_s", f"{vx:.6g} {vy:.6g} {vz:.6g}"),
+            ("yaw_rate_deg_s", round(motion.yaw_rate_deg_s, 6)),
+            ("sweep_period_s", period),
+        )
         return _apply(frame, result, conditions)
 
 

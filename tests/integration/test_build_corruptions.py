@@ -119,3 +119,49 @@ def test_suite_refuses_unknown_or_impossible_choices():
     ]
     with pytest.raises(ConfigError, match="cannot take"):
         suite_variants("radiate", ["cross_sensor"])
+
+
+def test_motion_recorded_takes_each_frames_speed_from_the_poses(street, tmp_path):
+    from lads.synth.scene import EGO_SPEED_M_S
+
+    out = tmp_path / "motion"
+    pipeline = pipeline_for("semantickitti", "motion-recorded")
+    report = run_build("semantickitti", street, out, pipeline, jobs=1, progress=False)
+    assert report.complete, report.failed
+    rows = [r for r in _manifest(out) if "points" in r]
+    assert len(rows) == 2
+    for row in rows:
+        # the street is driven at a constant speed with a slight sway: the poses say so
+        assert abs(row["conditions"]["speed_m_s"] - EGO_SPEED_M_S) < 0.05
+        assert abs(row["conditions"]["yaw_rate_deg_s"]) < 10.0
+        assert row["points"]["displaced"] > 0.9 * row["points"]["source"]
+    check = verify_tree(out, street, regenerate=2, seed=0)
+    assert check.ok, [f"{p.kind} {p.path}: {p.message}" for p in check.problems]
+    # the seam behind the vehicle opens by about v T
+    src = np.fromfile(street / "sequences/00/velodyne/000001.bin", "<f4").reshape(-1, 4)
+    dst = np.fromfile(out / "sequences/00/velodyne/000001.bin", "<f4").reshape(-1, 4)
+    behind = (src[:, 0] < -3.0) & (np.abs(src[:, 1]) < 1.0)
+    shift = np.abs(dst[behind, 0] - src[behind, 0])
+    assert 0.3 < np.median(shift) < 0.6  # up to v T / 2 = 0.5 m at the seam
+
+
+def test_motion_recorded_is_refused_for_a_source_without_poses(tmp_path):
+    with pytest.raises(ConfigError, match="motion-recorded"):
+        pipeline_for("radiate", "motion-recorded")
+
+
+def test_motion_recorded_reads_nuscenes_ego_poses_and_timestamps(tmp_path):
+    from lads.synth.scene import EGO_SPEED_M_S
+    from lads.synth.writer import NUSC_KEYFRAME_US
+
+    src = tmp_path / "src"
+    write_synthetic_dataset(src, frames=3, layout="nuscenes", azimuth_bins=256)
+    out = tmp_path / "out"
+    pipeline = pipeline_for("nuscenes", "motion-recorded")
+    report = run_build("nuscenes", src, out, pipeline, jobs=1, progress=False, figures=False)
+    assert report.complete, report.failed
+    # each 10 Hz step of the street (1 m) is a keyframe stamped NUSC_KEYFRAME_US later, so the
+    # tables' poses and timestamps say 1 m per 0.5 s
+    expected = EGO_SPEED_M_S * 0.1 / (NUSC_KEYFRAME_US * 1e-6)
+    speeds = [row["conditions"]["speed_m_s"] for row in _manifest(out) if "points" in row]
+    assert len(speeds) == 3 and all(abs(s - expected) < 0.02 for s in speeds)

@@ -17,6 +17,7 @@ from lads.config import pipeline_for, variants_for
 from lads.frame import Frame, Item
 from lads.physics.result import Outcome
 from lads.readers import READERS
+from lads.readers.poses import PoseTrack
 from lads.seeding import rng_for
 from lads.sensors.profile import load_profile
 from lads.worker import stages_for
@@ -62,6 +63,16 @@ def quirky_frame(source: str) -> tuple[Frame, dict[str, np.ndarray]]:
     return Frame.from_source(item, reader.sensor, columns, table, labels), quirks
 
 
+def _driving_track() -> PoseTrack:
+    """Three scans 0.1 s apart, driving 10 m/s along x and turning 5 deg/s."""
+    poses = np.stack([np.eye(4)] * 3)
+    for k, t in enumerate((-0.1, 0.0, 0.1)):
+        a = np.radians(5.0 * t)
+        poses[k, :2, :2] = [[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]
+        poses[k, 0, 3] = 10.0 * t
+    return PoseTrack(np.array([0.0, 0.1, 0.2]), poses, 1, "test poses")
+
+
 @pytest.mark.parametrize(("source", "variant"), CASES, ids=[f"{s}-{v}" for s, v in CASES])
 def test_every_stage_passes_real_quirks_through(source: str, variant: str) -> None:
     frame, quirks = quirky_frame(source)
@@ -70,7 +81,11 @@ def test_every_stage_passes_real_quirks_through(source: str, variant: str) -> No
     assert len(zero_rows) > len(quirks["zero"]) // 2  # some were overwritten by duplicates
     pipeline = pipeline_for(source, variant)
     for spec, stage in zip(pipeline.stages, stages_for(pipeline), strict=True):
-        frame = stage(frame, rng_for(0, frame.item.item_id, variant, spec.stage))
+        rng = rng_for(0, frame.item.item_id, variant, spec.stage)
+        if getattr(stage, "needs_track", False):  # motion from poses: a reader would hand these
+            frame = stage.call_track(frame, _driving_track(), rng)
+        else:
+            frame = stage(frame, rng)
     points = frame.points
     assert np.isfinite(points).all() and points.shape[1] == len(frame.columns)
     if frame.window:  # a sensor transfer: new beams, each naming the source return it hit

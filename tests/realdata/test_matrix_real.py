@@ -27,15 +27,16 @@ from tests.trees import SHARED_DATA
 
 # Sensor-adaptation variants write the target sensor's intensity encoding, whatever the source.
 TARGET_SENSOR = {"intensity-kitti": "hdl64e", "intensity-nuscenes": "hdl32e"}
-# Sensor variants need a sequence's poses, which some real trees lack:
-# tests/realdata/test_sensor_real.py builds them on every real frame of their readers. The
+# Sensor variants and motion-recorded need a sequence's poses, which some real trees lack:
+# tests/realdata/test_sensor_real.py and test_motion_real.py build them on every real frame
+# of their readers. The
 # robustness suite's C- variants (one stage each, 24 per source) are built at their heaviest
 # severity on every real tree by tests/realdata/test_augment_real.py.
 CELLS = [
     (tree, variant)
     for tree, rs in REAL_SOURCES.items()
     for variant in variants_for(rs.reader)
-    if not variant.startswith(("sensor-", "C-"))
+    if not variant.startswith(("sensor-", "C-")) and variant != "motion-recorded"
 ]
 
 

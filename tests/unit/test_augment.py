@@ -174,3 +174,46 @@ def test_wet_ground_without_labels_lies_on_the_fitted_ground(cloud):
     assert changed.sum() > 0.2 * (labels == 40).sum()
     # What the wet road changed is ground: the street's road class, not the buildings.
     assert (labels[changed] == 40).mean() > 0.9
+
+
+def test_motion_distortion_at_a_motion_made_from_the_users_poses(cloud):
+    from lads.augment import ego_motion_from_poses
+
+    points, labels, instance = cloud
+    poses = np.stack([np.eye(4)] * 3)
+    poses[:, 0, 3] = [-1.2, 0.0, 1.2]  # 12 m/s along x at 10 Hz
+    motion = ego_motion_from_poses([0.0, 0.1, 0.2], poses, 1, "my poses")
+    given = corrupt(
+        points,
+        labels,
+        instance,
+        np.random.default_rng(0),
+        corruption="motion_distortion",
+        sensor="hdl64e",
+        **motion.params(),
+    )
+    preset = corrupt(
+        points,
+        labels,
+        instance,
+        np.random.default_rng(0),
+        corruption="motion_distortion",
+        sensor="hdl64e",
+        speed_m_s=12.0,
+    )
+    np.testing.assert_allclose(given.points, preset.points, atol=1e-5)
+    assert given.info.conditions["speed_m_s"] == pytest.approx(12.0)
+    with pytest.raises(ConfigError, match="ego_motion_from_poses"):
+        corrupt(
+            points,
+            labels,
+            instance,
+            np.random.default_rng(0),
+            corruption="motion_distortion",
+            sensor="hdl64e",
+            ego_motion="poses",
+        )
+    with pytest.raises(ConfigError, match="give one"):
+        Corruption("motion_distortion", "light", sensor="hdl64e", velocity_m_s=[1.0, 0.0, 0.0])
+    with pytest.raises(ConfigError, match="three finite numbers"):
+        Corruption("motion_distortion", sensor="hdl64e", velocity_m_s=[1.0, 0.0])

@@ -70,10 +70,16 @@ def test_every_source_offers_every_shipped_variant():
     expected = ["fog", "intensity-kitti", "intensity-nuscenes", "rain", "snow"]
     # A sensor transfer needs poses and scan order: every profile but the source's own.
     to_64 = ["sensor-hdl64e", "sensor-voxelscape64", "sensor-wads64"]
+    # The motion a sequence's poses recorded: the same readers.
     sensors = {
-        "semantickitti": ["sensor-hdl32e", "sensor-voxelscape64", "sensor-wads64"],
-        "nuscenes": to_64,
-        "nuscenes-kitti": to_64,
+        "semantickitti": [
+            "motion-recorded",
+            "sensor-hdl32e",
+            "sensor-voxelscape64",
+            "sensor-wads64",
+        ],
+        "nuscenes": ["motion-recorded", *to_64],
+        "nuscenes-kitti": ["motion-recorded", *to_64],
     }
     for source in READERS:
         # A wet road needs labels to find the road: every source but RADIATE has them.

@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from lads.physics import sensor_faults as faults
+from lads.physics.ego_motion import straight
 from lads.physics.result import Outcome
 
 
@@ -42,10 +43,8 @@ def test_the_seam_opens_by_speed_times_period():
     res = faults.motion_distortion(
         xyz,
         np.zeros(3, np.float32),
-        speed_m_s=20.0,
-        yaw_rate_deg_s=0.0,
+        motion=straight(20.0, 0.0, 0.0),
         sweep_period_s=0.1,
-        forward_azimuth_deg=0.0,
         seam_azimuth_deg=180.0,
     )
     np.testing.assert_allclose(res.xyz[0], xyz[0], atol=1e-5)  # ahead: measured mid-sweep
@@ -60,10 +59,8 @@ def test_forward_axis_and_yaw_follow_the_profile_convention():
     res = faults.motion_distortion(
         xyz,
         np.zeros(3, np.float32),
-        speed_m_s=10.0,
-        yaw_rate_deg_s=0.0,
+        motion=straight(10.0, 0.0, 90.0),
         sweep_period_s=0.05,
-        forward_azimuth_deg=90.0,
         seam_azimuth_deg=-90.0,
     )
     np.testing.assert_allclose(res.xyz[1], xyz[1], atol=1e-5)  # straight ahead
@@ -71,10 +68,8 @@ def test_forward_axis_and_yaw_follow_the_profile_convention():
     turn = faults.motion_distortion(
         xyz,
         np.zeros(3, np.float32),
-        speed_m_s=0.0,
-        yaw_rate_deg_s=90.0,
+        motion=straight(0.0, 90.0, 0.0),
         sweep_period_s=0.1,
-        forward_azimuth_deg=0.0,
         seam_azimuth_deg=180.0,
     )
     np.testing.assert_allclose(np.linalg.norm(turn.xyz, axis=1), 10.0, rtol=1e-5)  # rotation only
@@ -142,3 +137,69 @@ def test_incomplete_echo_dims_and_drops_only_clearcoat_classes_far_ones_first():
         paint_reflectance=0.9,
     )
     assert same.lost_index.size == 0 and (same.outcome == Outcome.KEPT).all()
+
+
+def _pose(x_m: float, y_m: float, yaw_deg: float) -> np.ndarray:
+    a = np.radians(yaw_deg)
+    pose = np.eye(4)
+    pose[:2, :2] = [[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]
+    pose[:2, 3] = [x_m, y_m]
+    return pose
+
+
+def test_motion_from_poses_is_the_velocity_and_turn_rate_in_the_sensor_frame():
+    from lads.physics.ego_motion import from_poses
+
+    # Heading 90 deg in the world (north), driving 12 m/s forward while turning 20 deg/s.
+    times = np.array([0.0, 0.1, 0.2])
+    headings = 90.0 + 20.0 * times
+    r = 12.0 / np.radians(20.0)  # a left turn of radius v / omega about the origin
+    poses = [_pose(r * np.sin(np.radians(h)), -r * np.cos(np.radians(h)), h) for h in headings]
+    motion = from_poses(times, np.stack(poses), 1, "test")
+    vx, vy, vz = motion.velocity_m_s
+    assert abs(motion.speed_m_s - 12.0) < 0.05 and abs(vy) < 0.3 and vx > 11.9 and vz == 0.0
+    np.testing.assert_allclose(motion.yaw_rate_deg_s, 20.0, rtol=1e-6)
+    # one-sided at the end of a sequence
+    end = from_poses(times[1:], np.stack(poses[1:]), 1, "test")
+    assert abs(end.speed_m_s - 12.0) < 0.05
+    # reversing: the velocity points backwards
+    back = from_poses(times[::-1] * -1 + 0.2, np.stack(poses[::-1]), 1, "test")
+    assert back.velocity_m_s[0] < -11.9
+
+
+def test_motion_from_poses_refuses_one_scan_and_times_that_do_not_increase():
+    import pytest
+
+    from lads.errors import InputDataError
+    from lads.physics.ego_motion import from_poses
+
+    with pytest.raises(InputDataError, match="neighbouring scan"):
+        from_poses([0.0], np.eye(4)[None], 0, "poses.txt")
+    with pytest.raises(InputDataError, match="do not increase"):
+        from_poses([0.1, 0.1], np.stack([np.eye(4), np.eye(4)]), 0, "poses.txt")
+
+
+def test_a_general_motion_matches_the_straight_one_and_rotates_about_its_axis():
+    from lads.physics.ego_motion import EgoMotion, rotate_about
+
+    xyz = _ring_of_points(np.linspace(-179.0, 179.0, 50))
+    xyz[:, 2] = 1.5
+    given = faults.motion_distortion(
+        xyz,
+        np.zeros(50, np.float32),
+        motion=EgoMotion((14.0, 0.0, 0.0), (0.0, 0.0, 10.0)),
+        sweep_period_s=0.1,
+        seam_azimuth_deg=180.0,
+    )
+    preset = faults.motion_distortion(
+        xyz,
+        np.zeros(50, np.float32),
+        motion=straight(14.0, 10.0, 0.0),
+        sweep_period_s=0.1,
+        seam_azimuth_deg=180.0,
+    )
+    np.testing.assert_array_equal(given.xyz, preset.xyz)
+    assert (given.xyz[:, 2] == xyz[:, 2]).all()  # a turn about z keeps heights
+    # Rodrigues about x by 90 deg: y -> z
+    turned = rotate_about(np.array([[0.0, 1.0, 0.0]]), (90.0, 0.0, 0.0), np.array([1.0]))
+    np.testing.assert_allclose(turned, [[0.0, 0.0, 1.0]], atol=1e-12)
