@@ -50,11 +50,16 @@ STAGE_PARAMS: dict[str, dict[str, str]] = {
         "severity": "severity",
         "detection": "detection",
     },
-    "crosstalk": {"interfered_share": "share", "severity": "severity"},
+    "crosstalk": {
+        "interfered_share": "share",
+        "interferer_range_m": "optional_distance",
+        "interferer_azimuth_deg": "optional_number",
+        "severity": "severity",
+    },
 }
 _OPTIONAL_KINDS = {"return_mode", "optional_text", "device", "severity", "settings", "detection",
                    "neighbours", "channel_list", "optional_number", "optional_period",
-                   "vector3", "ego_motion"}  # fmt: skip
+                   "vector3", "ego_motion", "optional_distance"}  # fmt: skip
 # Weather stages, and the sensor faults and artefacts that are not weather.
 WEATHER_STAGES = ("rain", "snow", "fog", "wet_ground")
 FAULT_STAGES = ("beam_missing", "motion_distortion", "incomplete_echo", "crosstalk")
@@ -129,7 +134,7 @@ def _check_value(kind: str, value: Any, where: str) -> None:
         if value not in RETURN_MODES:
             raise ConfigError(f"{where}: mode is {value!r}; expected one of {RETURN_MODES}.")
         return
-    if kind in ("optional_number", "optional_period") and value is None:
+    if kind in ("optional_number", "optional_period", "optional_distance") and value is None:
         return
     _check_number(kind, value, where)
 
@@ -142,6 +147,7 @@ _NUMBER_RULES: dict[str, tuple[Any, str]] = {
     "share": (lambda v: 0 <= v <= 1, "expected a share in [0, 1]"),
     "optional_number": (math.isfinite, "expected a finite number"),
     "optional_period": (lambda v: 0 < v < 10, "expected a sweep period in (0, 10) s"),
+    "optional_distance": (lambda v: 0 < v < math.inf, "expected a finite distance > 0 m"),
     "visibility": (lambda v: v > 0, "visibility must be > 0 m (inf = clear air)"),
 }
 

@@ -23,8 +23,7 @@ from lads.sensors.measure import (
 
 KITTI = "semantickitti/sequences/00/velodyne/00000{}.bin"
 NUSCENES = (
-    "nuscenes/samples/LIDAR_TOP/"
-    "n015-2018-07-24-11-22-45+0800__LIDAR_TOP__1532402927647951.pcd.bin"
+    "nuscenes/samples/LIDAR_TOP/n015-2018-07-24-11-22-45+0800__LIDAR_TOP__1532402927647951.pcd.bin"
 )
 WADS = "wads/sequences/36/velodyne/04222{}.bin"
 RADIATE = "radiate/tiny_foggy/velo_lidar/0000{}.csv"
@@ -75,9 +74,11 @@ def report(name: str, method: str, per_frame: np.ndarray) -> None:
     spread = per_frame.max(axis=0) - per_frame.min(axis=0)
     steps = np.diff(table)
     print(f"== {name}: {method}")
-    print(f"   {per_frame.shape[1]} channels, {table[0]:.3f} .. {table[-1]:.3f} deg; "
-          f"spacing {steps.min():.3f} .. {steps.max():.3f}; "
-          f"max frame-to-frame spread {spread.max():.3f} deg over {per_frame.shape[0]} frame(s)")
+    print(
+        f"   {per_frame.shape[1]} channels, {table[0]:.3f} .. {table[-1]:.3f} deg; "
+        f"spacing {steps.min():.3f} .. {steps.max():.3f}; "
+        f"max frame-to-frame spread {spread.max():.3f} deg over {per_frame.shape[0]} frame(s)"
+    )
     print(f"   vertical_fov_deg: {list(vertical_fov_deg(table))}")
     print(f"   elevation_deg: [{', '.join(f'{v:.3f}' for v in table)}]")
 
@@ -92,13 +93,16 @@ def main(argv: list[str]) -> int:
     scan = np.fromfile(kitti_files(data)[0], dtype=np.float32).reshape(-1, 4)
     ring = rings_from_scan_order(scan[:, :3], 64)
     upper = ring >= 32
-    print(f"   KITTI ring sizes {np.bincount(ring).min()}..{np.bincount(ring).max()}; "
-          f"upper block spacing {np.diff(shipped_table(kitti)[32:]).mean():.3f}, "
-          f"lower block {np.diff(shipped_table(kitti)[:32]).mean():.3f} deg; "
-          f"{upper.sum()} points in the upper block")
+    print(
+        f"   KITTI ring sizes {np.bincount(ring).min()}..{np.bincount(ring).max()}; "
+        f"upper block spacing {np.diff(shipped_table(kitti)[32:]).mean():.3f}, "
+        f"lower block {np.diff(shipped_table(kitti)[:32]).mean():.3f} deg; "
+        f"{upper.sum()} points in the upper block"
+    )
     report("hdl32e (nuScenes keyframe)", "ring column, median > 5 m", measure_nuscenes(data))
-    report("hdl32e cross-check (RADIATE 000018-20)", "ring column, median > 5 m",
-           measure_radiate(data))
+    report(
+        "hdl32e cross-check (RADIATE 000018-20)", "ring column, median > 5 m", measure_radiate(data)
+    )
     report("wads64 (WADS 36/042223-042225)", "elevation histogram peaks > 5 m", measure_wads(data))
     return 0
 

@@ -118,9 +118,14 @@ def rotate_about(xyz: F64, angular_velocity_deg_s: tuple[float, float, float], t
     rate = float(np.linalg.norm(omega))
     if rate == 0.0:
         return xyz.copy()
-    axis = omega / rate
+    kx, ky, kz = (float(v) for v in omega / rate)
     angle = rate * time_s
-    cos, sin = np.cos(angle)[:, None], np.sin(angle)[:, None]
-    cross = np.cross(axis, xyz)
-    along = (xyz @ axis)[:, None] * axis
-    return xyz * cos + cross * sin + along * (1.0 - cos)
+    cos, sin = np.cos(angle), np.sin(angle)
+    x, y, z = xyz[:, 0], xyz[:, 1], xyz[:, 2]
+    along = (x * kx + y * ky + z * kz) * (1.0 - cos)
+    out = np.empty_like(xyz)
+    # R v = v cos + (k x v) sin + k (k . v)(1 - cos), one component at a time
+    out[:, 0] = x * cos + (ky * z - kz * y) * sin + kx * along
+    out[:, 1] = y * cos + (kz * x - kx * z) * sin + ky * along
+    out[:, 2] = z * cos + (kx * y - ky * x) * sin + kz * along
+    return out

@@ -11,7 +11,7 @@ from lads.config import StageConfig
 from lads.errors import ConfigError
 from lads.frame import RING_COLUMN, Frame
 from lads.physics import sensor_faults as faults
-from lads.physics.echo_faults import crosstalk, incomplete_echo
+from lads.physics.echo_faults import INTERFERER_RANGE_M, crosstalk, incomplete_echo
 from lads.physics.ego_motion import EgoMotion, from_poses, straight
 from lads.physics.materials import class_ids, class_roles
 from lads.physics.projection import MIN_RANGE_M, channels_of, range_m
@@ -271,17 +271,22 @@ class CrosstalkStage:
     Attributes:
         name: "crosstalk".
         interfered_share: share of the beams that catch interfering pulses, [0, 1].
+        interferer_range_m: distance of the interfering LiDAR, m.
+        interferer_azimuth_deg: its azimuth, deg; None draws it per frame.
         severity: the preset the share came from, or None.
     """
 
     name: str
     interfered_share: float = 0.0
+    interferer_range_m: float = INTERFERER_RANGE_M
+    interferer_azimuth_deg: float | None = None
     severity: str | None = None
     version: str = SENSOR_FAULT_STAGE_VERSION
 
     @classmethod
     def from_config(cls, config: StageConfig) -> CrosstalkStage:
-        return cls(name=config.stage, **config.params)
+        # an explicit null means the default (distance) or a drawn azimuth
+        return cls(name=config.stage, **{k: v for k, v in config.params.items() if v is not None})
 
     def __call__(self, frame: Frame, rng: np.random.Generator) -> Frame:
         """Interfered beams report a false return on their own ray (outcome PARTICLE)."""
@@ -291,5 +296,11 @@ class CrosstalkStage:
             sensor=frame.sensor,
             rng=rng,
             interfered_share=float(self.interfered_share),
+            interferer_range_m=float(self.interferer_range_m),
+            interferer_azimuth_deg=self.interferer_azimuth_deg,
         )
-        return _apply(frame, result, (("interfered_share", float(self.interfered_share)),))
+        conditions = (
+            ("interfered_share", float(self.interfered_share)),
+            ("interferer_range_m", float(self.interferer_range_m)),
+        )
+        return _apply(frame, result, conditions)

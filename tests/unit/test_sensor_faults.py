@@ -203,3 +203,26 @@ def test_a_general_motion_matches_the_straight_one_and_rotates_about_its_axis():
     # Rodrigues about x by 90 deg: y -> z
     turned = rotate_about(np.array([[0.0, 1.0, 0.0]]), (90.0, 0.0, 0.0), np.array([1.0]))
     np.testing.assert_allclose(turned, [[0.0, 0.0, 1.0]], atol=1e-12)
+
+
+def test_crosstalk_gathers_on_targets_near_the_interferer():
+    from lads.physics.echo_faults import crosstalk
+
+    rng = np.random.default_rng(3)
+    azimuth = rng.uniform(-180, 180, 20000)
+    xyz = _ring_of_points(azimuth, 20.0)
+    kwargs = {"sensor": "hdl64e", "interfered_share": 0.02, "interferer_range_m": 10.0}
+    res = crosstalk(
+        xyz, np.full(20000, 0.3, np.float32), rng=rng, interferer_azimuth_deg=90.0, **kwargs
+    )
+    hit_az = azimuth[res.source_index[res.outcome == Outcome.PARTICLE]]
+    assert hit_az.size == 400
+    towards = np.abs(((hit_az - 90.0) + 180.0) % 360.0 - 180.0) < 45.0
+    away = np.abs(((hit_az + 90.0) + 180.0) % 360.0 - 180.0) < 45.0
+    # the quarter of the ring facing the interferer is 10-14 m from it, the far one 26-30 m:
+    # weights 1/d^2 put about half the false returns on the near quarter, few on the far one
+    assert towards.mean() > 0.4 and away.mean() < 0.1
+    # a drawn azimuth differs per generator, and the same generator repeats itself
+    a = crosstalk(xyz, np.full(20000, 0.3, np.float32), rng=np.random.default_rng(5), **kwargs)
+    b = crosstalk(xyz, np.full(20000, 0.3, np.float32), rng=np.random.default_rng(5), **kwargs)
+    np.testing.assert_array_equal(a.xyz, b.xyz)
