@@ -70,73 +70,77 @@ STRENGTHS = tuple(sorted({key for key, _ in PRESETS.values()}))
 DEVICES = ("cpu", "cuda")
 
 
+# Kinds whose value is one of a fixed set: (the allowed values, what the message calls it).
+_CHOICES: dict[str, tuple[tuple[Any, ...], str]] = {
+    "device": (DEVICES, "device"),
+    "severity": (SEVERITIES, "severity"),
+    "return_mode": (RETURN_MODES, "mode is"),
+    "ego_motion": ((None, *EGO_MOTIONS), "ego_motion"),
+}
+# Kinds that may be null (a default applies), checked as numbers otherwise.
+_OPTIONAL_NUMBERS = ("optional_number", "optional_period", "optional_distance")
+
+
 def _check_value(kind: str, value: Any, where: str) -> None:
-    if kind in ("text", "optional_text"):
-        if (value is None and kind == "optional_text") or (isinstance(value, str) and value):
-            return
-        raise ConfigError(f"{where}: expected a non-empty string, got {value!r}.")
-    if kind == "device":
-        if value not in DEVICES:
-            raise ConfigError(f"{where}: device {value!r}; expected one of {DEVICES}.")
+    """Raise ConfigError naming `where` unless `value` is a valid parameter of `kind`."""
+    if kind in _CHOICES:
+        allowed, what = _CHOICES[kind]
+        if value not in allowed:
+            shown = tuple(v for v in allowed if v is not None)
+            raise ConfigError(f"{where}: {what} {value!r}; expected one of {shown}.")
+        return
+    if kind in ("text", "optional_text", "settings"):
+        _check_text(kind, value, where)
+    elif kind in ("detection", "neighbours", "profile"):
+        _check_reference(kind, value, where)
+    elif kind in ("channel_list", "vector3"):
+        _check_list(kind, value, where)
+    elif not (kind in _OPTIONAL_NUMBERS and value is None):
+        _check_number(kind, value, where)
+
+
+def _check_text(kind: str, value: Any, where: str) -> None:
+    """A non-empty string (optional_text: or None)."""
+    if (value is None and kind == "optional_text") or (isinstance(value, str) and value):
         return
     if kind == "settings":
-        if not (isinstance(value, str) and value):
-            raise ConfigError(f"{where}: expected the name of weather settings, got {value!r}.")
-        return
-    if kind == "detection":
-        try:
-            resolve_detection(value, 1.0, 1.0, 1.0)
-        except ConfigError as exc:
-            raise ConfigError(f"{where}: {exc}") from None
-        return
+        raise ConfigError(f"{where}: expected the name of weather settings, got {value!r}.")
+    raise ConfigError(f"{where}: expected a non-empty string, got {value!r}.")
+
+
+def _check_reference(kind: str, value: Any, where: str) -> None:
+    """A detection rule, a window size or a sensor profile, checked by their own readers."""
     if kind == "neighbours":
         check_neighbours(value, where)
         return
-    if kind == "profile":
-        from lads.sensors.profile import load_profile
+    try:
+        if kind == "detection":
+            resolve_detection(value, 1.0, 1.0, 1.0)
+        else:
+            from lads.sensors.profile import load_profile
 
-        try:
             load_profile(value)
-        except LadsError as exc:
-            raise ConfigError(f"{where}: {exc}") from None
-        return
-    if kind == "severity":
-        if value not in SEVERITIES:
-            raise ConfigError(f"{where}: severity {value!r}; expected one of {SEVERITIES}.")
+    except LadsError as exc:
+        raise ConfigError(f"{where}: {exc}") from None
+
+
+def _check_list(kind: str, value: Any, where: str) -> None:
+    """None, or channel ids (integers >= 0), or three finite numbers (vector3)."""
+    if value is None:
         return
     if kind == "channel_list":
-        ok = value is None or (
-            isinstance(value, list | tuple)
-            and all(isinstance(c, int) and not isinstance(c, bool) and c >= 0 for c in value)
+        if isinstance(value, list | tuple) and all(
+            isinstance(c, int) and not isinstance(c, bool) and c >= 0 for c in value
+        ):
+            return
+        raise ConfigError(
+            f"{where}: expected a list of channel ids (integers >= 0), got {value!r}."
         )
-        if not ok:
-            raise ConfigError(
-                f"{where}: expected a list of channel ids (integers >= 0), got {value!r}."
-            )
-        return
-    if kind == "vector3":
-        ok = value is None or (
-            isinstance(value, list | tuple)
-            and len(value) == 3
-            and all(
-                isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
-                for v in value
-            )
-        )
-        if not ok:
-            raise ConfigError(f"{where}: expected three finite numbers [x, y, z], got {value!r}.")
-        return
-    if kind == "ego_motion":
-        if value not in (None, *EGO_MOTIONS):
-            raise ConfigError(f"{where}: ego_motion {value!r}; expected one of {EGO_MOTIONS}.")
-        return
-    if kind == "return_mode":
-        if value not in RETURN_MODES:
-            raise ConfigError(f"{where}: mode is {value!r}; expected one of {RETURN_MODES}.")
-        return
-    if kind in ("optional_number", "optional_period", "optional_distance") and value is None:
-        return
-    _check_number(kind, value, where)
+    numbers = isinstance(value, list | tuple) and all(
+        isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v) for v in value
+    )
+    if not (numbers and len(value) == 3):
+        raise ConfigError(f"{where}: expected three finite numbers [x, y, z], got {value!r}.")
 
 
 # The numeric kinds: what each accepts, and how a refusal reads.

@@ -115,12 +115,7 @@ def crosstalk(
     Returns:
         WeatherResult: interfered beams PARTICLE at their false range, the rest KEPT.
     """
-    if not 0.0 <= interfered_share <= 1.0:
-        raise ConfigError(f"crosstalk: interfered_share {interfered_share!r}; expected [0, 1].")
-    if not 0.0 < interferer_range_m < np.inf:
-        raise ConfigError(
-            f"crosstalk: interferer_range_m {interferer_range_m!r}; expected a distance > 0 m."
-        )
+    _check_crosstalk(interfered_share, interferer_range_m)
     profile = resolve_sensor(sensor)
     beams = prepare_beams(xyz, intensity, profile)
     active = np.flatnonzero(beams.active)
@@ -131,9 +126,7 @@ def crosstalk(
     if count == 0:
         return unchanged(beams, profile)
     weight = _scatter_weight(beams, active, interferer_range_m, azimuth)
-    # Weighted draw without replacement (Efraimidis-Spirakis keys u^(1/w), largest kept).
-    keys = np.log(rng.random(active.size)) / weight
-    hit = np.sort(active[np.argpartition(-keys, count - 1)[:count]])
+    hit = _weighted_draw(rng, active, weight, count)
     outcome = np.full(beams.range_m.size, Outcome.KEPT, dtype=np.uint8)
     outcome[hit] = Outcome.PARTICLE
     range_m = beams.range_m.copy()
@@ -149,6 +142,25 @@ def crosstalk(
         extinction_per_m=0.0,
         detection_threshold=float("nan"),
     )
+
+
+def _check_crosstalk(interfered_share: float, interferer_range_m: float) -> None:
+    """ConfigError unless the share lies in [0, 1] and the distance is finite and > 0."""
+    if not 0.0 <= interfered_share <= 1.0:
+        raise ConfigError(f"crosstalk: interfered_share {interfered_share!r}; expected [0, 1].")
+    if not 0.0 < interferer_range_m < np.inf:
+        raise ConfigError(
+            f"crosstalk: interferer_range_m {interferer_range_m!r}; expected a distance > 0 m."
+        )
+
+
+def _weighted_draw(
+    rng: np.random.Generator, rows: np.ndarray, weight: np.ndarray, count: int
+) -> np.ndarray:
+    """(count,) sorted rows drawn without replacement with probability ~ weight
+    (Efraimidis-Spirakis: keys u^(1/w), the largest kept; one uniform per row)."""
+    keys = np.log(rng.random(rows.size)) / weight
+    return np.sort(rows[np.argpartition(-keys, count - 1)[:count]])
 
 
 def _scatter_weight(
