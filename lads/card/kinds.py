@@ -51,9 +51,9 @@ _TEXT: dict[str, dict[str, str]] = {
     "corruption": {
         "word": "sensor-fault",
         "direct_use": "Evaluating (or training) LiDAR perception for robustness to sensor faults "
-        "and scan artefacts on {src}: each variant is one corruption at one severity of the "
+        "and scan artefacts on {src}: each C- variant is one corruption at one severity of the "
         "robustness suite (`lads suite`), so a model's score can be reported per corruption and "
-        "severity.",
+        "severity; motion-recorded distorts each sweep by the motion its own poses recorded.",
         "out_of_scope": "Claims about how often a real sensor fails this way: the fault is "
         "applied to every scan at a fixed severity (see Physical model and limitations).",
         "rationale": "Robustness benchmarks report scores under sensor faults that real "
@@ -63,8 +63,8 @@ _TEXT: dict[str, dict[str, str]] = {
         "annotations": "Points keep their labels; points a fault removes take their labels "
         "with them (physical mode).",
         "risks": "- The fault is a model: real lasers fail intermittently and real sweeps are "
-        "distorted by the speed the car actually drove, which this variant replaces with the "
-        "preset's.",
+        "distorted by the speed the car actually drove, which a C- variant replaces with the "
+        "preset's (motion-recorded takes it from the poses, held constant over each sweep).",
         "compare": "compare against real recordings with the same fault where any exist.",
     },
     "intensity": {
@@ -99,8 +99,8 @@ NOT_MODELLED_BY_KIND: dict[str, tuple[str, ...]] = {
         "beam missing: whole lasers fail for a whole scan; no intermittent or partial failure",
         "motion distortion: constant speed and turn rate over a sweep, the scene itself static; "
         "no compensation by the sensor or the dataset is undone",
-        "crosstalk: interfered beams drawn uniformly over the scan, not concentrated towards "
-        "the interfering vehicle; no second return beside the false one",
+        "crosstalk: one interfering LiDAR per scan, at one distance and azimuth, not occluded "
+        "from the targets; no second return beside the false one",
         "incomplete echo: diffuse darkening only, no specular glint of the clear coat",
         "no effect on cameras or other sensors of the source dataset",
     ),
