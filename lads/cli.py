@@ -8,8 +8,9 @@ from __future__ import annotations
 import functools
 import sys
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import click
 
@@ -19,6 +20,9 @@ from lads.errors import LadsError
 from lads.exit_codes import EXIT_INCOMPLETE, EXIT_LADS_ERROR
 from lads.physics.severity import SEVERITIES
 from lads.readers import READERS
+
+if TYPE_CHECKING:
+    from lads.config import PipelineConfig
 
 
 def _lads_errors(func: Callable[..., Any]) -> Callable[..., Any]:
@@ -259,82 +263,98 @@ def variants() -> None:
     help="Draw a before/after preview for the dataset card.",
 )
 @_lads_errors
-def build(
-    source: str,
-    variant: str | None,
-    pipeline_file: Path | None,
-    source_root: Path,
-    out_root: Path,
-    seed: int,
-    rate_mm_h: float | None,
-    visibility_m: float | None,
-    water_film_mm: float | None,
-    severity: str | None,
-    weather_settings: str | None,
-    detection: str | float | None,
-    mode: str | None,
-    neighbours: int | None,
-    source_sensor: str | None,
-    points: str | None,
-    particle_label: int | None,
-    intensity_model: str | None,
-    device: str | None,
-    sequences: str | None,
-    nuscenes_version: str | None,
-    include_sweeps: bool,
-    jobs: int,
-    batch: int | None,
-    backend: str,
-    scheduler: str | None,
-    fail_fast: bool,
-    wait: bool,
-    limit: int | None,
-    figures: bool,
-) -> None:
+def build(**options: Any) -> None:
     """Build a variant tree: one output item per source item, same format and layout."""
-    from lads.config import load_pipeline, pipeline_for
     from lads.runner import run_build
 
-    if (variant is None) == (pipeline_file is None):
-        raise click.UsageError("give exactly one of --variant and --pipeline")
-    loaded = (
-        load_pipeline(pipeline_file) if pipeline_file is not None else pipeline_for(source, variant)  # type: ignore[arg-type]
-    )
-    pipeline = loaded.with_overrides(
-        rate_mm_h=rate_mm_h,
-        visibility_m=visibility_m,
-        water_film_mm=water_film_mm,
-        severity=severity,
-        mode=mode,
-        settings=weather_settings,
-        detection=detection,
-        points=points,
-        particle_label=particle_label,
-        intensity=intensity_model,
-        neighbours=neighbours,
-    )
-    if device is not None:
-        pipeline = pipeline.with_overrides(device=device)
+    opts = _BuildOptions(**options)
     report = run_build(
-        source,
-        source_root,
-        out_root,
-        pipeline,
-        seed=seed,
-        reader_options=reader_options(sequences, nuscenes_version, include_sweeps, source_sensor),
-        jobs=jobs,
-        backend=backend,
-        scheduler=scheduler,
-        fail_fast=fail_fast,
+        opts.source,
+        opts.source_root,
+        opts.out_root,
+        _build_pipeline(opts),
+        seed=opts.seed,
+        reader_options=reader_options(
+            opts.sequences, opts.nuscenes_version, opts.include_sweeps, opts.source_sensor
+        ),
+        jobs=opts.jobs,
+        backend=opts.backend,
+        scheduler=opts.scheduler,
+        fail_fast=opts.fail_fast,
         progress=None,
-        limit=limit,
-        figures=figures,
-        wait=wait,
-        batch=batch,
+        limit=opts.limit,
+        figures=opts.figures,
+        wait=opts.wait,
+        batch=opts.batch,
     )
     click.echo(report.summary_text())
     if not report.complete:
         sys.exit(EXIT_INCOMPLETE)
+
+
+@dataclass(frozen=True, slots=True)
+class _BuildOptions:
+    """The options of `lads build` by parameter name (meanings and units: `lads build --help`)."""
+
+    source: str
+    variant: str | None
+    pipeline_file: Path | None
+    source_root: Path
+    out_root: Path
+    seed: int
+    rate_mm_h: float | None
+    visibility_m: float | None
+    water_film_mm: float | None
+    severity: str | None
+    weather_settings: str | None
+    detection: str | float | None
+    mode: str | None
+    neighbours: int | None
+    source_sensor: str | None
+    points: str | None
+    particle_label: int | None
+    intensity_model: str | None
+    device: str | None
+    sequences: str | None
+    nuscenes_version: str | None
+    include_sweeps: bool
+    jobs: int
+    batch: int | None
+    backend: str
+    scheduler: str | None
+    fail_fast: bool
+    wait: bool
+    limit: int | None
+    figures: bool
+
+
+def _build_pipeline(opts: _BuildOptions) -> PipelineConfig:
+    """The pipeline of --variant or --pipeline with the command line's overrides applied."""
+    from lads.config import load_pipeline, pipeline_for
+
+    if (opts.variant is None) == (opts.pipeline_file is None):
+        raise click.UsageError("give exactly one of --variant and --pipeline")
+    loaded = (
+        load_pipeline(opts.pipeline_file)
+        if opts.pipeline_file is not None
+        else pipeline_for(opts.source, opts.variant)  # type: ignore[arg-type]
+    )
+    pipeline = loaded.with_overrides(
+        rate_mm_h=opts.rate_mm_h,
+        visibility_m=opts.visibility_m,
+        water_film_mm=opts.water_film_mm,
+        severity=opts.severity,
+        mode=opts.mode,
+        settings=opts.weather_settings,
+        detection=opts.detection,
+        points=opts.points,
+        particle_label=opts.particle_label,
+        intensity=opts.intensity_model,
+        neighbours=opts.neighbours,
+    )
+    if opts.device is not None:
+        pipeline = pipeline.with_overrides(device=opts.device)
+    return pipeline
 
 
 @main.command()

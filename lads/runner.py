@@ -275,6 +275,41 @@ def run_build(
     """
     start = time.perf_counter()
     source_root, out_root = Path(source_root).resolve(), Path(out_root).resolve()
+    plan, reader, items = _plan_build(
+        source, source_root, out_root, pipeline, seed, reader_options, limit
+    )
+    _make_output(out_root)
+    settings = _RunSettings(jobs, backend, scheduler, fail_fast, progress, figures, batch)
+    with output_lock(out_root, "build", wait=wait):
+        report = _build_and_report(plan, reader, items, settings, start)
+    if report.stopped_early:
+        raise _fail_fast_error(report)
+    return report
+
+
+@dataclass(frozen=True, slots=True)
+class _RunSettings:
+    """How `run_build` runs the items (its arguments of the same names; batch None: default)."""
+
+    jobs: int
+    backend: str
+    scheduler: str | None
+    fail_fast: bool
+    progress: bool | None
+    figures: bool
+    batch: int | None
+
+
+def _plan_build(
+    source: str,
+    source_root: Path,
+    out_root: Path,
+    pipeline: PipelineConfig,
+    seed: int,
+    reader_options: dict[str, Any] | None,
+    limit: int | None,
+) -> tuple[BuildPlan, Any, list[Item]]:
+    """The checked build plan, its reader and the items to build (the first `limit`)."""
     _check_paths(source_root, out_root)
     options = freeze_options(reader_options or {})
     plan = BuildPlan(source, str(source_root), str(out_root), options, pipeline, seed)
@@ -282,39 +317,48 @@ def run_build(
     stages_for(pipeline)  # a bad stage (e.g. missing weights) stops here, before any output
     reader = reader_for(plan)
     items = reader.items()[:limit] if limit else reader.items()
-    _make_output(out_root)
-    with output_lock(out_root, "build", wait=wait):
-        report = BuildReport(out_root, items=len(items), built=0, skipped=0)
-        seconds: list[float] = []
-        try:
-            _build_locked(
-                plan,
-                reader,
-                items,
-                report,
-                seconds,
-                jobs=jobs,
-                backend=backend,
-                scheduler=scheduler,
-                fail_fast=fail_fast,
-                progress=progress,
-                figures=figures,
-                batch=default_batch(pipeline) if batch is None else batch,
-            )
-        except (OutputWriteError, KeyboardInterrupt):
-            report.stopped_early = True
-            report.seconds = time.perf_counter() - start
-            _try_report(out_root, report, seconds)
-            remove_stray_temps(out_root)  # ours: the lock keeps every other run out
-            raise
-        report.seconds = time.perf_counter() - start
-        _write_report(out_root, report, seconds)
-    if report.stopped_early:
-        item_id, error = report.failed[0]
-        raise BuildError(
-            f"{item_id}: {error} (stopped by --fail-fast; fix it and run again to resume)"
+    return plan, reader, items
+
+
+def _build_and_report(
+    plan: BuildPlan, reader: Any, items: list[Item], settings: _RunSettings, start: float
+) -> BuildReport:
+    """The BuildReport of the build (lock held), also written to run_report.json."""
+    out_root = Path(plan.out_root)
+    report = BuildReport(out_root, items=len(items), built=0, skipped=0)
+    seconds: list[float] = []
+    try:
+        _build_locked(
+            plan,
+            reader,
+            items,
+            report,
+            seconds,
+            jobs=settings.jobs,
+            backend=settings.backend,
+            scheduler=settings.scheduler,
+            fail_fast=settings.fail_fast,
+            progress=settings.progress,
+            figures=settings.figures,
+            batch=default_batch(plan.pipeline) if settings.batch is None else settings.batch,
         )
+    except (OutputWriteError, KeyboardInterrupt):
+        report.stopped_early = True
+        report.seconds = time.perf_counter() - start
+        _try_report(out_root, report, seconds)
+        remove_stray_temps(out_root)  # ours: the lock keeps every other run out
+        raise
+    report.seconds = time.perf_counter() - start
+    _write_report(out_root, report, seconds)
     return report
+
+
+def _fail_fast_error(report: BuildReport) -> BuildError:
+    """The BuildError of a build --fail-fast stopped, naming its first failed item."""
+    item_id, error = report.failed[0]
+    return BuildError(
+        f"{item_id}: {error} (stopped by --fail-fast; fix it and run again to resume)"
+    )
 
 
 def _build_locked(

@@ -67,7 +67,7 @@ import numpy.typing as npt
 
 from lads.errors import ConfigError
 from lads.physics.beams import Beams, assemble, assemble_dual, auto_threshold
-from lads.physics.detection import resolve_detection
+from lads.physics.detection import Detection, resolve_detection
 from lads.physics.fog_echo import SoftReturnTable, soft_return_peak, soft_return_table
 from lads.physics.fog_kernels import MODE_CODES, echo_lookup, fog_choices, fog_returns
 from lads.physics.result import Outcome, WeatherResult
@@ -85,6 +85,8 @@ MODES = ("strongest", "last", "dual")
 BACKSCATTER_MODELS = ("mie", "hahner")
 MIE_SIZES = 1500  # Q_back ripples with size; ~1000 sizes converge S to +-1 % (measured)
 MIN_OUTPUT_RANGE_M = 1e-3
+# One return per beam: (outcome codes uint8, range m, reflectivity), each (N,).
+_Returns = tuple[npt.NDArray[np.uint8], npt.NDArray[np.float64], npt.NDArray[np.float64]]
 
 
 @dataclass(frozen=True, slots=True)
@@ -293,17 +295,44 @@ def simulate_fog(
     if mode not in MODES:
         raise ConfigError(f"fog mode = {mode!r}; expected one of {MODES}.")
     alpha = extinction_from_visibility(visibility_m)
-    detection = resolve_detection(
+    detection = _frame_detection(beams, sensor, params)
+    p_min = detection.threshold
+    if alpha == 0.0 or beams.range_m.size == 0:
+        return _unchanged(beams, sensor, alpha, p_min)
+    beta = backscatter_from_visibility(visibility_m, params)
+    first, second = _beam_returns(beams, sensor, alpha, beta, params, detection, mode, rng)
+    return assemble_dual(
+        beams,
+        sensor,
+        first=first,
+        second=second,
+        extinction_per_m=alpha,
+        detection_threshold=p_min,
+    )
+
+
+def _frame_detection(beams: Beams, sensor: SensorProfile, params: FogParams) -> Detection:
+    """The frame's detection rule (`params.detection_threshold`; P_min in reflectivity / m^2)."""
+    return resolve_detection(
         params.detection_threshold,
         sensor.detection.power,
         sensor.detection.spread_ln,
         auto_threshold(beams),
     )
-    p_min = detection.threshold
+
+
+def _beam_returns(
+    beams: Beams,
+    sensor: SensorProfile,
+    alpha: float,
+    beta: float,
+    params: FogParams,
+    detection: Detection,
+    mode: str,
+    rng: np.random.Generator,
+) -> tuple[_Returns, _Returns]:
+    """Per beam (N,) first and second returns (outcome, range m, reflectivity) in the fog."""
     n = beams.range_m.size
-    if alpha == 0.0 or n == 0:
-        return _unchanged(beams, sensor, alpha, p_min)
-    beta = backscatter_from_visibility(visibility_m, params)
     idx = np.flatnonzero(beams.active)
     r0, rho = beams.range_m[idx], beams.reflectivity[idx]
     two_way_ln = -2.0 * alpha * r0
@@ -334,16 +363,9 @@ def simulate_fog(
         kappa,
         noise,
         noise_second,
-        _return_constants(sensor, p_min, length),
+        _return_constants(sensor, detection.threshold, length),
     )
-    return assemble_dual(
-        beams,
-        sensor,
-        first=(codes1, range1, refl1),
-        second=(codes2, range2, refl2),
-        extinction_per_m=alpha,
-        detection_threshold=p_min,
-    )
+    return (codes1, range1, refl1), (codes2, range2, refl2)
 
 
 def _unchanged(beams: Beams, sensor: SensorProfile, alpha: float, p_min: float) -> WeatherResult:

@@ -258,10 +258,7 @@ def _tables(
     samples = [token(f"sample:{r.token}") for r in keys]
     sd_rows, ego_rows = _record_rows(ordered, keys, samples, calib)
     return {
-        "category": [
-            {"token": token(f"category:{name}"), "name": name, "description": name, "index": i}
-            for i, name in enumerate(lidarseg_classes().categories)
-        ],
+        "category": _category_rows(),
         "attribute": [],
         "visibility": [_VISIBILITY],
         "instance": [],
@@ -285,17 +282,7 @@ def _tables(
                 "location": scene.location,
             }
         ],
-        "scene": [
-            {
-                "token": scene_token,
-                "log_token": log,
-                "nbr_samples": len(samples),
-                "first_sample_token": samples[0],
-                "last_sample_token": samples[-1],
-                "name": scene.name,
-                "description": scene.description,
-            }
-        ],
+        "scene": _scene_rows(scene, scene_token, log, samples),
         "sample": _sample_rows(keys, samples, scene_token),
         "sample_data": sd_rows,
         "sample_annotation": [],
@@ -308,6 +295,31 @@ def _tables(
             }
         ],
     }
+
+
+def _category_rows() -> list[dict[str, Any]]:
+    """The category table: one row per lidarseg class, with its label `index`."""
+    return [
+        {"token": token(f"category:{name}"), "name": name, "description": name, "index": i}
+        for i, name in enumerate(lidarseg_classes().categories)
+    ]
+
+
+def _scene_rows(
+    scene: NuscScene, scene_token: str, log: str, samples: list[str]
+) -> list[dict[str, Any]]:
+    """The scene table: the one scene of log `log`, from the first sample to the last."""
+    return [
+        {
+            "token": scene_token,
+            "log_token": log,
+            "nbr_samples": len(samples),
+            "first_sample_token": samples[0],
+            "last_sample_token": samples[-1],
+            "name": scene.name,
+            "description": scene.description,
+        }
+    ]
 
 
 def _sample_rows(

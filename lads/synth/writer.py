@@ -13,7 +13,7 @@ renamed into place.
 from __future__ import annotations
 
 import re
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -113,16 +113,9 @@ def write_synthetic_dataset(
     write_frame, frame_dirs, finish = _LAYOUT_WRITERS[layout](out_root, sequence, seed, profile)
     names = [f"{k:06d}" for k in range(frames)]
     _refuse_stale_files(out_root, frame_dirs, names)
-    written: list[Path] = []
-    points: list[int] = []
     frame_iter = synth_frames(profile, frames=frames, seed=seed, azimuth_bins=azimuth_bins)
-    poses, times = [], []
     bar = tqdm(frame_iter, total=frames, unit="frame", disable=None if progress else True)
-    for name, frame in zip(names, bar, strict=True):
-        written += write_frame(name, frame)
-        points.append(int(frame.xyz.shape[0]))
-        poses.append(frame.pose)
-        times.append(frame.time_s)
+    written, points, poses, times = _write_frames(write_frame, names, bar)
     written += finish(poses, times)
     return SynthSummary(
         out_root=out_root,
@@ -179,6 +172,21 @@ def _refuse_stale_files(
 
 _FrameWriter = Callable[[str, SynthFrame], list[Path]]
 _Finisher = Callable[[list[npt.NDArray[np.float64]], list[float]], list[Path]]
+
+
+def _write_frames(
+    write_frame: _FrameWriter, names: list[str], frames: Iterable[SynthFrame]
+) -> tuple[list[Path], list[int], list[npt.NDArray[np.float64]], list[float]]:
+    """Files written, points per frame, (4, 4) poses and times (s) of the frames, in order."""
+    written: list[Path] = []
+    points: list[int] = []
+    poses, times = [], []
+    for name, frame in zip(names, frames, strict=True):
+        written += write_frame(name, frame)
+        points.append(int(frame.xyz.shape[0]))
+        poses.append(frame.pose)
+        times.append(frame.time_s)
+    return written, points, poses, times
 
 
 def _semantickitti(
