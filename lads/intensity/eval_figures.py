@@ -161,31 +161,52 @@ def histograms(
     bins = _bins(profile, values, preds)
     unit = f"intensity ({profile.name} encoding)" if profile else "intensity (encoding units)"
 
-    top_classes: list[Any] = []
-    if cls is not None:
-        keys, counts = np.unique(cls, return_counts=True)
-        top_classes = list(keys[np.argsort(-counts, kind="stable")][:MAX_CLASS_PANELS])
+    top_classes = _top_classes(cls)
     class_rows = math.ceil(len(top_classes) / 3)
     fig = Figure(figsize=(12.0, 4.2 + 2.8 * class_rows), dpi=DPI)
     _agg(fig)
     grid = fig.add_gridspec(1 + class_rows, 3, height_ratios=(1.6,) + (1.0,) * class_rows)
-    main = fig.add_subplot(grid[0, :])
-    _overlay(main, values, preds, bins, legend=True)
-    main.set_title(f"all points (N = {values.size:,})", fontsize=9)
-    main.set_xlabel(unit, fontsize=8)
-    main.set_ylabel("points (log scale)", fontsize=8)
+    _all_points_panel(fig.add_subplot(grid[0, :]), values, preds, bins, unit)
     names = dict(enumerate(class_names)) if isinstance(class_names, Sequence) else class_names
     for i, key in enumerate(top_classes):
         ax = fig.add_subplot(grid[1 + i // 3, i % 3])
         _class_panel(ax, key, names or {}, cls == key, values, preds, bins, unit)
     fig.suptitle(title or "intensity histograms: real vs methods", fontsize=10)
+    _fixed_margins(fig)
+    _save(fig, out)
+    return out
+
+
+def _top_classes(cls: npt.NDArray[Any] | None) -> list[Any]:
+    """The keys of the (up to MAX_CLASS_PANELS) most frequent classes, commonest first."""
+    top_classes: list[Any] = []
+    if cls is not None:
+        keys, counts = np.unique(cls, return_counts=True)
+        top_classes = list(keys[np.argsort(-counts, kind="stable")][:MAX_CLASS_PANELS])
+    return top_classes
+
+
+def _all_points_panel(
+    ax: Any,
+    values: npt.NDArray[np.float32],
+    preds: dict[str, npt.NDArray[np.float32]],
+    bins: npt.NDArray[np.float64],
+    unit: str,
+) -> None:
+    """Draw the top panel: the real values and every method over all points, with legend."""
+    _overlay(ax, values, preds, bins, legend=True)
+    ax.set_title(f"all points (N = {values.size:,})", fontsize=9)
+    ax.set_xlabel(unit, fontsize=8)
+    ax.set_ylabel("points (log scale)", fontsize=8)
+
+
+def _fixed_margins(fig: Any) -> None:
+    """Set the histogram figure's fixed margins: 0.75 in above the panels, 0.5 in below."""
     # Fixed margins: tight_layout would cost a second measuring log-axis tick labels.
     height = fig.get_figheight()
     fig.subplots_adjust(
         left=0.07, right=0.98, top=1 - 0.75 / height, bottom=0.5 / height, hspace=0.55, wspace=0.28
     )
-    _save(fig, out)
-    return out
 
 
 def _same_points(

@@ -159,12 +159,61 @@ def frame_image(
         InvalidPointsError: bad xyz, ring, labels, intensity or flags.
         ConfigError: unknown style or label set, a style without style channels, bad width.
     """
+    r, chan, image, cos = _organised(xyz, profile, ring, style, styles, width)
+    return _frame_of(
+        r,
+        chan,
+        image,
+        cos,
+        profile,
+        labels=labels,
+        label_set=label_set,
+        intensity=intensity,
+        outcome=outcome,
+        particle=particle,
+        style=style,
+        styles=styles,
+        range_exponent=range_exponent,
+        extinction_per_m=extinction_per_m,
+    )
+
+
+def _organised(
+    xyz: npt.ArrayLike,
+    profile: SensorProfile,
+    ring: npt.ArrayLike | None,
+    style: str | None,
+    styles: bool,
+    width: int | None,
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.int64], RangeImage, FloatArray]:
+    """A checked frame's (N,) range m, (N,) channel, range image and (N,) float32 cos."""
     xyz64, r = checked_xyz(xyz)
-    n = len(xyz64)
     w = _checked_width(profile, style, styles, width)
     chan = channels_of(xyz64, profile, ring)
     image = organise(xyz64, r, chan, profile.channels, w)
     cos = _incidence(xyz64, r, image, DEFAULT_DEPTH_JUMP).cos
+    return r, chan, image, cos
+
+
+def _frame_of(
+    r: npt.NDArray[np.float64],
+    chan: npt.NDArray[np.int64],
+    image: RangeImage,
+    cos: FloatArray,
+    profile: SensorProfile,
+    *,
+    labels: npt.ArrayLike | None,
+    label_set: str | None,
+    intensity: npt.ArrayLike | None,
+    outcome: npt.ArrayLike | None,
+    particle: npt.ArrayLike | None,
+    style: str | None,
+    styles: bool,
+    range_exponent: float,
+    extinction_per_m: float,
+) -> FrameImage:
+    """The FrameImage of an `_organised` frame: point modalities, channels and target."""
+    n = len(r)
     rho, material = _reflectance_and_material(n, labels, label_set)
     phys = physics_intensity(
         rho, cos, r, range_exponent=range_exponent, extinction_per_m=extinction_per_m

@@ -93,11 +93,8 @@ def train(
     sampler = Sampler(run, jobs, rng)
     ckpt_path = run / CHECKPOINT
     config_id = _config_id(cfg)
-    start, history = (
-        resume(ckpt_path, config_id, nets, opt_g, opt_d, rng) if ckpt_path.is_file() else (0, [])
-    )
-    targets = {k: (v["log_mean"], v["log_std"], v["floor"]) for k, v in stats.targets.items()}
-    log_k = {k: v["log_k"] for k, v in stats.targets.items()}
+    start, history = _resumed(ckpt_path, config_id, nets, opt_g, opt_d, rng)
+    targets, log_k = _target_scales(stats)
     nets.use_laws(torch_laws, targets, cfg.residual)
     record = _record(cfg, laws, len(jobs))
     meta_at = functools.partial(_meta, cfg, stats, channels, record, history)
@@ -135,6 +132,27 @@ def _fit_laws(
         target_jobs = [j for j in jobs if j.pair == p.key and j.role == "target"]
         laws[p.key] = fit_law(iter_frames(run, target_jobs), stats.targets[p.key]["floor"])
     return laws
+
+
+def _resumed(
+    ckpt_path: Path,
+    config_id: str,
+    nets: Nets,
+    opt_g: torch.optim.Optimizer,
+    opt_d: torch.optim.Optimizer,
+    rng: np.random.Generator,
+) -> tuple[int, list[dict[str, float]]]:
+    """(steps done, loss history) of the checkpoint, loaded into the run's objects; else (0, [])."""
+    return resume(ckpt_path, config_id, nets, opt_g, opt_d, rng) if ckpt_path.is_file() else (0, [])
+
+
+def _target_scales(
+    stats: Statistics,
+) -> tuple[dict[str, tuple[float, float, float]], dict[str, float]]:
+    """Per pair key: the target's z-space (log_mean, log_std, floor), and its log_k."""
+    targets = {k: (v["log_mean"], v["log_std"], v["floor"]) for k, v in stats.targets.items()}
+    log_k = {k: v["log_k"] for k, v in stats.targets.items()}
+    return targets, log_k
 
 
 def _record(cfg: TrainConfig, laws: dict[str, FittedPhysics], n_jobs: int) -> dict[str, Any]:

@@ -100,6 +100,27 @@ def cast_parts(
     az = azimuth_offset_rad + (np.arange(int(columns)) + 0.5) * step
     best = np.full((len(el), int(columns)), np.inf)
     best_cos = np.ones((len(el), int(columns)))
+    buffers = _record_parts(
+        parts, kept, to_target, el, azimuth_offset_rad, columns, max_range_m, best, best_cos
+    )
+    t, owner, refl, cos = _blend_votes(
+        parts, kept, best, best_cos, buffers, depth_tol_m, depth_tol_share
+    )
+    return BeamHits(t, owner, cos, refl, el, az)
+
+
+def _record_parts(
+    parts: Sequence[Surfels | dict[str, npt.NDArray[np.generic]]],
+    kept: Sequence[npt.NDArray[np.int64]],
+    to_target: Sequence[F64],
+    el: F64,
+    azimuth_offset_rad: float,
+    columns: int,
+    max_range_m: float,
+    best: F64,
+    best_cos: F64,
+) -> _HitBuffers:
+    """Pass 1 over all parts: the hit records; updates (H, W) best (m), best_cos in place."""
     total = sum(len(k) for k in kept)
     buffers = _HitBuffers.empty(2 * total + 1024)
     offset = 0
@@ -130,13 +151,26 @@ def cast_parts(
             )
         )
         offset += len(idx)
+    return buffers
+
+
+def _blend_votes(
+    parts: Sequence[Surfels | dict[str, npt.NDArray[np.generic]]],
+    kept: Sequence[npt.NDArray[np.int64]],
+    best: F64,
+    best_cos: F64,
+    buffers: _HitBuffers,
+    depth_tol_m: float,
+    depth_tol_share: float,
+) -> tuple[F64, npt.NDArray[np.int64], F64, F64]:
+    """Pass 2 with the kept surfels' votes: (H, W) range m, owner, reflectivity and |cos|."""
     scalars = {
         f: np.concatenate(
             [np.asarray(_fields(p, (f,))[f])[k] for p, k in zip(parts, kept, strict=True)]
         )
         for f in VOTE_FIELDS
     }
-    t, owner, refl, cos = _blend(  # type: ignore[call-arg]
+    return _blend(  # type: ignore[call-arg]
         best,
         best_cos,
         *buffers.trimmed(),
@@ -146,7 +180,6 @@ def cast_parts(
         depth_tol_m,
         depth_tol_share,
     )
-    return BeamHits(t, owner, cos, refl, el, az)
 
 
 def _fields(part: Any, names: Sequence[str]) -> dict[str, Any]:

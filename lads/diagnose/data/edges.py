@@ -114,6 +114,24 @@ def edge_distance(
     period = 2.0 * math.pi / step
     stride = 4.0 * period + 4.0 * cap
     pos = azimuth[order] / step + _dense_rank(ring_sorted) * stride
+    edges, width = _edges_and_widths(pos, gap, spacing, jump, missing)
+    if edges.size == 0:
+        return out, span_out
+    dist, span = _nearest_edge(edges, width, pos, period, cap)
+    out[order] = dist.astype(np.float32)
+    span_out[order] = span.astype(np.float32)
+    return out, span_out
+
+
+def _edges_and_widths(
+    pos: npt.NDArray[np.float64],
+    gap: npt.NDArray[np.float64],
+    spacing: npt.NDArray[np.float64],
+    jump: npt.NDArray[np.bool_],
+    missing: npt.NDArray[np.bool_],
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    """(E,) edge positions and (E,) widths of their spans, in azimuth steps along the rings."""
+    # A range jump's edge is its midpoint; a missing run's, half a spacing inside each end.
     edges = np.concatenate(
         [
             pos[jump] + 0.5 * gap[jump],
@@ -122,12 +140,7 @@ def edge_distance(
         ]
     )
     width = np.maximum(np.concatenate([gap[jump], spacing[missing], spacing[missing]]) - 1.0, 0.0)
-    if edges.size == 0:
-        return out, span_out
-    dist, span = _nearest_edge(edges, width, pos, period, cap)
-    out[order] = dist.astype(np.float32)
-    span_out[order] = span.astype(np.float32)
-    return out, span_out
+    return edges, width
 
 
 def _ring_spacing(
