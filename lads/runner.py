@@ -1,7 +1,8 @@
 """`lads build`: turn a source tree into a variant tree, on one machine or a Dask cluster.
 
-The runner owns all I/O and parallelism; the work per item is `lads.worker.process_item`
-(`process_items` for a batch).
+The runner owns all I/O and parallelism: it claims the output folder (`lads.output_tree`),
+spreads the items over workers (`lads.dispatch`) and finalises the tree; the work per item
+is `lads.worker.process_item` (`process_items` for a batch).
 A killed build resumes: finished items are journaled under OUT/.lads-state and re-checked
 (their output hashes) before being skipped, so the finished tree is byte-identical to an
 uninterrupted build whatever the job count, order or backend.
@@ -18,30 +19,25 @@ from typing import Any
 
 from lads import provenance
 from lads.built_tree import (
-    PLAN_JSON,
-    RUN_JSON,
     RUN_REPORT,
     SHA256SUMS,
-    STATE_DIR,
     BuildPlan,
     freeze_options,
-    identity,
 )
 from lads.config import PipelineConfig
+from lads.dispatch import default_batch, dispatch
 from lads.errors import BuildError, OutputWriteError
-from lads.files import atomic_copy, atomic_write, remove_stray_temps, sha256_file, write_error
+from lads.files import atomic_write, remove_stray_temps, write_error
 from lads.finalise import finalise
 from lads.frame import Item
-from lads.lock import LOCK_NAME, output_lock
-from lads.readers.base import unreadable_reason
+from lads.lock import output_lock
+from lads.output_tree import check_paths, claim_output, copy_source_files, make_output
 from lads.resume import finished_rows
-from lads.worker import process_items, reader_for, stages_for
+from lads.worker import reader_for, stages_for
 
 __all__ = ["BuildReport", "run_build"]
 
 log = logging.getLogger(__name__)
-
-GPU_BATCH = 8  # frames per forward pass on a GPU (~0.3 GB of activations at 64 x 2048)
 
 
 @dataclass(slots=True)
@@ -92,137 +88,6 @@ class BuildReport:
             )
             lines += [f"  FOREIGN {rel}" for rel in self.foreign[:20]]
         return "\n".join(lines)
-
-
-def _check_paths(source_root: Path, out_root: Path) -> None:
-    src, out = source_root.resolve(), out_root.resolve()
-    if out == src or src in out.parents:
-        raise BuildError(
-            f"{out_root}: the output directory is inside the source tree {source_root}; lads never "
-            "writes into a source dataset. Choose an --out outside it."
-        )
-    if out in src.parents:
-        raise BuildError(
-            f"{out_root}: the output directory contains the source tree {source_root}; choose an "
-            "--out that is neither inside nor around the source."
-        )
-
-
-def _make_output(out_root: Path) -> None:
-    """Create OUT (and its parents) or say in words why it cannot be created."""
-    try:
-        out_root.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise write_error(out_root, exc) from exc
-
-
-def _previous_identity(path: Path, ident: dict[str, Any]) -> dict[str, Any]:
-    """The build identity recorded in OUT's plan.json or run.json, or a BuildError when the
-    file is not a lads record (not JSON, or JSON without the identity keys)."""
-    try:
-        record = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise BuildError(
-            f"{path}: not a lads build record ({exc}); the output folder holds something lads "
-            "did not write, or a damaged build. Choose an empty --out, or delete the folder "
-            "to rebuild."
-        ) from exc
-    if not isinstance(record, dict) or "config_hash" not in record or "source" not in record:
-        raise BuildError(
-            f"{path}: a JSON file lads did not write (no source and config_hash); the output "
-            "folder is not a lads build. Choose an empty or new --out."
-        )
-    return {k: record.get(k) for k in ident}
-
-
-def _claim_output(out_root: Path, plan: BuildPlan) -> None:
-    """Refuse to mix builds: OUT must be empty, or a (partial) build of the same plan."""
-    ident = identity(plan)
-    marker = out_root / STATE_DIR / PLAN_JSON
-    previous: dict[str, Any] | None = None
-    if marker.is_file():
-        previous = _previous_identity(marker, ident)
-    elif (out_root / RUN_JSON).exists():
-        previous = _previous_identity(out_root / RUN_JSON, ident)
-    elif any(p.name != LOCK_NAME for p in out_root.iterdir()):
-        raise BuildError(
-            f"{out_root}: the directory is not empty and holds no lads build; choose an empty or "
-            "new --out."
-        )
-    if previous is not None and previous != ident:
-        diff = sorted(k for k in ident if previous.get(k) != ident[k])
-        raise BuildError(
-            f"{out_root}: holds a build with other settings ({', '.join(diff)} differ); use "
-            "another --out, or delete it to rebuild."
-        )
-    atomic_write(marker, json.dumps(ident, sort_keys=True).encode())
-
-
-def _copy_files(reader: Any, source_root: Path, out_root: Path) -> list[dict[str, Any]]:
-    rows = []
-    for rel in sorted(reader.copied_files()):
-        src, dst = source_root / rel, out_root / rel
-        try:
-            digest, size = sha256_file(src), src.stat().st_size
-        except OSError as exc:
-            raise BuildError(
-                f"{src}: a file the build copies byte for byte cannot be read "
-                f"({unreadable_reason(src, exc)}); restore it in the source, then run again."
-            ) from exc
-        if not (dst.is_file() and sha256_file(dst) == digest):
-            atomic_copy(src, dst)
-        rows.append({"path": rel, "bytes": size, "sha256": digest})
-    return rows
-
-
-def _dispatch(  # type: ignore[no-untyped-def]
-    todo: list[Item],
-    plan: BuildPlan,
-    jobs: int,
-    backend: str,
-    scheduler: str | None,
-    batch: int = 1,
-):
-    """Yield manifest rows as items finish (any order); `batch` items per task."""
-    tasks = [todo[k : k + batch] for k in range(0, len(todo), max(batch, 1))]
-    if jobs == 1 and backend == "loky":
-        for task in tasks:
-            yield from process_items(task, plan)
-        return
-    if backend == "dask":
-        try:
-            from distributed import Client, as_completed
-        except ImportError as exc:
-            raise BuildError(
-                "--backend dask needs dask.distributed: pip install 'lads[dask]'."
-            ) from exc
-        client = Client(scheduler) if scheduler else Client(processes=False)
-        try:
-            # Plain futures: joblib's dask backend kept the client process busy, which on a
-            # small machine took a core from the workers (2 workers ran slower than 1).
-            shared = client.scatter(plan, broadcast=True)
-            futures = client.map(process_items, tasks, plan=shared, pure=False)
-            for future in as_completed(futures):
-                yield from future.result()
-        finally:
-            client.close()
-        return
-    from joblib import Parallel, delayed, parallel_config
-
-    # One thread per worker: the workers are the parallelism, and a fixed thread count
-    # keeps float reductions in a fixed order.
-    with parallel_config(backend=backend, n_jobs=jobs, inner_max_num_threads=1):
-        for rows in Parallel(return_as="generator_unordered")(
-            delayed(process_items)(task, plan) for task in tasks
-        ):
-            yield from rows
-
-
-def default_batch(pipeline: PipelineConfig) -> int:
-    """Frames per task: GPU_BATCH when a stage runs on a GPU (its batched forward pass),
-    else 1 (on a CPU a batch saves nothing and delays the progress bar)."""
-    on_gpu = any(str(s.params.get("device", "cpu")).startswith("cuda") for s in pipeline.stages)
-    return GPU_BATCH if on_gpu else 1
 
 
 def run_build(
@@ -278,7 +143,7 @@ def run_build(
     plan, reader, items = _plan_build(
         source, source_root, out_root, pipeline, seed, reader_options, limit
     )
-    _make_output(out_root)
+    make_output(out_root)
     settings = _RunSettings(jobs, backend, scheduler, fail_fast, progress, figures, batch)
     with output_lock(out_root, "build", wait=wait):
         report = _build_and_report(plan, reader, items, settings, start)
@@ -310,7 +175,7 @@ def _plan_build(
     limit: int | None,
 ) -> tuple[BuildPlan, Any, list[Item]]:
     """The checked build plan, its reader and the items to build (the first `limit`)."""
-    _check_paths(source_root, out_root)
+    check_paths(source_root, out_root)
     options = freeze_options(reader_options or {})
     plan = BuildPlan(source, str(source_root), str(out_root), options, pipeline, seed)
     pipeline.check_source(source, f"pipeline '{pipeline.variant}'")
@@ -380,9 +245,9 @@ def _build_locked(
     from tqdm import tqdm
 
     out_root = Path(plan.out_root)
-    _claim_output(out_root, plan)
+    claim_output(out_root, plan)
     remove_stray_temps(out_root)
-    copied = _copy_files(reader, Path(reader.root), out_root)
+    copied = copy_source_files(reader, Path(reader.root), out_root)
     try:
         provenance.create_store(
             out_root, points_mode=plan.pipeline.points, config_hash=plan.pipeline.config_hash()
@@ -400,7 +265,7 @@ def _build_locked(
         disable=None if progress is None else not progress,
     )
     with bar:
-        for row in _dispatch(todo, plan, jobs, backend, scheduler, batch):
+        for row in dispatch(todo, plan, jobs, backend, scheduler, batch):
             seconds.append(row.pop("_seconds", 0.0))
             for step, ms in row.pop("_step_ms", {}).items():
                 report.step_ms[step] = report.step_ms.get(step, 0.0) + ms
