@@ -26,6 +26,9 @@ SUITE_FILE = "suite.json"
 SUITE_README = "README.md"
 # The corruption whose trees are the sensor-<profile> variants.
 CROSS_SENSOR = "cross_sensor"
+# The motion-distortion tree at the motion each frame's poses recorded (sources with poses),
+# and the "severity" the suite lists it under.
+RECORDED_MOTION, RECORDED = "motion-recorded", "recorded"
 
 
 @dataclass(frozen=True, slots=True)
@@ -44,9 +47,10 @@ def suite_variants(
     source: str, corruptions: list[str] | None = None, severities: list[str] | None = None
 ) -> list[str]:
     """The suite's variants for `source`: `C-<corruption>-<severity>` for every corruption
-    with severities, and `sensor-<profile>` for cross-sensor (every target profile the
-    source can be transferred to). `corruptions` (names or peers' names) and `severities`
-    narrow the set; severities do not apply to cross-sensor.
+    with severities, `motion-recorded` for a source with poses (unless `severities` narrows
+    the set), and `sensor-<profile>` for cross-sensor (every target profile the source can
+    be transferred to). `corruptions` (names or peers' names) and `severities` narrow the
+    set; severities do not apply to cross-sensor.
 
     Raises:
         ConfigError: an unknown corruption or severity, or one this source cannot take.
@@ -60,8 +64,12 @@ def suite_variants(
         name, severity = _corruption_of(variant)
         if (names is None or name in names) and (severities is None or severity in severities):
             chosen.append(variant)
+    offered = variants_for(source)
+    motion = names is None or "motion_distortion" in names
+    if motion and severities is None and RECORDED_MOTION in offered:
+        chosen.append(RECORDED_MOTION)
     if names is None or CROSS_SENSOR in names:
-        chosen += [v for v in variants_for(source) if v.startswith(f"{SENSOR_PIPELINE}-")]
+        chosen += [v for v in offered if v.startswith(f"{SENSOR_PIPELINE}-")]
     missing = sorted((names or set()) - {_corruption_of(v)[0] for v in chosen})
     if missing:
         raise ConfigError(
@@ -72,7 +80,10 @@ def suite_variants(
 
 
 def _corruption_of(variant: str) -> tuple[str, str | None]:
-    """(corruption, severity) of a suite variant; cross-sensor has no severity."""
+    """(corruption, severity) of a suite variant; cross-sensor has no severity, and the
+    recorded motion is listed as severity "recorded"."""
+    if variant == RECORDED_MOTION:
+        return "motion_distortion", RECORDED
     if variant.startswith(f"{SENSOR_PIPELINE}-"):
         return CROSS_SENSOR, None
     return split_corruption_variant(variant)
@@ -118,11 +129,12 @@ def _readme(summary: dict[str, Any]) -> str:
     ]
     for row in summary["variants"]:
         spec = corruption_spec(row["corruption"])
-        value = (
-            f"target {row['target']}"
-            if row["severity"] is None
-            else (f"{spec.parameter} = {row[spec.parameter]:g}")
-        )
+        if row["severity"] is None:
+            value = f"target {row['target']}"
+        elif row["severity"] == RECORDED:
+            value = f"{spec.parameter} {row[spec.parameter]}"
+        else:
+            value = f"{spec.parameter} = {row[spec.parameter]:g}"
         lines.append(
             f"| [{row['tree']}]({row['tree']}/README.md) | {row['corruption']} | "
             f"{row['severity'] or '-'} | {value} | {row['items']} | {row['complete']} |"
@@ -143,6 +155,8 @@ def _summary(source: str, suite: SuiteReport) -> dict[str, Any]:
         }
         if severity is None:
             row["target"] = variant[len(SENSOR_PIPELINE) + 1 :]
+        elif severity == RECORDED:
+            row[spec.parameter] = "per frame, from the poses (manifest conditions)"
         else:
             row[spec.parameter] = spec.preset(severity)
         rows.append({**row, "tree": variant, "items": report.items, "complete": report.complete})

@@ -111,7 +111,10 @@ def test_suite_refuses_unknown_or_impossible_choices():
         suite_variants("semantickitti", None, ["extreme"])
     graded = [spec for spec in CORRUPTIONS.values() if spec.has_presets]
     suite = suite_variants("semantickitti")
-    assert len(suite) == len(graded) * len(SEVERITIES) + 3  # cross-sensor: 3 other profiles
+    # cross-sensor: 3 other profiles; the motion its poses recorded
+    assert len(suite) == len(graded) * len(SEVERITIES) + 3 + 1
+    assert "motion-recorded" in suite and "motion-recorded" not in suite_variants("radiate")
+    assert "motion-recorded" not in suite_variants("semantickitti", None, ["heavy"])
     assert suite_variants("semantickitti", ["cross_sensor"]) == [
         "sensor-hdl32e",
         "sensor-voxelscape64",
@@ -165,3 +168,18 @@ def test_motion_recorded_reads_nuscenes_ego_poses_and_timestamps(tmp_path):
     expected = EGO_SPEED_M_S * 0.1 / (NUSC_KEYFRAME_US * 1e-6)
     speeds = [row["conditions"]["speed_m_s"] for row in _manifest(out) if "points" in row]
     assert len(speeds) == 3 and all(abs(s - expected) < 0.02 for s in speeds)
+
+
+def test_suite_lists_the_recorded_motion_beside_the_preset_speeds(street, tmp_path):
+    from lads.suite import build_suite
+
+    variants = suite_variants("semantickitti", ["motion_blur"])
+    assert variants[-1] == "motion-recorded" and len(variants) == len(SEVERITIES) + 1
+    suite = build_suite(
+        "semantickitti", street, tmp_path / "suite", variants[-1:], progress=False, figures=False
+    )
+    assert suite.complete
+    row = json.loads((tmp_path / "suite" / "suite.json").read_text())["variants"][0]
+    assert row["severity"] == "recorded" and "poses" in row["speed_m_s"]
+    front = (tmp_path / "suite" / "README.md").read_text()
+    assert "| motion_distortion | recorded | speed_m_s per frame, from the poses" in front
