@@ -162,7 +162,7 @@ class NuScenesKittiReader:
                         f"{path}: {len(poses)} poses, none for keyframe {k} ({it.relpath}); "
                         "expected one line per keyframe of the scene."
                     )
-                out[it.relpath] = poses[k]
+                out[it.relpath] = poses[k].copy()
         return out
 
     def pose_track(self, item: Item) -> PoseTrack:

@@ -115,21 +115,37 @@ def track_around(times_s: F64, poses: F64, k: int, where: str) -> PoseTrack:
 
 
 @functools.lru_cache(maxsize=16)
-def _pose_lines_cached(path: str, what: str, mtime_ns: int) -> F64:
-    return read_pose_lines(Path(path), what)
+def _read_once(kind: str, path: str, what: str, mtime_ns: int) -> F64:
+    values = read_pose_lines(Path(path), what) if kind == "poses" else _read_times(Path(path))
+    values.setflags(write=False)  # shared by every later caller in this process
+    return values
+
+
+def _cached(kind: str, path: Path, what: str) -> F64:
+    """A pose or times file, read once per state of the file in a process (a build asks for
+    one sequence's poses once per frame); the array is read-only."""
+    try:
+        mtime_ns = path.stat().st_mtime_ns
+    except OSError:  # missing: the reader's own message
+        return read_pose_lines(path, what) if kind == "poses" else _read_times(path)
+    return _read_once(kind, str(path), what, mtime_ns)
 
 
 def pose_lines(path: Path, what: str) -> F64:
-    """`read_pose_lines`, read once per state of the file in a process (a build asks for
-    one sequence's poses once per frame). Do not modify the returned array."""
-    try:
-        mtime_ns = path.stat().st_mtime_ns
-    except OSError:
-        return read_pose_lines(path, what)  # raises the reader's own message
-    return _pose_lines_cached(str(path), what, mtime_ns)
+    """`read_pose_lines`, cached per state of the file; a read-only (K, 4, 4) array."""
+    return _cached("poses", path, what)
 
 
 def read_times(path: Path) -> F64:
+    """(K,) float64 s of a KITTI `times.txt`, cached per state of the file; read-only.
+
+    Raises:
+        CorruptItemError: unreadable, not numbers, or not increasing.
+    """
+    return _cached("times", path, "the scan times")
+
+
+def _read_times(path: Path) -> F64:
     """(K,) float64 s of a KITTI `times.txt` (one number per scan).
 
     Raises:
