@@ -58,6 +58,13 @@ class Reader(Protocol):
             (`lads.physics.materials.has_instance_bits`).
         columns: names of the float32 columns of its scan files, in file order.
         root: the source root directory.
+
+    Optional methods, outside the protocol (only some readers have them; callers check):
+    `scan_position`, `sensor_poses` and `pose_track` (a scan's place in time and its
+    poses, for sensor transfers and motion), and `new_item` (the item a new scan of the
+    dataset would have, so that a writer of new trees, `lads synth`, gets its file names
+    from the reader and its bytes from `encode`; SemanticKITTI, WADS, Voxelscape and
+    nuScenes).
     """
 
     name: str

@@ -130,6 +130,33 @@ class NuScenesReader:
             f"include_sweeps={self.include_sweeps})"
         )
 
+    @staticmethod
+    def keyframe_filename(log: str, timestamp_us: int) -> str:
+        """The file name of a LIDAR_TOP scan recorded in `log` (e.g.
+        "n015-2018-07-24-11-22-45+0800") at `timestamp_us` (µs since the Unix epoch):
+        `<log>__LIDAR_TOP__<us>.pcd.bin`, as every nuScenes scan file is named."""
+        return f"{log}__{CHANNEL}__{int(timestamp_us)}.pcd.bin"
+
+    def new_item(self, filename: str, sample_data_token: str, version: str) -> Item:
+        """The item of a new labelled LIDAR_TOP keyframe whose scan file is `filename`
+        (`keyframe_filename`) and whose sample_data (and lidarseg record) token is
+        `sample_data_token`, in the tables of `version` (e.g. "v1.0-mini"): scan
+        `samples/LIDAR_TOP/<filename>`, label `lidarseg/<version>/<token>_lidarseg.bin`,
+        meta (("sample_data_token", token),). `items()` lists the same files once the
+        tables name them, and adds the scene, timestamp and scan number to the meta.
+
+        Not part of the `Reader` protocol: for writers of new trees (`lads synth`), which
+        build a `Frame` of this item (points (N, 5), labels uint8), write the files `encode`
+        returns and the tables themselves (sample_data.filename = relpath, lidarseg.filename
+        = label_relpath).
+        """
+        return Item(
+            self.name,
+            f"samples/{CHANNEL}/{filename}",
+            f"lidarseg/{version}/{sample_data_token}_lidarseg.bin",
+            meta=(("sample_data_token", sample_data_token),),
+        )
+
     def resolved_version(self) -> str:
         """The table folder name; DatasetNotFoundError / ConfigError when none or ambiguous."""
         if not self.root.is_dir():

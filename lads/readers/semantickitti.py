@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
-from lads.errors import CorruptItemError, DatasetNotFoundError
+from lads.errors import ConfigError, CorruptItemError, DatasetNotFoundError
 from lads.frame import Frame, Item
 from lads.readers.base import (
     EncodedFile,
@@ -41,6 +41,9 @@ from lads.readers.poses import (
     track_around,
 )
 from lads.sensors.profile import load_profile
+
+# The per-sequence side files: calibration, camera poses (one line per scan), scan times (s).
+CALIB_FILE, POSES_FILE, TIMES_FILE = "calib.txt", "poses.txt", "times.txt"
 
 
 class SemanticKittiReader:
@@ -62,7 +65,7 @@ class SemanticKittiReader:
     label_set: str | None = "semantickitti"
     columns: tuple[str, ...] = ("x", "y", "z", "intensity")
     label_dtype = np.dtype(np.uint32)
-    copied_names: tuple[str, ...] = ("calib.txt", "poses.txt", "times.txt")
+    copied_names: tuple[str, ...] = (CALIB_FILE, POSES_FILE, TIMES_FILE)
     scan_what = "SemanticKITTI scan (N x 4 float32: x, y, z, remission)"
     label_what = "SemanticKITTI labels (uint32 per point)"
 
@@ -93,11 +96,9 @@ class SemanticKittiReader:
         """Every scan of the selected sequences, sorted by relpath."""
         items = []
         for seq in self._selected():
-            base = f"sequences/{seq}"
-            labelled = (self.root / base / "labels").is_dir()
-            for scan in entries_matching(self.root / base / "velodyne", ".bin"):
-                label = f"{base}/labels/{scan.stem}.label" if labelled else None
-                items.append(Item(self.name, f"{base}/velodyne/{scan.name}", label))
+            labelled = (self.root / "sequences" / seq / "labels").is_dir()
+            for scan in entries_matching(self.root / "sequences" / seq / "velodyne", ".bin"):
+                items.append(self._item(seq, scan.name, labelled=labelled))
         if not items:
             raise DatasetNotFoundError(
                 f"{self.root}: no scans found (sequences {self.sequences or 'all'}); "
@@ -105,12 +106,42 @@ class SemanticKittiReader:
             )
         return sorted(items, key=lambda it: it.relpath)
 
+    def _item(self, sequence: str, scan_name: str, *, labelled: bool) -> Item:
+        """The item of the scan file `scan_name` (`NNNNNN.bin`) of `sequence`."""
+        base = f"sequences/{sequence}"
+        label = f"{base}/labels/{Path(scan_name).stem}.label" if labelled else None
+        return Item(self.name, f"{base}/velodyne/{scan_name}", label)
+
+    def new_item(self, sequence: str, number: int) -> Item:
+        """The item scan `number` of `sequence` has in a new labelled tree of this layout:
+        `sequences/SS/velodyne/NNNNNN.bin` with `sequences/SS/labels/NNNNNN.label` (number
+        zero-padded to 6 digits), as `items()` lists it once the files exist.
+
+        Not part of the `Reader` protocol: for writers of new trees (`lads synth`), which
+        build a `Frame` of this item and write the files `encode` returns.
+        """
+        return self._item(sequence, f"{number:06d}.bin", labelled=True)
+
+    def sequence_file(self, sequence: str, name: str) -> str:
+        """Relative path of the side file `name` (one of `copied_names`: calib.txt,
+        poses.txt, times.txt) of `sequence`, e.g. `sequences/00/poses.txt`.
+
+        Raises:
+            ConfigError: `name` is not one of `copied_names`.
+        """
+        if name not in self.copied_names:
+            raise ConfigError(
+                f"{name!r} is not a {self.name} sequence file; expected one of "
+                f"{', '.join(self.copied_names)}."
+            )
+        return f"sequences/{sequence}/{name}"
+
     def copied_files(self) -> list[str]:
         """calib.txt, poses.txt and times.txt of every selected sequence that has them."""
         out = []
         for seq in self._selected():
             for name in self.copied_names:
-                rel = f"sequences/{seq}/{name}"
+                rel = self.sequence_file(seq, name)
                 if present(self.root / rel):
                     out.append(rel)
         return sorted(out)
@@ -148,8 +179,8 @@ class SemanticKittiReader:
         out: dict[str, npt.NDArray[np.float64]] = {}
         for seq in sorted({it.relpath.split("/")[1] for it in items}):
             base = self.root / "sequences" / seq
-            poses = pose_lines(base / "poses.txt", "the sequence's camera poses")
-            tr = kitti_velodyne_to_camera(base / "calib.txt")
+            poses = pose_lines(base / POSES_FILE, "the sequence's camera poses")
+            tr = kitti_velodyne_to_camera(base / CALIB_FILE)
             tr_inv = np.linalg.inv(tr)
             for it in items:
                 if it.relpath.split("/")[1] != seq:
@@ -157,7 +188,7 @@ class SemanticKittiReader:
                 k = int(Path(it.relpath).stem)
                 if k >= len(poses):
                     raise CorruptItemError(
-                        f"{base / 'poses.txt'}: {len(poses)} poses, none for scan {k} "
+                        f"{base / POSES_FILE}: {len(poses)} poses, none for scan {k} "
                         f"({it.relpath}); expected one line per scan of the sequence."
                     )
                 out[it.relpath] = tr_inv @ poses[k] @ tr
@@ -173,18 +204,18 @@ class SemanticKittiReader:
                 pose for the scan.
         """
         base = self.root / "sequences" / item.relpath.split("/")[1]
-        poses = pose_lines(base / "poses.txt", "the sequence's camera poses")
-        tr = kitti_velodyne_to_camera(base / "calib.txt")
-        if (base / "times.txt").is_file():
-            times = read_times(base / "times.txt")
+        poses = pose_lines(base / POSES_FILE, "the sequence's camera poses")
+        tr = kitti_velodyne_to_camera(base / CALIB_FILE)
+        if (base / TIMES_FILE).is_file():
+            times = read_times(base / TIMES_FILE)
         else:
             period = load_profile(self.sensor).sweep_period_s
             if period is None:
                 raise CorruptItemError(
-                    f"{base / 'times.txt'}: missing, and sensor profile {self.sensor} has no "
+                    f"{base / TIMES_FILE}: missing, and sensor profile {self.sensor} has no "
                     "sweep_period_s to time the scans by; put the sequence's times.txt there."
                 )
             times = np.arange(len(poses), dtype=np.float64) * period
-        track = track_around(times, poses, int(Path(item.relpath).stem), str(base / "poses.txt"))
+        track = track_around(times, poses, int(Path(item.relpath).stem), str(base / POSES_FILE))
         velodyne = np.linalg.inv(tr) @ track.poses @ tr
         return track._replace(poses=velodyne)

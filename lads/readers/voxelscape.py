@@ -43,6 +43,7 @@ from lads.readers.base import (
 )
 
 _SUBL = "_subl.label"
+SCAN_PREFIX = "xyz_iom_"  # every Voxelscape file name: xyz_iom_NNNNNN
 EXTRA_DTYPES = {
     "orig_labels": np.dtype(np.int32),
     "orig_sublabels": np.dtype(np.int32),
@@ -109,29 +110,46 @@ class VoxelscapeReader:
             has_subl = any(n.endswith(_SUBL) for n in names)
             # The devkit loaders' tree: never drop its labels, carry them with each point.
             devkit = (self.root / seq / "labels").is_dir()
+            roles = {"kitti": kitti, "orig": has_orig, "subl": has_subl, "devkit": devkit}
             for scan in entries_matching(self.root / seq / "velodyne", ".bin"):
-                stem = scan.stem
-                extras = []
-                if has_orig:
-                    extras.append(("orig_labels", f"{seq}/orig_labels/{stem}.label"))
-                if has_subl:
-                    extras.append(("orig_sublabels", f"{seq}/orig_labels/{stem}{_SUBL}"))
-                if devkit:
-                    extras.append(("devkit_labels", f"{seq}/labels/{stem}.label"))
-                items.append(
-                    Item(
-                        self.name,
-                        f"{seq}/velodyne/{scan.name}",
-                        f"{seq}/kitti_labels/{stem}.label" if kitti else None,
-                        tuple(extras),
-                    )
-                )
+                items.append(self._item(seq, scan.name, **roles))
         if not items:
             raise DatasetNotFoundError(
                 f"{self.root}: no scans found (sequences {self.sequences or 'all'}); "
                 f"expected {self._expected()}."
             )
         return sorted(items, key=lambda it: it.relpath)
+
+    def _item(
+        self, seq: str, scan_name: str, *, kitti: bool, orig: bool, subl: bool, devkit: bool
+    ) -> Item:
+        """The item of scan file `scan_name` of sequence `seq`, with the label files whose
+        kinds are true: kitti_labels, orig_labels, orig_labels `_subl`, devkit labels."""
+        stem = Path(scan_name).stem
+        extras = []
+        if orig:
+            extras.append(("orig_labels", f"{seq}/orig_labels/{stem}.label"))
+        if subl:
+            extras.append(("orig_sublabels", f"{seq}/orig_labels/{stem}{_SUBL}"))
+        if devkit:
+            extras.append(("devkit_labels", f"{seq}/labels/{stem}.label"))
+        label = f"{seq}/kitti_labels/{stem}.label" if kitti else None
+        return Item(self.name, f"{seq}/velodyne/{scan_name}", label, tuple(extras))
+
+    def new_item(self, sequence: str, number: int) -> Item:
+        """The item scan `number` of `sequence` has in a new tree of this layout with all
+        three label kinds, as `items()` lists it once the files exist: scan
+        `SS/velodyne/xyz_iom_NNNNNN.bin`, label `SS/kitti_labels/xyz_iom_NNNNNN.label`,
+        extras ("orig_labels", `SS/orig_labels/xyz_iom_NNNNNN.label`) and
+        ("orig_sublabels", `SS/orig_labels/xyz_iom_NNNNNN_subl.label`); number zero-padded
+        to 6 digits. No devkit `labels/` file.
+
+        Not part of the `Reader` protocol: for writers of new trees (`lads synth`), which
+        build a `Frame` of this item (labels uint32, extra_labels int32) and write the files
+        `encode` returns.
+        """
+        scan_name = f"{SCAN_PREFIX}{number:06d}.bin"
+        return self._item(sequence, scan_name, kitti=True, orig=True, subl=True, devkit=False)
 
     def copied_files(self) -> list[str]:
         """The per-frame box files (`SS/bboxs/**`) of the selected sequences, if any."""

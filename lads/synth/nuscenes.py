@@ -142,19 +142,20 @@ SENSOR_TRANSLATION = (0.943713, 0.0, 1.73)
 SENSOR_ROTATION = quaternion_wxyz(NUSC_FROM_SYNTH.T)  # exact -90 deg yaw: (0.7071, 0, 0, -0.7071)
 
 
-def nuscenes_scan(
+def nuscenes_points(
     xyz: npt.NDArray[np.float32],
     intensity: npt.NDArray[np.float32],
     reflectivity: npt.NDArray[np.float32],
     ring: npt.NDArray[np.int64],
     profile: SensorProfile,
-) -> bytes:
-    """`.pcd.bin` bytes (N x 5 little-endian float32 x, y, z, intensity, ring) of a synthetic
-    frame: axes rotated to nuScenes LIDAR_TOP, intensity in the hdl32e byte encoding."""
+) -> npt.NDArray[np.float32]:
+    """(N, 5) float32 points x, y, z (m), intensity, ring of a synthetic frame as the
+    nuScenes reader's frames hold them: axes rotated to nuScenes LIDAR_TOP, intensity in the
+    hdl32e byte encoding (integers 0-255), ring the channel index (0 = lowest beam)."""
     target = load_profile(NUSCENES_INTENSITY_PROFILE).intensity
     values = intensity if profile.intensity == target else target.from_reflectivity(reflectivity)
     cols = [-xyz[:, 1], xyz[:, 0], xyz[:, 2], values, ring.astype(np.float32)]
-    return np.column_stack(cols).astype("<f4").tobytes()
+    return np.column_stack(cols).astype(np.float32)
 
 
 def ego_pose_of(

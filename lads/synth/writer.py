@@ -1,13 +1,15 @@
 """Write a synthetic sequence as a SemanticKITTI, Voxelscape or nuScenes-lidarseg dataset tree
 (docs/formats.md §1-§3).
 
-SemanticKITTI: `sequences/SS/{velodyne/NNNNNN.bin, labels/NNNNNN.label, calib.txt, poses.txt,
-times.txt}`. Voxelscape: `SS/{velodyne, kitti_labels, orig_labels}/xyz_iom_NNNNNN.*` plus
-`orig_labels/xyz_iom_NNNNNN_subl.label`, no calib, poses or times. nuScenes: a v1.0-mini
-dataroot, `samples/LIDAR_TOP/<log>__LIDAR_TOP__<us>.pcd.bin`, `lidarseg/v1.0-mini/
-<token>_lidarseg.bin`, `v1.0-mini/*.json` and `maps/<token>.png`, one log and one scene whose
-samples are the frames (lads/synth/nuscenes.py). Every file is written to `<name>.tmp` and
-renamed into place.
+The per-scan files go through the dataset's reader (lads/readers/): its `new_item` names a
+new scan's files and its `encode` turns a `Frame` of the synthetic points and labels into
+their bytes, so the file names and encodings are stated only there. What is synthesis stays
+here: which values the frames hold (Voxelscape: continuous reflectivity capped at
+`_VOXELSCAPE_MAX` and three label codes per part; nuScenes: LIDAR_TOP axes, the hdl32e
+intensity bytes, the ring column and lidarseg indices), SemanticKITTI's calib, poses and
+times (written under the reader's file names), and the nuScenes tokens, tables and map of a
+one-log, one-scene database (lads/synth/nuscenes.py). Every file is written to `<name>.tmp`
+and renamed into place.
 """
 
 from __future__ import annotations
@@ -23,6 +25,16 @@ from tqdm import tqdm
 
 from lads.errors import BuildError, ConfigError
 from lads.files import atomic_write
+from lads.frame import Frame, Item
+from lads.readers.base import EncodedFile
+from lads.readers.nuscenes import NuScenesReader
+from lads.readers.semantickitti import (
+    CALIB_FILE,
+    POSES_FILE,
+    TIMES_FILE,
+    SemanticKittiReader,
+)
+from lads.readers.voxelscape import VoxelscapeReader
 from lads.sensors.profile import SensorProfile, load_profile
 from lads.synth import nuscenes as nusc
 from lads.synth.frames import SynthFrame, synth_frames
@@ -110,13 +122,12 @@ def write_synthetic_dataset(
     _check_arguments(layout, frames, sequence, seed)
     profile = load_profile(DEFAULT_SENSOR[layout] if sensor is None else sensor)
     out_root = Path(out_root)
-    write_frame, frame_dirs, finish = _LAYOUT_WRITERS[layout](out_root, sequence, seed, profile)
-    names = [f"{k:06d}" for k in range(frames)]
-    _refuse_stale_files(out_root, frame_dirs, names)
+    plan = _LAYOUT_PLANS[layout](out_root, sequence, seed, profile, frames)
+    _refuse_stale_files(_expected_files(out_root, plan))
     frame_iter = synth_frames(profile, frames=frames, seed=seed, azimuth_bins=azimuth_bins)
     bar = tqdm(frame_iter, total=frames, unit="frame", disable=None if progress else True)
-    written, points, poses, times = _write_frames(write_frame, names, bar)
-    written += finish(poses, times)
+    written, points, poses, times = _write_frames(out_root, plan, bar)
+    written += plan.finish(poses, times)
     return SynthSummary(
         out_root=out_root,
         layout=layout,
@@ -150,17 +161,48 @@ def _atomic_write(path: Path, payload: bytes) -> Path:
     return path
 
 
-def _scan_bytes(xyz: npt.NDArray[np.float32], intensity: npt.NDArray[np.float32]) -> bytes:
-    return np.column_stack([xyz, intensity]).astype("<f4").tobytes()
+# (item, synthetic frame) -> the Frame the layout's reader encodes into the item's files.
+_FrameOf = Callable[[Item, SynthFrame], Frame]
+# ((4, 4) sensor -> world poses, times in s, of every frame) -> the side files written.
+_Finisher = Callable[[list[npt.NDArray[np.float64]], list[float]], list[Path]]
 
 
-def _refuse_stale_files(
-    out_root: Path, frame_dirs: dict[Path, Callable[[str], set[str]]], names: list[str]
-) -> None:
-    for folder, expected in frame_dirs.items():
+@dataclass(frozen=True, slots=True)
+class _LayoutPlan:
+    """How one layout turns the synthetic frames into a tree.
+
+    Attributes:
+        encode: the layout's reader's `encode`: a frame's files (relpath, bytes).
+        items: the item of each frame, in frame order (the reader's `new_item`).
+        frame_of: the Frame of an item's synthetic frame, in the reader's columns and dtypes.
+        side_dirs: folders (absolute) of the side files and the names `finish` writes there.
+        finish: writes the side files once every frame is written.
+    """
+
+    encode: Callable[[Frame], list[EncodedFile]]
+    items: list[Item]
+    frame_of: _FrameOf
+    side_dirs: dict[Path, set[str]]
+    finish: _Finisher
+
+
+def _expected_files(out_root: Path, plan: _LayoutPlan) -> dict[Path, set[str]]:
+    """Every folder this run writes frame or side files into, with the names it writes."""
+    expected: dict[Path, set[str]] = {}
+    for item in plan.items:
+        for rel in item.source_relpaths():
+            path = out_root / rel
+            expected.setdefault(path.parent, set()).add(path.name)
+    for folder, names in plan.side_dirs.items():
+        expected.setdefault(folder, set()).update(names)
+    return expected
+
+
+def _refuse_stale_files(expected: dict[Path, set[str]]) -> None:
+    """Raise ConfigError when a folder of `expected` holds a file this run would not write."""
+    for folder, allowed in expected.items():
         if not folder.is_dir():
             continue
-        allowed = set().union(*(expected(n) for n in names))
         stale = sorted(p.name for p in folder.iterdir() if p.name not in allowed)
         if stale:
             raise ConfigError(
@@ -170,82 +212,81 @@ def _refuse_stale_files(
             )
 
 
-_FrameWriter = Callable[[str, SynthFrame], list[Path]]
-_Finisher = Callable[[list[npt.NDArray[np.float64]], list[float]], list[Path]]
-
-
 def _write_frames(
-    write_frame: _FrameWriter, names: list[str], frames: Iterable[SynthFrame]
+    out_root: Path, plan: _LayoutPlan, frames: Iterable[SynthFrame]
 ) -> tuple[list[Path], list[int], list[npt.NDArray[np.float64]], list[float]]:
-    """Files written, points per frame, (4, 4) poses and times (s) of the frames, in order."""
+    """Files written, points per frame, (4, 4) poses and times (s) of the frames, in order.
+
+    Each frame's files are the ones its reader encodes, written at out_root / relpath.
+    """
     written: list[Path] = []
     points: list[int] = []
     poses, times = [], []
-    for name, frame in zip(names, frames, strict=True):
-        written += write_frame(name, frame)
+    for item, frame in zip(plan.items, frames, strict=True):
+        for encoded in plan.encode(plan.frame_of(item, frame)):
+            written.append(_atomic_write(out_root / encoded.relpath, encoded.payload))
         points.append(int(frame.xyz.shape[0]))
         poses.append(frame.pose)
         times.append(frame.time_s)
     return written, points, poses, times
 
 
-def _semantickitti(
-    out_root: Path, sequence: str, seed: int, profile: SensorProfile
-) -> tuple[_FrameWriter, dict[Path, Callable[[str], set[str]]], _Finisher]:
-    seq = out_root / "sequences" / sequence
+def _xyz_intensity(
+    xyz: npt.NDArray[np.float32], intensity: npt.NDArray[np.float32]
+) -> npt.NDArray[np.float32]:
+    """(N, 4) float32 points x, y, z (m), intensity."""
+    return np.column_stack([xyz, intensity]).astype(np.float32)
 
-    def write_frame(name: str, f: SynthFrame) -> list[Path]:
-        return [
-            _atomic_write(seq / "velodyne" / f"{name}.bin", _scan_bytes(f.xyz, f.intensity)),
-            _atomic_write(seq / "labels" / f"{name}.label", f.labels.astype("<u4").tobytes()),
-        ]
+
+def _semantickitti(
+    out_root: Path, sequence: str, seed: int, profile: SensorProfile, frames: int
+) -> _LayoutPlan:
+    """SemanticKITTI: the reader's items and encoding, plus the sequence's calib (KITTI
+    sequence 00), cam0 poses and `%e` times under the reader's side-file names."""
+    reader = SemanticKittiReader(out_root)
+
+    def frame_of(item: Item, f: SynthFrame) -> Frame:
+        points = _xyz_intensity(f.xyz, f.intensity)
+        return Frame.from_source(item, profile.name, reader.columns, points, f.labels)
 
     def finish(poses: list[npt.NDArray[np.float64]], times: list[float]) -> list[Path]:
         calib = "".join(f"{k}: {_floats(v, '%.12e')}\n" for k, v in KITTI_CALIB.items())
+        contents = {
+            CALIB_FILE: calib,
+            POSES_FILE: _kitti_poses(poses),
+            TIMES_FILE: "".join(f"{t:e}\n" for t in times),
+        }
         return [
-            _atomic_write(seq / "calib.txt", calib.encode()),
-            _atomic_write(seq / "poses.txt", _kitti_poses(poses).encode()),
-            _atomic_write(seq / "times.txt", "".join(f"{t:e}\n" for t in times).encode()),
+            _atomic_write(out_root / reader.sequence_file(sequence, name), text.encode())
+            for name, text in contents.items()
         ]
 
-    dirs: dict[Path, Callable[[str], set[str]]] = {
-        seq / "velodyne": lambda n: {f"{n}.bin"},
-        seq / "labels": lambda n: {f"{n}.label"},
-    }
-    return write_frame, dirs, finish
+    items = [reader.new_item(sequence, k) for k in range(frames)]
+    return _LayoutPlan(reader.encode, items, frame_of, {}, finish)
 
 
 def _voxelscape(
-    out_root: Path, sequence: str, seed: int, profile: SensorProfile
-) -> tuple[_FrameWriter, dict[Path, Callable[[str], set[str]]], _Finisher]:
-    seq, ids = out_root / sequence, voxelscape_ids()
+    out_root: Path, sequence: str, seed: int, profile: SensorProfile, frames: int
+) -> _LayoutPlan:
+    """Voxelscape: points with the continuous reflectivity as intensity, kitti_labels and
+    the orig / sub-label codes of each generator part (voxelscape_ids.yaml); no side files."""
+    reader, ids = VoxelscapeReader(out_root), voxelscape_ids()
 
-    def write_frame(name: str, f: SynthFrame) -> list[Path]:
+    def frame_of(item: Item, f: SynthFrame) -> Frame:
         # Continuous physical intensity rho * cos(incidence) * texture, clipped below 1.
         # kitti_labels keep the instance ids in the high 16 bits, as SemanticKITTI does
         # (Voxelscape leaves those bits undocumented; readers mask with 0xFFFF).
         intensity = np.clip(f.reflectivity, 0.0, _VOXELSCAPE_MAX).astype(np.float32)
         kitti = (f.labels >> 16 << 16) | ids.kitti_of_part[f.part]
-        stem = f"xyz_iom_{name}"
-        return [
-            _atomic_write(seq / "velodyne" / f"{stem}.bin", _scan_bytes(f.xyz, intensity)),
-            _atomic_write(seq / "kitti_labels" / f"{stem}.label", kitti.astype("<u4").tobytes()),
-            _atomic_write(
-                seq / "orig_labels" / f"{stem}.label",
-                ids.orig_of_part[f.part].astype("<i4").tobytes(),
-            ),
-            _atomic_write(
-                seq / "orig_labels" / f"{stem}_subl.label",
-                ids.subl_of_part[f.part].astype("<i4").tobytes(),
-            ),
-        ]
+        extras: dict[str, npt.NDArray[np.generic]] = {
+            "orig_labels": ids.orig_of_part[f.part],
+            "orig_sublabels": ids.subl_of_part[f.part],
+        }
+        points = _xyz_intensity(f.xyz, intensity)
+        return Frame.from_source(item, profile.name, reader.columns, points, kitti, extras)
 
-    dirs: dict[Path, Callable[[str], set[str]]] = {
-        seq / "velodyne": lambda n: {f"xyz_iom_{n}.bin"},
-        seq / "kitti_labels": lambda n: {f"xyz_iom_{n}.label"},
-        seq / "orig_labels": lambda n: {f"xyz_iom_{n}.label", f"xyz_iom_{n}_subl.label"},
-    }
-    return write_frame, dirs, lambda poses, times: []
+    items = [reader.new_item(sequence, k) for k in range(frames)]
+    return _LayoutPlan(reader.encode, items, frame_of, {}, lambda poses, times: [])
 
 
 # nuScenes layout. nuScenes keyframes are 2 Hz (LiDAR sweeps 20 Hz); every synthetic frame
@@ -257,10 +298,51 @@ NUSC_LOG = "n000-2018-06-26-08-00-00+0000"  # the real naming pattern; vehicle n
 
 
 def _nuscenes(
-    out_root: Path, sequence: str, seed: int, profile: SensorProfile
-) -> tuple[_FrameWriter, dict[Path, Callable[[str], set[str]]], _Finisher]:
+    out_root: Path, sequence: str, seed: int, profile: SensorProfile, frames: int
+) -> _LayoutPlan:
+    """nuScenes-lidarseg: one keyframe per frame (NUSC_KEYFRAME_US apart, tokens salted by
+    seed and sequence), points in LIDAR_TOP axes with ring, lidarseg labels, then the tables
+    and map of a one-log, one-scene database."""
     version, classes = nusc.VERSION, nusc.lidarseg_classes()
-    scene = nusc.NuscScene(
+    reader = NuScenesReader(out_root, version=version)
+    scene = _nuscenes_scene(sequence, seed, profile)
+
+    def frame_of(item: Item, f: SynthFrame) -> Frame:
+        points = nusc.nuscenes_points(f.xyz, f.intensity, f.reflectivity, f.ring, profile)
+        labels = classes.labels(f.labels)
+        return Frame.from_source(item, profile.name, reader.columns, points, labels)
+
+    def finish(poses: list[npt.NDArray[np.float64]], times: list[float]) -> list[Path]:
+        records = []
+        for item, pose in zip(items, poses, strict=True):
+            translation, rotation = nusc.ego_pose_of(pose)
+            sd_token = dict(item.meta)["sample_data_token"]
+            records.append(
+                nusc.NuscSampleData(
+                    sd_token,
+                    item.relpath,
+                    True,
+                    item.label_relpath,
+                    ego_translation=translation,
+                    ego_rotation=rotation,
+                )
+            )
+        tables = nusc.nuscenes_tables(version, records, scene)
+        return [_atomic_write(out_root / rel, payload) for rel, payload in tables.items()]
+
+    items = []
+    for k in range(frames):
+        filename = reader.keyframe_filename(NUSC_LOG, NUSC_T0_US + NUSC_KEYFRAME_US * k)
+        items.append(reader.new_item(filename, nusc.token(scene.salt + filename), version))
+    tables = {Path(p).name for p in nusc.table_files(version, lidarseg=True)}
+    map_png = out_root / nusc.map_relpath(version, scene)
+    side_dirs = {out_root / version: tables, map_png.parent: {map_png.name}}
+    return _LayoutPlan(reader.encode, items, frame_of, side_dirs, finish)
+
+
+def _nuscenes_scene(sequence: str, seed: int, profile: SensorProfile) -> nusc.NuscScene:
+    """The one log and scene of a synthetic nuScenes tree; `salt` seeds its tokens."""
+    return nusc.NuscScene(
         logfile=NUSC_LOG,
         vehicle=NUSC_LOG[:4],
         date_captured=NUSC_LOG[5:15],
@@ -271,50 +353,9 @@ def _nuscenes(
         sensor_rotation=nusc.SENSOR_ROTATION,
         salt=f"lads-synth:{seed}:{sequence}:",
     )
-    records: list[nusc.NuscSampleData] = []
-
-    def scan_name(name: str) -> str:
-        return f"{NUSC_LOG}__{nusc.CHANNEL}__{NUSC_T0_US + NUSC_KEYFRAME_US * int(name)}.pcd.bin"
-
-    def label_name(name: str) -> str:
-        return f"{nusc.token(scene.salt + scan_name(name))}_lidarseg.bin"
-
-    def write_frame(name: str, f: SynthFrame) -> list[Path]:
-        scan = f"samples/{nusc.CHANNEL}/{scan_name(name)}"
-        labels = f"lidarseg/{version}/{label_name(name)}"
-        translation, rotation = nusc.ego_pose_of(f.pose)
-        records.append(
-            nusc.NuscSampleData(
-                nusc.token(scene.salt + scan_name(name)),
-                scan,
-                True,
-                labels,
-                ego_translation=translation,
-                ego_rotation=rotation,
-            )
-        )
-        payload = nusc.nuscenes_scan(f.xyz, f.intensity, f.reflectivity, f.ring, profile)
-        return [
-            _atomic_write(out_root / scan, payload),
-            _atomic_write(out_root / labels, classes.labels(f.labels).tobytes()),
-        ]
-
-    def finish(poses: list[npt.NDArray[np.float64]], times: list[float]) -> list[Path]:
-        tables = nusc.nuscenes_tables(version, records, scene)
-        return [_atomic_write(out_root / rel, payload) for rel, payload in tables.items()]
-
-    tables = {Path(p).name for p in nusc.table_files(version, lidarseg=True)}
-    map_png = Path(nusc.map_relpath(version, scene))
-    dirs: dict[Path, Callable[[str], set[str]]] = {
-        out_root / "samples" / nusc.CHANNEL: lambda n: {scan_name(n)},
-        out_root / "lidarseg" / version: lambda n: {label_name(n)},
-        out_root / version: lambda n: tables,
-        out_root / map_png.parent: lambda n: {map_png.name},
-    }
-    return write_frame, dirs, finish
 
 
-_LAYOUT_WRITERS = {
+_LAYOUT_PLANS: dict[str, Callable[[Path, str, int, SensorProfile, int], _LayoutPlan]] = {
     "semantickitti": _semantickitti,
     "nuscenes": _nuscenes,
     "voxelscape": _voxelscape,

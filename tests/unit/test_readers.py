@@ -319,6 +319,55 @@ def test_wads_reader_defaults(tree):
 
 
 # ----------------------------------------------------------------------------------------
+# new_item: the item a new scan would have (for writers of new trees, `lads synth`)
+
+
+@pytest.mark.parametrize("name", ["semantickitti", "wads", "voxelscape"])
+def test_new_item_is_what_items_lists_for_a_labelled_scan(tree, name):
+    reader, _ = tree(name)
+    labelled = [it for it in reader.items() if it.label_relpath is not None]
+    assert labelled
+    for item in labelled:
+        sequence = item.relpath.split("/")[1 if name != "voxelscape" else 0]
+        number = int(Path(item.relpath).stem[-6:])
+        assert reader.new_item(sequence, number) == item
+
+
+def test_new_item_zero_pads_the_scan_number(tmp_path):
+    reader = get_reader("semantickitti", tmp_path)
+    assert reader.new_item("08", 42) == Item(
+        "semantickitti", "sequences/08/velodyne/000042.bin", "sequences/08/labels/000042.label"
+    )
+    item = get_reader("voxelscape", tmp_path).new_item("03", 7)
+    assert item.source_relpaths() == (
+        "03/velodyne/xyz_iom_000007.bin",
+        "03/kitti_labels/xyz_iom_000007.label",
+        "03/orig_labels/xyz_iom_000007.label",
+        "03/orig_labels/xyz_iom_000007_subl.label",
+    )
+
+
+def test_semantickitti_sequence_file_names_the_copied_files(tree):
+    reader, _ = tree("semantickitti")
+    assert reader.copied_files() == sorted(
+        reader.sequence_file(s, n) for s in ("00", "01", "11") for n in reader.copied_names
+    )
+    with pytest.raises(ConfigError, match="calib.txt, poses.txt, times.txt"):
+        reader.sequence_file("00", "labels.txt")
+
+
+def test_nuscenes_new_item_names_the_files_items_lists(tree):
+    reader, _ = tree("nuscenes")
+    log = "n015-2018-07-24-11-22-45+0800"  # tests/trees.py's log
+    for item in reader.items():
+        meta = dict(item.meta)
+        filename = reader.keyframe_filename(log, int(meta["timestamp"]))
+        new = reader.new_item(filename, meta["sample_data_token"], "v1.0-mini")
+        assert new == replace(item, meta=new.meta)
+        assert set(new.meta) <= set(item.meta)
+
+
+# ----------------------------------------------------------------------------------------
 # Voxelscape
 
 

@@ -3,6 +3,7 @@ nothing."""
 
 import json
 import re
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -11,6 +12,8 @@ from click.testing import CliRunner
 from lads.errors import ConfigError, SensorProfileError
 from lads.physics.materials import class_materials
 from lads.readers.nuscenes import TABLES, NuScenesReader
+from lads.readers.semantickitti import SemanticKittiReader
+from lads.readers.voxelscape import VoxelscapeReader
 from lads.release import RELEASE_VARIANTS, synthetic_table
 from lads.sensors.measure import rings_from_scan_order
 from lads.sensors.profile import load_profile
@@ -19,6 +22,7 @@ from lads.synth.command import synth_command
 from lads.synth.nuscenes import SENSOR_TRANSLATION, lidarseg_classes, quaternion_wxyz
 from lads.synth.parts import Part
 from lads.synth.voxelscape import voxelscape_ids
+from lads.synth.writer import NUSC_KEYFRAME_US, NUSC_LOG, NUSC_T0_US
 
 # SemanticKITTI raw ids the street promises within 5 frames.
 PROMISED = {
@@ -480,3 +484,33 @@ def test_synthetic_release_table_has_every_source_and_variant(tmp_path):
     assert [e.name for e in table[2:4]] == ["nuscenes-snow", "nuscenes-rain"]
     assert table[2].root == tmp_path / "sources" / "synthetic-nuscenes"
     assert len(NuScenesReader(table[2].root).items()) == 2
+
+
+def test_the_writer_creates_the_items_of_each_reader_and_their_encoded_bytes(
+    kitti_tree, voxel_tree, nusc_tree
+):
+    """Each file of a frame is named by its reader's `new_item` and is what its `encode`
+    gives: listing the tree gives those items, and read -> encode reproduces every file."""
+    kitti_root, voxel_root, nusc_root = kitti_tree[0], voxel_tree[0], nusc_tree[0]
+    kitti = SemanticKittiReader(kitti_root)
+    assert kitti.items() == [kitti.new_item("04", k) for k in range(3)]
+    assert kitti.copied_files() == [kitti.sequence_file("04", n) for n in kitti.copied_names]
+    voxel = VoxelscapeReader(voxel_root)
+    assert voxel.items() == [voxel.new_item("00", k) for k in range(2)]
+    nusc = NuScenesReader(nusc_root)
+    listed = nusc.items()
+    expected = [
+        nusc.new_item(
+            nusc.keyframe_filename(NUSC_LOG, NUSC_T0_US + NUSC_KEYFRAME_US * k),
+            dict(it.meta)["sample_data_token"],
+            "v1.0-mini",
+        )
+        for k, it in enumerate(listed)
+    ]
+    assert [replace(it, meta=new.meta) for it, new in zip(listed, expected, strict=True)] == (
+        expected
+    )
+    for reader, root in ((kitti, kitti_root), (voxel, voxel_root), (nusc, nusc_root)):
+        for item in reader.items():
+            for encoded in reader.encode(reader.read(item)):
+                assert encoded.payload == (root / encoded.relpath).read_bytes()
