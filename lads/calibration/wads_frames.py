@@ -21,6 +21,7 @@ from lads.errors import InputDataError
 from lads.frame import Frame
 from lads.physics.materials import MAX_CLASS_ID, has_instance_bits
 from lads.readers import read_scan, read_scans
+from lads.readers.wads import WadsReader
 
 FALLING_SNOW = 110
 ACCUMULATED_SNOW = 111
@@ -49,11 +50,15 @@ def load_frame(bin_path: str | Path) -> WadsFrame:
 
 
 def load_sequence(sequence_dir: str | Path, names: Sequence[str]) -> list[WadsFrame]:
-    """Frames `names` (e.g. "042223") of a WADS sequence folder (velodyne/, labels/)."""
-    paths = [Path(sequence_dir) / "velodyne" / f"{n}.bin" for n in names]
+    """Frames `names` (e.g. "042223") of a WADS sequence folder (velodyne/, labels/); the
+    WADS reader names their files (`new_item`)."""
+    folder = Path(sequence_dir)
+    root = folder.parents[1]
+    reader = WadsReader(root)
+    paths = [root / reader.new_item(folder.name, int(n)).relpath for n in names]
     if not paths:
         return []
-    frames = read_scans("wads", paths[0].parents[3], paths)
+    frames = read_scans("wads", root, paths)
     return [_wads_frame(p, f) for p, f in zip(paths, frames, strict=True)]
 
 
