@@ -183,36 +183,17 @@ def test_motion_distortion_at_a_motion_made_from_the_users_poses(cloud):
     poses = np.stack([np.eye(4)] * 3)
     poses[:, 0, 3] = [-1.2, 0.0, 1.2]  # 12 m/s along x at 10 Hz
     motion = ego_motion_from_poses([0.0, 0.1, 0.2], poses, 1, "my poses")
-    given = corrupt(
-        points,
-        labels,
-        instance,
-        np.random.default_rng(0),
-        corruption="motion_distortion",
-        sensor="hdl64e",
-        **motion.params(),
-    )
-    preset = corrupt(
-        points,
-        labels,
-        instance,
-        np.random.default_rng(0),
-        corruption="motion_distortion",
-        sensor="hdl64e",
-        speed_m_s=12.0,
-    )
+
+    def distort(**params):
+        rng = np.random.default_rng(0)
+        kind = {"corruption": "motion_distortion", "sensor": "hdl64e"}
+        return corrupt(points, labels, instance, rng, **kind, **params)
+
+    given, preset = distort(**motion.params()), distort(speed_m_s=12.0)
     np.testing.assert_allclose(given.points, preset.points, atol=1e-5)
     assert given.info.conditions["speed_m_s"] == pytest.approx(12.0)
     with pytest.raises(ConfigError, match="ego_motion_from_poses"):
-        corrupt(
-            points,
-            labels,
-            instance,
-            np.random.default_rng(0),
-            corruption="motion_distortion",
-            sensor="hdl64e",
-            ego_motion="poses",
-        )
+        distort(ego_motion="poses")
     with pytest.raises(ConfigError, match="give one"):
         Corruption("motion_distortion", "light", sensor="hdl64e", velocity_m_s=[1.0, 0.0, 0.0])
     with pytest.raises(ConfigError, match="three finite numbers"):
