@@ -8,14 +8,11 @@ from __future__ import annotations
 
 import functools
 import json
-import math
 import resource
 import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
-
-import numpy as np
 
 from lads import correspondence, provenance
 from lads.built_tree import BuildPlan, plan_from_tree, state_path
@@ -23,6 +20,7 @@ from lads.config import PipelineConfig
 from lads.errors import LadsError, OutputWriteError
 from lads.files import atomic_write, sha256_bytes, sha256_file, write_error
 from lads.frame import Frame, Item
+from lads.jsontypes import json_types
 from lads.readers import get_reader
 from lads.readers.base import EncodedFile, Reader
 from lads.seeding import rng_for, seed_entropy
@@ -163,16 +161,10 @@ def transform(
     return encoded_frame, files, fields, (source_index, outcome, source.n_source)
 
 
-def _conditions(frame: Frame) -> dict[str, str | float]:
+def _conditions(frame: Frame) -> dict[str, Any]:
     """What the stages did to the whole frame (`Frame.conditions`, the last value of a key
-    wins), JSON-safe: finite numbers as numbers, anything else as text."""
-    out: dict[str, str | float] = {}
-    for key, value in frame.conditions:
-        if isinstance(value, int | float | np.floating) and not isinstance(value, bool):
-            out[key] = float(value) if math.isfinite(value) else str(value)
-        else:
-            out[key] = str(value)
-    return out
+    wins), in JSON types (`lads.jsontypes`)."""
+    return json_types(dict(frame.conditions))  # type: ignore[no-any-return]
 
 
 def _source_rows(item: Item, root: Path) -> list[dict[str, Any]]:

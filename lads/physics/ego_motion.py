@@ -14,7 +14,6 @@ from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
-from scipy.spatial.transform import Rotation
 
 from lads.errors import InputDataError
 
@@ -93,6 +92,9 @@ def from_poses(times_s: npt.ArrayLike, poses: npt.ArrayLike, centre: int, where:
             f"{where}: scan times {t[before]!r} and {t[after]!r} do not increase; expected "
             "one time per scan, in scan order (e.g. KITTI's times.txt)."
         )
+    # scipy.spatial costs ~70 ms to import: only builds that read poses pay it.
+    from scipy.spatial.transform import Rotation
+
     inverse = np.linalg.inv(p[centre])
     rel_before, rel_after = inverse @ p[before], inverse @ p[after]
     velocity = (rel_after[:3, 3] - rel_before[:3, 3]) / dt
