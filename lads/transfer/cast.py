@@ -262,7 +262,11 @@ def _record_hits(
         r = math.sqrt(cx * cx + cy * cy + cz * cz)
         if r <= rad or r - rad > max_range:
             continue
-        half = math.asin(rad / r)
+        ax, ay, az_ = _turned(turn, axis_a[i, 0], axis_a[i, 1], axis_a[i, 2])
+        bx, by, bz = _turned(turn, axis_b[i, 0], axis_b[i, 1], axis_b[i, 2])
+        half = _angular_radius(ax, ay, az_, bx, by, bz, cx / r, cy / r, cz / r, r)
+        if half < 0.0:
+            continue
         e_i = math.asin(cz / r)
         lo = np.searchsorted(el, e_i - half)
         hi = np.searchsorted(el, e_i + half, side="right")
@@ -278,8 +282,6 @@ def _record_hits(
             count = int(math.floor((a_i + w - az0) / step - 0.5)) - j0 + 1
             count = min(max(count, 0), columns)
         c_dot_n = cx * nx + cy * ny + cz * nz
-        ax, ay, az_ = _turned(turn, axis_a[i, 0], axis_a[i, 1], axis_a[i, 2])
-        bx, by, bz = _turned(turn, axis_b[i, 0], axis_b[i, 1], axis_b[i, 2])
         gaa = ax * ax + ay * ay + az_ * az_
         gbb = bx * bx + by * by + bz * bz
         gab = ax * bx + ay * by + az_ * bz
@@ -323,6 +325,36 @@ def _record_hits(
                 hit_i[n] = offset + ii
                 n += 1
     return hit_pix, hit_t, hit_cos, hit_w, hit_i, n
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _angular_radius(
+    ax: float,
+    ay: float,
+    az: float,
+    bx: float,
+    by: float,
+    bz: float,
+    ux: float,
+    uy: float,
+    uz: float,
+    r: float,
+) -> float:
+    """A bound on the angle between the view direction u of an ellipse's centre (at range r)
+    and any point of it, radians; -1 when the ellipse reaches the sensor.
+
+    A point is c + d with d = alpha A + beta B, alpha^2 + beta^2 <= 1: d's part along u is
+    at most s_par = |(A.u, B.u)| and its part across u at most s_perp, the Frobenius norm of
+    A and B without their parts along u, so the angle is at most atan(s_perp / (r - s_par)).
+    Far tighter than asin(|A| + |B| / r) on oblique surfaces, whose long axis lies nearly
+    along the beam, and exact in what it keeps: no hit is lost."""
+    ua = ax * ux + ay * uy + az * uz
+    ub = bx * ux + by * uy + bz * uz
+    s_par = math.sqrt(ua * ua + ub * ub)
+    if r <= s_par:
+        return -1.0
+    across = ax * ax + ay * ay + az * az - ua * ua + bx * bx + by * by + bz * bz - ub * ub
+    return math.atan2(math.sqrt(max(across, 0.0)), r - s_par)
 
 
 @numba.njit(cache=True, nogil=True, inline="always")

@@ -234,35 +234,47 @@ def _static(
     an instance (id > 0) that is absent from the centre scan or whose world centroid moved
     more than MOVING_INSTANCE_M against it there."""
     moving = sorted(class_roles(label_set).moving) if label_set is not None else []
-    ref_n, ref_xyz = _centroids(parts[centre], poses[centre]) if bits else (None, None)
+    ref = _centroids(parts[centre], poses[centre]) if bits else None
     keep = []
     for k, part in enumerate(parts):
         ok = np.ones(len(part), dtype=bool)
         if k != centre and moving:
             ok &= ~np.isin(part.label & np.uint32(MAX_CLASS_ID), moving)
-        if k != centre and ref_n is not None and ref_xyz is not None:
-            n, xyz = _centroids(part, poses[k])
-            shift = np.linalg.norm(xyz - ref_xyz, axis=1)
-            gone = (n > 0) & ((ref_n == 0) | (shift > MOVING_INSTANCE_M))
-            gone[0] = False  # id 0: no instance
-            if gone.any():
-                ok &= ~gone[part.label >> np.uint32(16)]
+        if k != centre and ref is not None:
+            gone = _moved(*_centroids(part, poses[k]), *ref)
+            if gone.size:
+                table = np.zeros(1 << 16, dtype=bool)
+                table[gone] = True
+                ok &= ~table[part.label >> np.uint32(16)]
         keep.append(ok)
     return keep
 
 
+def _moved(
+    ids: npt.NDArray[np.int64], xyz: F64, ref_ids: npt.NDArray[np.int64], ref_xyz: F64
+) -> npt.NDArray[np.int64]:
+    """The instance ids of a neighbouring scan (with world centroids xyz) that are absent
+    from the centre scan (ref_ids, ref_xyz) or whose centroid moved more than
+    MOVING_INSTANCE_M against it there."""
+    if len(ref_ids) == 0:
+        return ids
+    at = np.minimum(np.searchsorted(ref_ids, ids), len(ref_ids) - 1)
+    shift = np.linalg.norm(xyz - ref_xyz[at], axis=1)
+    return ids[(ref_ids[at] != ids) | (shift > MOVING_INSTANCE_M)]
+
+
 def _centroids(part: Surfels, pose: F64) -> tuple[npt.NDArray[np.int64], F64]:
-    """(65536,) surfels per instance id > 0 of a scan and (65536, 3) their world centroids
-    (id 0, no instance, counts none: most surfels have it, and no test reads it)."""
+    """The instance ids > 0 of a scan's surfels, (L,) increasing, and (L, 3) their world
+    centroids (id 0 means no instance)."""
     ids = (part.label >> np.uint32(16)).astype(np.int64)
     some = np.flatnonzero(ids)
     ids, centre = ids[some], part.centre[some]
-    n = np.bincount(ids, minlength=1 << 16)
-    sums = np.stack(
-        [np.bincount(ids, weights=centre[:, a], minlength=1 << 16) for a in range(3)], axis=1
-    )
-    mean = sums / np.maximum(n, 1)[:, None]
-    return n, mean @ np.ascontiguousarray(pose[:3, :3].T) + pose[:3, 3]
+    n = np.bincount(ids, minlength=1)
+    present = np.flatnonzero(n)
+    present = present[present > 0]
+    sums = np.stack([np.bincount(ids, weights=centre[:, a])[present] for a in range(3)], axis=1)
+    mean = sums / n[present][:, None]
+    return present, mean @ np.ascontiguousarray(pose[:3, :3].T) + pose[:3, 3]
 
 
 def _returns(
