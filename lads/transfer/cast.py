@@ -29,6 +29,9 @@ VOTE_FIELDS = ("albedo", "weight", "retro")
 # The depth window of a grazing beam widens as 1 / cos(incidence), down to this cosine: the
 # disks of one surface spread along such a beam by their normal errors over cos.
 MIN_TOL_COS = 0.1
+# The angular bounds of a surfel's hits are widened by this factor against rounding: a beam
+# they keep out must never be one its exact test would accept.
+BOUND_SLACK = 1.0 + 1e-9
 
 
 @dataclass(frozen=True, slots=True)
@@ -264,7 +267,14 @@ def _record_hits(
             continue
         ax, ay, az_ = _turned(turn, axis_a[i, 0], axis_a[i, 1], axis_a[i, 2])
         bx, by, bz = _turned(turn, axis_b[i, 0], axis_b[i, 1], axis_b[i, 2])
-        half = _angular_radius(ax, ay, az_, bx, by, bz, cx / r, cy / r, cz / r, r)
+        gaa = ax * ax + ay * ay + az_ * az_
+        gbb = bx * bx + by * by + bz * bz
+        gab = ax * bx + ay * by + az_ * bz
+        # The hits of a beam are where its plane coordinates (alpha, beta) fall in the unit
+        # disk: the ellipse whose in-plane conjugate semi-axes `_in_plane` gives (the axes
+        # themselves, unless a grazing surfel's stretching stopped at min_cos).
+        pax, pay, paz, pbx, pby, pbz = _in_plane(ax, ay, az_, bx, by, bz, nx, ny, nz, gaa, gbb, gab)
+        half = _angular_radius(pax, pay, paz, pbx, pby, pbz, cx / r, cy / r, cz / r, r)
         if half < 0.0:
             continue
         e_i = math.asin(cz / r)
@@ -272,8 +282,7 @@ def _record_hits(
         hi = np.searchsorted(el, e_i + half, side="right")
         if lo >= hi:
             continue
-        c_el = max(math.cos(e_i) - math.sin(half), 1e-6)
-        w = half / c_el
+        w = _azimuth_radius(pax, pay, pbx, pby, cx, cy)
         if w >= math.pi:
             j0, count = 0, columns
         else:
@@ -282,9 +291,6 @@ def _record_hits(
             count = int(math.floor((a_i + w - az0) / step - 0.5)) - j0 + 1
             count = min(max(count, 0), columns)
         c_dot_n = cx * nx + cy * ny + cz * nz
-        gaa = ax * ax + ay * ay + az_ * az_
-        gbb = bx * bx + by * by + bz * bz
-        gab = ax * bx + ay * by + az_ * bz
         det = gaa * gbb - gab * gab
         if det <= 1e-18:
             continue
@@ -328,6 +334,50 @@ def _record_hits(
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
+def _in_plane(
+    ax: float,
+    ay: float,
+    az: float,
+    bx: float,
+    by: float,
+    bz: float,
+    nx: float,
+    ny: float,
+    nz: float,
+    gaa: float,
+    gbb: float,
+    gab: float,
+) -> tuple[float, float, float, float, float, float]:
+    """The conjugate semi-axes, in the plane of unit normal n, of the region a beam's hit
+    must fall in: where the plane coordinates G^-1 (e.A, e.B) (G the Gram matrix of A, B)
+    have norm <= 1. With P = the axes' projections onto the plane, that region is P Gp^-1 G
+    times the unit disk (Gp = P^T P); for axes in the plane it is (A, B) itself."""
+    a_n = ax * nx + ay * ny + az * nz
+    b_n = bx * nx + by * ny + bz * nz
+    if a_n == 0.0 and b_n == 0.0:
+        return ax, ay, az, bx, by, bz
+    pax, pay, paz = ax - a_n * nx, ay - a_n * ny, az - a_n * nz
+    pbx, pby, pbz = bx - b_n * nx, by - b_n * ny, bz - b_n * nz
+    # Gp = G minus the parts along n; M = Gp^-1 G, applied to P's columns.
+    paa, pbb, pab = gaa - a_n * a_n, gbb - b_n * b_n, gab - a_n * b_n
+    det = paa * pbb - pab * pab
+    if det <= 0.0:
+        return ax, ay, az, bx, by, bz
+    m00 = (pbb * gaa - pab * gab) / det
+    m01 = (pbb * gab - pab * gbb) / det
+    m10 = (paa * gab - pab * gaa) / det
+    m11 = (paa * gbb - pab * gab) / det
+    return (
+        pax * m00 + pbx * m10,
+        pay * m00 + pby * m10,
+        paz * m00 + pbz * m10,
+        pax * m01 + pbx * m11,
+        pay * m01 + pby * m11,
+        paz * m01 + pbz * m11,
+    )
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
 def _angular_radius(
     ax: float,
     ay: float,
@@ -354,7 +404,28 @@ def _angular_radius(
     if r <= s_par:
         return -1.0
     across = ax * ax + ay * ay + az * az - ua * ua + bx * bx + by * by + bz * bz - ub * ub
-    return math.atan2(math.sqrt(max(across, 0.0)), r - s_par)
+    return math.atan2(math.sqrt(max(across, 0.0)), r - s_par) * BOUND_SLACK
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _azimuth_radius(ax: float, ay: float, bx: float, by: float, cx: float, cy: float) -> float:
+    """A bound on how far in azimuth any point of an ellipse (centre c, semi-axes A, B) lies
+    from its centre's, radians; pi when it reaches round the vertical axis.
+
+    In the horizontal basis along (u) and across (v) the centre's azimuth, a point is at
+    (rho + d.u, d.v) with |d.v| <= s_v = |(A.v, B.v)| and d.u >= -s_u = -|(A.u, B.u)|, so its
+    azimuth differs by at most atan(s_v / (rho - s_u)): the ellipse's width across the beam,
+    not its elevation extent, sets the columns it can meet."""
+    rho = math.sqrt(cx * cx + cy * cy)
+    if rho <= 0.0:
+        return math.pi
+    ux, uy = cx / rho, cy / rho
+    au, bu = ax * ux + ay * uy, bx * ux + by * uy
+    av, bv = ay * ux - ax * uy, by * ux - bx * uy
+    s_u = math.sqrt(au * au + bu * bu)
+    if rho <= s_u:
+        return math.pi
+    return math.atan2(math.sqrt(av * av + bv * bv), rho - s_u) * BOUND_SLACK
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
