@@ -32,6 +32,9 @@ MIN_TOL_COS = 0.1
 # The angular bounds of a surfel's hits are widened by this factor against rounding: a beam
 # they keep out must never be one its exact test would accept.
 BOUND_SLACK = 1.0 + 1e-9
+# Axes whose squared part along the normal is below this share of their squared length lie in
+# the plane as far as the bounds can tell (their angles change by far less than BOUND_SLACK).
+FLAT = 1e-24
 
 
 @dataclass(frozen=True, slots=True)
@@ -106,8 +109,8 @@ def cast_parts(
     buffers = _record_parts(
         parts, kept, to_target, el, azimuth_offset_rad, columns, max_range_m, best, best_cos
     )
-    t, owner, refl, cos = _blend_votes(
-        parts, kept, best, best_cos, buffers, depth_tol_m, depth_tol_share
+    t, owner, refl, cos = _blend(  # type: ignore[call-arg]
+        best, best_cos, *buffers.trimmed(), depth_tol_m, depth_tol_share
     )
     return BeamHits(t, owner, cos, refl, el, az)
 
@@ -128,7 +131,7 @@ def _record_parts(
     buffers = _HitBuffers.empty(2 * total + 1024)
     offset = 0
     for part, idx, pose in zip(parts, kept, to_target, strict=True):
-        g = _fields(part, SHAPE_FIELDS)
+        g = _fields(part, SHAPE_FIELDS + VOTE_FIELDS)
         turn = np.ascontiguousarray(np.asarray(pose, np.float64)[:3, :3])
         shift = np.ascontiguousarray(np.asarray(pose, np.float64)[:3, 3])
         # numba's Dispatcher stub takes fewer arguments than the compiled functions do.
@@ -139,6 +142,9 @@ def _record_parts(
                 g["axis_a"],
                 g["axis_b"],
                 g["radius_m"],
+                g["albedo"],
+                g["weight"],
+                g["retro"],
                 np.asarray(idx, np.int64),
                 turn,
                 shift,
@@ -157,48 +163,23 @@ def _record_parts(
     return buffers
 
 
-def _blend_votes(
-    parts: Sequence[Surfels | dict[str, npt.NDArray[np.generic]]],
-    kept: Sequence[npt.NDArray[np.int64]],
-    best: F64,
-    best_cos: F64,
-    buffers: _HitBuffers,
-    depth_tol_m: float,
-    depth_tol_share: float,
-) -> tuple[F64, npt.NDArray[np.int64], F64, F64]:
-    """Pass 2 with the kept surfels' votes: (H, W) range m, owner, reflectivity and |cos|."""
-    scalars = {
-        f: np.concatenate(
-            [np.asarray(_fields(p, (f,))[f])[k] for p, k in zip(parts, kept, strict=True)]
-        )
-        for f in VOTE_FIELDS
-    }
-    return _blend(  # type: ignore[call-arg]
-        best,
-        best_cos,
-        *buffers.trimmed(),
-        scalars["albedo"],
-        scalars["weight"],
-        scalars["retro"],
-        depth_tol_m,
-        depth_tol_share,
-    )
-
-
 def _fields(part: Any, names: Sequence[str]) -> dict[str, Any]:
     return {f: part[f] if isinstance(part, dict) else getattr(part, f) for f in names}
 
 
 @dataclass(frozen=True, slots=True)
 class _HitBuffers:
-    """The hit records of `_record_hits` (beam, distance, |cos|, weight, surfel) and their
-    count `n`; the arrays grow inside the compiled pass and come back from it."""
+    """The hit records of `_record_hits` (beam, distance, |cos|, weight, surfel, the
+    reflectivity the surfel predicts for the beam and its trust) and their count `n`; the
+    arrays grow inside the compiled pass and come back from it."""
 
     pix: npt.NDArray[np.int64]
     t: F64
     cos: F64
     w: F64
     i: npt.NDArray[np.int64]
+    seen: F64
+    trust: F64
     n: int
 
     @staticmethod
@@ -209,11 +190,13 @@ class _HitBuffers:
             np.empty(cap),
             np.empty(cap),
             np.empty(cap, np.int64),
+            np.empty(cap),
+            np.empty(cap),
             0,
         )
 
     def arrays(self) -> tuple[Any, ...]:
-        return self.pix, self.t, self.cos, self.w, self.i
+        return self.pix, self.t, self.cos, self.w, self.i, self.seen, self.trust
 
     def trimmed(self) -> tuple[Any, ...]:
         return tuple(a[: self.n] for a in self.arrays())
@@ -226,6 +209,9 @@ def _record_hits(
     axis_a: F64,
     axis_b: F64,
     radius: F64,
+    albedo: F64,
+    trust: F64,
+    retro: npt.NDArray[np.bool_],
     idx: npt.NDArray[np.int64],
     turn: F64,
     shift: F64,
@@ -241,15 +227,18 @@ def _record_hits(
     hit_cos: F64,
     hit_w: F64,
     hit_i: npt.NDArray[np.int64],
+    hit_seen: F64,
+    hit_trust: F64,
     n: int,
-) -> tuple[npt.NDArray[np.int64], F64, F64, F64, npt.NDArray[np.int64], int]:
+) -> tuple[npt.NDArray[np.int64], F64, F64, F64, npt.NDArray[np.int64], F64, F64, int]:
     """Pass 1 of the cast, for one part: the hits of its surfels `idx`, moved by (turn,
     shift) into the target frame, updating each beam's nearest hit (best, best_cos).
 
     A beam meets a surfel where it crosses the surfel's plane at (alpha, beta) in the basis
     of its semi-axes with alpha^2 + beta^2 <= 1. Each hit appends a record: beam (k * W + j),
-    distance, |cos|, weight 1 - alpha^2 - beta^2 and surfel (offset + its place in idx).
-    Returns the record arrays (grown when full) and their count. Scalars only inside the
+    distance, |cos|, weight 1 - alpha^2 - beta^2, surfel (offset + its place in idx), the
+    reflectivity the surfel predicts (albedo x |cos|; a retro-reflector's albedo) and its
+    trust. Returns the record arrays (grown when full) and their count. Scalars only inside the
     loops: a numba helper taking arrays costs far more than its work here."""
     step = 2.0 * math.pi / columns
     cos_el, sin_el = np.cos(el), np.sin(el)
@@ -324,13 +313,19 @@ def _record_hits(
                     hit_cos = _grown(hit_cos, cap)
                     hit_w = _grown(hit_w, cap)
                     hit_i = _grown_int(hit_i, cap)
+                    hit_seen = _grown(hit_seen, cap)
+                    hit_trust = _grown(hit_trust, cap)
                 hit_pix[n] = k * columns + j
                 hit_t[n] = t
                 hit_cos[n] = abs(denom)
                 hit_w[n] = 1.0 - d2 + 1e-6
                 hit_i[n] = offset + ii
+                # Each surfel predicts the beam's reflectivity with its own normal, so a
+                # normal error cancels against its source's when the views agree.
+                hit_seen[n] = albedo[i] if retro[i] else albedo[i] * abs(denom)
+                hit_trust[n] = trust[i]
                 n += 1
-    return hit_pix, hit_t, hit_cos, hit_w, hit_i, n
+    return hit_pix, hit_t, hit_cos, hit_w, hit_i, hit_seen, hit_trust, n
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
@@ -354,7 +349,7 @@ def _in_plane(
     times the unit disk (Gp = P^T P); for axes in the plane it is (A, B) itself."""
     a_n = ax * nx + ay * ny + az * nz
     b_n = bx * nx + by * ny + bz * nz
-    if a_n == 0.0 and b_n == 0.0:
+    if a_n * a_n <= FLAT * gaa and b_n * b_n <= FLAT * gbb:
         return ax, ay, az, bx, by, bz
     pax, pay, paz = ax - a_n * nx, ay - a_n * ny, az - a_n * nz
     pbx, pby, pbz = bx - b_n * nx, by - b_n * ny, bz - b_n * nz
@@ -363,10 +358,11 @@ def _in_plane(
     det = paa * pbb - pab * pab
     if det <= 0.0:
         return ax, ay, az, bx, by, bz
-    m00 = (pbb * gaa - pab * gab) / det
-    m01 = (pbb * gab - pab * gbb) / det
-    m10 = (paa * gab - pab * gaa) / det
-    m11 = (paa * gbb - pab * gab) / det
+    inv = 1.0 / det
+    m00 = (pbb * gaa - pab * gab) * inv
+    m01 = (pbb * gab - pab * gbb) * inv
+    m10 = (paa * gab - pab * gaa) * inv
+    m11 = (paa * gbb - pab * gab) * inv
     return (
         pax * m00 + pbx * m10,
         pay * m00 + pby * m10,
@@ -447,9 +443,8 @@ def _blend(
     hit_cos: F64,
     hit_w: F64,
     hit_i: npt.NDArray[np.int64],
-    albedo: F64,
-    trust: F64,
-    retro: npt.NDArray[np.bool_],
+    hit_seen: F64,
+    hit_trust: F64,
     depth_tol_m: float,
     depth_tol_share: float,
 ) -> tuple[F64, npt.NDArray[np.int64], F64, F64]:
@@ -480,11 +475,8 @@ def _blend(
         wt = hit_w[h]
         sum_w[k, j] += wt
         sum_wt[k, j] += wt * t
-        # Each surfel predicts the beam's reflectivity with its own normal, so a normal
-        # error cancels against its source's when the views agree.
-        seen = albedo[i] if retro[i] else albedo[i] * hit_cos[h]
-        sum_wn[k, j] += wt * trust[i] * seen
-        sum_wd[k, j] += wt * trust[i]
+        sum_wn[k, j] += wt * hit_trust[h] * hit_seen[h]
+        sum_wd[k, j] += wt * hit_trust[h]
         if wt > best_w[k, j] or (wt == best_w[k, j] and i < owner[k, j]):
             best_w[k, j] = wt
             owner[k, j] = i

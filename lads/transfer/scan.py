@@ -16,12 +16,13 @@ import numpy as np
 import numpy.typing as npt
 
 from lads.errors import InputDataError
-from lads.physics.materials import MAX_CLASS_ID, class_ids, class_roles, has_instance_bits
+from lads.physics.materials import class_ids, class_roles, has_instance_bits
 from lads.sensors.profile import SensorProfile
 from lads.transfer.cast import BeamHits, cast_parts
 from lads.transfer.surfels import (
     ALBEDO_MIN_COS,
     DEFAULT_SHAPE,
+    Instances,
     Surfels,
     SurfelShape,
     scan_surfels,
@@ -152,19 +153,21 @@ def window_surfels(
         roles = class_roles(label_set)
     refl = source.intensity.to_reflectivity(scan.intensity)
     retro = None if classes is None else np.isin(classes, sorted(roles.retroreflective))
+    moving = None if classes is None else np.isin(classes, sorted(roles.moving))
     s = scan_surfels(
         scan.xyz,
         refl,
         source,
         labels=scan.labels,
         retro=retro,
+        moving=moving,
         ring=scan.ring,
         frame=index,
         shape=shape,
     )
     if classes is not None and roles.ego:
         s = s.take(~np.isin(classes[s.point], sorted(roles.ego)))
-    return s
+    return s.with_instances() if label_set is not None and has_instance_bits(label_set) else s
 
 
 def transfer_surfels(
@@ -191,7 +194,7 @@ def transfer_surfels(
             raise InputDataError(f"transfer: pose of window scan {k} is not a finite 4 x 4 matrix.")
     poses64 = [np.asarray(pose, dtype=np.float64) for pose in poses]
     bits = label_set is not None and has_instance_bits(label_set)
-    kept = [np.flatnonzero(m) for m in _static(parts, poses64, centre, label_set, bits)]
+    kept = [np.flatnonzero(m) for m in _static(parts, poses64, centre, bits)]
     mount = np.eye(4) if target_from_source is None else np.asarray(target_from_source, float)
     to_target = np.linalg.inv(poses64[centre] @ mount)
     hits = cast_parts(
@@ -228,20 +231,19 @@ class _Lookup:
 
 
 def _static(
-    parts: Sequence[Surfels], poses: list[F64], centre: int, label_set: str | None, bits: bool
+    parts: Sequence[Surfels], poses: list[F64], centre: int, bits: bool
 ) -> list[npt.NDArray[np.bool_]]:
     """Per scan, the surfels a neighbouring scan may lend: not of a moving class, and not of
     an instance (id > 0) that is absent from the centre scan or whose world centroid moved
     more than MOVING_INSTANCE_M against it there."""
-    moving = sorted(class_roles(label_set).moving) if label_set is not None else []
-    ref = _centroids(parts[centre], poses[centre]) if bits else None
+    ref = _world_instances(parts[centre], poses[centre]) if bits else None
     keep = []
     for k, part in enumerate(parts):
         ok = np.ones(len(part), dtype=bool)
-        if k != centre and moving:
-            ok &= ~np.isin(part.label & np.uint32(MAX_CLASS_ID), moving)
+        if k != centre:
+            ok &= ~part.moving
         if k != centre and ref is not None:
-            gone = _moved(*_centroids(part, poses[k]), *ref)
+            gone = _moved(*_world_instances(part, poses[k]), *ref)
             if gone.size:
                 table = np.zeros(1 << 16, dtype=bool)
                 table[gone] = True
@@ -263,18 +265,10 @@ def _moved(
     return ids[(ref_ids[at] != ids) | (shift > MOVING_INSTANCE_M)]
 
 
-def _centroids(part: Surfels, pose: F64) -> tuple[npt.NDArray[np.int64], F64]:
-    """The instance ids > 0 of a scan's surfels, (L,) increasing, and (L, 3) their world
-    centroids (id 0 means no instance)."""
-    ids = (part.label >> np.uint32(16)).astype(np.int64)
-    some = np.flatnonzero(ids)
-    ids, centre = ids[some], part.centre[some]
-    n = np.bincount(ids, minlength=1)
-    present = np.flatnonzero(n)
-    present = present[present > 0]
-    sums = np.stack([np.bincount(ids, weights=centre[:, a])[present] for a in range(3)], axis=1)
-    mean = sums / n[present][:, None]
-    return present, mean @ np.ascontiguousarray(pose[:3, :3].T) + pose[:3, 3]
+def _world_instances(part: Surfels, pose: F64) -> tuple[npt.NDArray[np.int64], F64]:
+    """A scan's instance ids > 0, (L,) increasing, and (L, 3) their world centroids."""
+    found = part.instances or Instances.of(part.label, part.centre)
+    return found.ids, found.centre_m @ np.ascontiguousarray(pose[:3, :3].T) + pose[:3, 3]
 
 
 def _returns(

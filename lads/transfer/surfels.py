@@ -14,7 +14,7 @@ ray-cast against (`lads.transfer.cast`).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import numpy.typing as npt
@@ -66,6 +66,10 @@ class Surfels:
         retro: (M,) bool, a retro-reflector (returns as much at any incidence).
         frame: (M,) int32 index of the source scan in the window.
         point: (M,) int64 row of the source return in its scan file.
+        moving: (M,) bool, of a class of things that move (`moving` in materials.yaml): a
+            neighbouring scan does not lend it.
+        instances: the scan's instances and their centroids (`Instances`), or None when the
+            labels carry no instance ids.
     """
 
     centre: F64
@@ -79,13 +83,47 @@ class Surfels:
     retro: npt.NDArray[np.bool_]
     frame: npt.NDArray[np.int32]
     point: npt.NDArray[np.int64]
+    moving: npt.NDArray[np.bool_]
+    instances: Instances | None = None
 
     def __len__(self) -> int:
         return int(self.centre.shape[0])
 
     def take(self, keep: npt.NDArray[np.bool_] | npt.NDArray[np.int64]) -> Surfels:
-        """The surfels selected by a mask or index array."""
-        return Surfels(*(getattr(self, f)[keep] for f in self.__slots__))  # type: ignore[arg-type]
+        """The surfels selected by a mask or index array (their instances counted again)."""
+        fields = [getattr(self, f)[keep] for f in self.__slots__ if f != "instances"]
+        out = Surfels(*fields)  # type: ignore[arg-type]
+        return out if self.instances is None else out.with_instances()
+
+    def with_instances(self) -> Surfels:
+        """These surfels with their `Instances` (labels whose upper 16 bits are an id)."""
+        return replace(self, instances=Instances.of(self.label, self.centre))
+
+
+@dataclass(frozen=True, slots=True)
+class Instances:
+    """The instances among a scan's surfels, counted once per scan (every window that holds
+    the scan compares them with its centre scan's).
+
+    Attributes:
+        ids: (L,) int64 increasing instance ids > 0 (a label's upper 16 bits; 0 is none).
+        centre_m: (L, 3) float64 centroid of each instance's surfels, m, scan frame.
+    """
+
+    ids: npt.NDArray[np.int64]
+    centre_m: F64
+
+    @staticmethod
+    def of(label: npt.NDArray[np.uint32], centre: F64) -> Instances:
+        """From (M,) uint32 labels and (M, 3) surfel centres in m."""
+        ids = (label >> np.uint32(16)).astype(np.int64)
+        some = np.flatnonzero(ids)
+        ids, xyz = ids[some], centre[some]
+        n = np.bincount(ids, minlength=1)
+        present = np.flatnonzero(n)
+        present = present[present > 0]
+        sums = np.stack([np.bincount(ids, weights=xyz[:, a])[present] for a in range(3)], axis=1)
+        return Instances(present, sums / n[present][:, None])
 
 
 def scan_surfels(
@@ -95,6 +133,7 @@ def scan_surfels(
     *,
     labels: npt.ArrayLike | None = None,
     retro: npt.ArrayLike | None = None,
+    moving: npt.ArrayLike | None = None,
     ring: npt.ArrayLike | None = None,
     frame: int = 0,
     shape: SurfelShape = DEFAULT_SHAPE,
@@ -109,6 +148,7 @@ def scan_surfels(
         profile: the source sensor (elevations, range image width).
         labels: (N,) stored labels, or None.
         retro: (N,) bool, returns of retro-reflectors (their albedo is not divided by cos).
+        moving: (N,) bool, returns of things that move (only their own scan shows them).
         ring: (N,) channel per point, or None to take the nearest elevation.
         frame: the scan's index in its window (kept per surfel).
         shape: surfel size (`SurfelShape`).
@@ -129,6 +169,7 @@ def scan_surfels(
     radius = np.linalg.norm(axis_a, axis=1) + np.linalg.norm(axis_b, axis=1)
     refl = np.asarray(reflectivity, dtype=np.float64)[valid]
     is_retro = (np.zeros(len(r), bool) if retro is None else np.asarray(retro, bool))[valid]
+    moves = (np.zeros(len(r), bool) if moving is None else np.asarray(moving, bool))[valid]
     # The target multiplies by its own cos of the same normal: dividing by the same raw cos
     # here (floored only against division by zero) keeps the two estimates' errors cancelling.
     c = np.clip(cos_raw, ALBEDO_MIN_COS, 1.0)
@@ -147,6 +188,7 @@ def scan_surfels(
         is_retro,
         np.full(len(pts), frame, np.int32),
         valid.astype(np.int64),
+        moves,
     )
 
 
