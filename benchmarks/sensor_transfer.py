@@ -9,8 +9,10 @@ Every street is transferred twice: driving (the window is the neighbouring scans
 (the centre scan repeated from one pose, as a vehicle waiting at a light records it).
 
 Honest evaluation: the surfel shape (share of the beam cell, the cosine its stretching stops
-at) is chosen on VALIDATION_SEEDS by the mean Chamfer distance over both directions and both
-motions; the TEST_SEEDS, other streets, are scored once with the chosen shape. The
+at, the share at silhouettes) is chosen on VALIDATION_SEEDS by the mean Chamfer distance over
+both directions and both motions, then the view weighting of the reflectivity votes by the
+mean intensity error (each case relative to no weighting); the TEST_SEEDS, other streets,
+are scored once with the chosen settings. The
 synthetic target's firing phase and detection limit are known properties of the synthetic
 sensor and are passed to the transfer so that beams can be compared one by one; nothing else
 is taken from the direct render.
@@ -32,8 +34,9 @@ from benchmarks.common import RESULTS, machine_info, write_result
 from lads.sensors.profile import SensorProfile, load_profile
 from lads.synth.frames import SynthFrame, detection_limit, synth_frames
 from lads.transfer.baselines import ring_drop, row_resample
-from lads.transfer.metrics import GridScan, compare_scans, covered_rings, grid_column
-from lads.transfer.scan import WindowScan, transfer_surfels, window_surfels
+from lads.transfer.fov import covered_rings
+from lads.transfer.metrics import GridScan, compare_scans, grid_column
+from lads.transfer.scan import VIEW_SIGMA_DEG, WindowScan, transfer_surfels, window_surfels
 from lads.transfer.surfels import DEFAULT_SHAPE, SurfelShape
 from lads.transfer.window import DEFAULT_NEIGHBOURS
 
@@ -45,10 +48,29 @@ DIRECTIONS = (("hdl64e", "hdl32e"), ("hdl32e", "hdl64e"))
 # Shares of at least 1 / sqrt(2) only: an ellipse of conjugate semi-axes s A and s B covers its
 # cell's corners (A / 2 + B / 2) only then, so one scan tiles a surface by itself, as it must
 # when the vehicle stands still and the window adds no new samples.
-SHAPES = tuple(SurfelShape(r, c) for r in (0.75, 1.0) for c in (0.1, 0.25))
+# The share at silhouettes may be smaller: its neighbour inside the surface covers the gap.
+SHAPES = tuple(
+    SurfelShape(r, c, e) for r in (0.75, 1.0) for c in (0.1, 0.25) for e in (r, 0.6, 0.5)
+)
 METHODS = ("transfer", "ring_drop", "row_resample")
 MOTIONS = ("driving", "stopped")
+# Reflectivity votes weighted by how far the beam's view of a surfel is from its own scan's
+# (cast_parts view_sigma_rad): every view the same, or these widths, degrees.
+UNIFORM = math.inf
+VIEW_SIGMAS_DEG = (20.0, 10.0)
 SPEED_FRAMES = 21  # streaming 64 -> 32 over this many scans
+
+
+def _key(shape: SurfelShape, view_sigma_deg: float) -> str:
+    return f"transfer {shape.radius_share} {shape.min_cos} {shape.edge_share} {view_sigma_deg}"
+
+
+def _fields(shape: SurfelShape) -> dict[str, float]:
+    return {
+        "radius_share": shape.radius_share,
+        "min_cos": shape.min_cos,
+        "edge_share": shape.edge_share,
+    }
 
 
 def _firing_offset(seed: int, k: int, target: SensorProfile) -> float:
@@ -76,11 +98,16 @@ def _grid(frame: Any, target: SensorProfile, offset: float, ring: Any = None) ->
 
 
 def run_case(
-    seed: int, pair: tuple[str, str], shapes: tuple[SurfelShape, ...], motion: str
+    seed: int,
+    pair: tuple[str, str],
+    shapes: tuple[SurfelShape, ...],
+    motion: str,
+    view_sigmas_deg: tuple[float, ...] = (VIEW_SIGMA_DEG,),
 ) -> dict[str, Any]:
-    """Every method (and every shape of the transfer) on one street and direction. `motion`
-    "driving": the window is the street's neighbouring scans; "stopped": the centre scan
-    repeated from the same pose (a vehicle waiting at a light sees nothing new)."""
+    """Every method (and every shape and view weighting of the transfer) on one street and
+    direction. `motion` "driving": the window is the street's neighbouring scans; "stopped":
+    the centre scan repeated from the same pose (a vehicle waiting at a light sees nothing
+    new)."""
     source, target = load_profile(pair[0]), load_profile(pair[1])
     src: list[SynthFrame] = list(synth_frames(source, frames=FRAMES, seed=seed))
     ref_frame = list(synth_frames(target, frames=FRAMES, seed=seed))[CENTRE]
@@ -100,20 +127,21 @@ def run_case(
     }
     for shape in shapes:
         parts = [window_surfels(w, k, source, "semantickitti", shape) for k, w in enumerate(window)]
-        moved = transfer_surfels(
-            parts,
-            [w.pose for w in window],
-            CENTRE,
-            source,
-            target,
-            np.random.default_rng([seed, 30]),
-            label_set="semantickitti",
-            azimuth_offset_rad=offset,
-            detector=_synth_detector(target),
-        )
-        out[f"transfer {shape.radius_share} {shape.min_cos}"] = compare_scans(
-            _grid(moved, target, offset), reference, *grid
-        )
+        for sigma in view_sigmas_deg:
+            moved = transfer_surfels(
+                parts,
+                [w.pose for w in window],
+                CENTRE,
+                source,
+                target,
+                np.random.default_rng([seed, 30]),
+                label_set="semantickitti",
+                azimuth_offset_rad=offset,
+                detector=_synth_detector(target),
+                view_sigma_rad=math.radians(sigma),
+            )
+            scores = compare_scans(_grid(moved, target, offset), reference, *grid)
+            out[_key(shape, sigma)] = scores
     c = src[CENTRE]
     for name, fn in (("ring_drop", ring_drop), ("row_resample", row_resample)):
         base = fn(c.xyz, c.intensity, c.labels, c.ring, source, target, azimuth_offset_rad=offset)
@@ -122,16 +150,36 @@ def run_case(
 
 
 def choose_shape(cases: list[dict[str, Any]]) -> SurfelShape:
-    """The shape with the lowest mean Chamfer distance over the validation cases."""
+    """The shape with the lowest mean Chamfer distance over the validation cases (every
+    view counting the same)."""
 
     def score(shape: SurfelShape) -> float:
-        key = f"transfer {shape.radius_share} {shape.min_cos}"
+        key = _key(shape, UNIFORM)
         return float(np.mean([c[key]["chamfer_m"] for c in cases]))
 
     return min(SHAPES, key=score)
 
 
-def speed(shape: SurfelShape) -> dict[str, Any]:
+def choose_view_sigma(cases: list[dict[str, Any]], shape: SurfelShape) -> float:
+    """The view weighting with the lowest intensity error over the validation cases, each
+    case's error taken relative to every view counting the same (the two directions encode
+    intensity on different scales)."""
+
+    def score(sigma: float) -> float:
+        return float(
+            np.mean(
+                [
+                    c[_key(shape, sigma)]["intensity_mae"]
+                    / c[_key(shape, UNIFORM)]["intensity_mae"]
+                    for c in cases
+                ]
+            )
+        )
+
+    return min((UNIFORM, *VIEW_SIGMAS_DEG), key=score)
+
+
+def speed(shape: SurfelShape, view_sigma_deg: float) -> dict[str, Any]:
     """64 -> 32 frames per second on one core, streaming: each scan's surfels are made once
     and lent to the ten windows that hold it (as a build over a sequence does)."""
     source, target = load_profile("hdl64e"), load_profile("hdl32e")
@@ -160,6 +208,7 @@ def speed(shape: SurfelShape) -> dict[str, Any]:
             target,
             np.random.default_rng(0),
             label_set="semantickitti",
+            view_sigma_rad=math.radians(view_sigma_deg),
         )
         times.append(time.perf_counter() - start)
         cache.pop(centre - half, None)
@@ -172,8 +221,7 @@ def speed(shape: SurfelShape) -> dict[str, Any]:
     }
 
 
-def summarise(cases: list[dict[str, Any]], shape: SurfelShape) -> dict[str, Any]:
-    key = f"transfer {shape.radius_share} {shape.min_cos}"
+def summarise(cases: list[dict[str, Any]], key: str) -> dict[str, Any]:
     table: dict[str, Any] = {}
     for pair in DIRECTIONS:
         for motion in MOTIONS:
@@ -203,7 +251,8 @@ def markdown(result: dict[str, Any]) -> str:
     lines = [
         f"# Sensor transfer on ground truth ({streets} test streets, means)",
         "",
-        f"Surfel shape chosen on validation streets: {result['shape']}.",
+        f"Surfel shape chosen on validation streets: {result['shape']}; view weighting of "
+        f"the reflectivity votes: {result['view_sigma_deg']} deg (inf: none).",
         "",
     ]
     for direction, rows in result["test"].items():
@@ -248,38 +297,49 @@ def figure(result: dict[str, Any], path: Path) -> None:
 def main(argv: list[str] | None = None) -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--results", type=Path, default=RESULTS)
-    p.add_argument("--quick", action="store_true", help="one seed each, default shape only")
+    p.add_argument("--quick", action="store_true", help="one seed each, shipped settings only")
     args = p.parse_args(argv)
     val_seeds, test_seeds = VALIDATION_SEEDS, TEST_SEEDS
-    shapes = SHAPES
+    if args.quick:  # a smoke run: one validation street, never a test street
+        val_seeds, test_seeds = VALIDATION_SEEDS[:1], VALIDATION_SEEDS[:1]
+    cases = [(s, pair, m) for s in val_seeds for pair in DIRECTIONS for m in MOTIONS]
     if args.quick:
-        val_seeds, test_seeds, shapes = VALIDATION_SEEDS[:1], TEST_SEEDS[:1], (DEFAULT_SHAPE,)
-    validation = [
-        run_case(s, pair, shapes, m) for s in val_seeds for pair in DIRECTIONS for m in MOTIONS
-    ]
-    shape = DEFAULT_SHAPE if args.quick else choose_shape(validation)
+        shape, sigma, validation, weighted = DEFAULT_SHAPE, VIEW_SIGMA_DEG, [], []
+    else:
+        validation = [run_case(s, pair, SHAPES, m, (UNIFORM,)) for s, pair, m in cases]
+        shape = choose_shape(validation)
+        weighted = [
+            run_case(s, pair, (shape,), m, (UNIFORM, *VIEW_SIGMAS_DEG)) for s, pair, m in cases
+        ]
+        sigma = choose_view_sigma(weighted, shape)
     test = [
-        run_case(s, pair, (shape,), m) for s in test_seeds for pair in DIRECTIONS for m in MOTIONS
+        run_case(s, pair, (shape,), m, (sigma,))
+        for s in test_seeds
+        for pair in DIRECTIONS
+        for m in MOTIONS
     ]
     result = {
         "machine": machine_info(),
         "validation_seeds": list(val_seeds),
         "test_seeds": list(test_seeds),
-        "shape": {"radius_share": shape.radius_share, "min_cos": shape.min_cos},
-        "default_shape": {
-            "radius_share": DEFAULT_SHAPE.radius_share,
-            "min_cos": DEFAULT_SHAPE.min_cos,
-        },
-        "validation": summarise(validation, shape) if not args.quick else None,
+        "shape": _fields(shape),
+        "view_sigma_deg": sigma,
+        "default_shape": _fields(DEFAULT_SHAPE),
+        "default_view_sigma_deg": VIEW_SIGMA_DEG,
+        "validation": summarise(weighted, _key(shape, sigma)) if weighted else None,
         "validation_chamfer_by_shape": {
-            f"{s.radius_share} {s.min_cos}": _mean(
-                [c[f"transfer {s.radius_share} {s.min_cos}"]["chamfer_m"] for c in validation]
+            _key(s, UNIFORM).removeprefix("transfer "): _mean(
+                [c[_key(s, UNIFORM)]["chamfer_m"] for c in validation]
             )
-            for s in shapes
+            for s in (SHAPES if validation else ())
         },
-        "test": summarise(test, shape),
+        "validation_intensity_by_view_sigma": {
+            str(v): _mean([c[_key(shape, v)]["intensity_mae"] for c in weighted])
+            for v in ((UNIFORM, *VIEW_SIGMAS_DEG) if weighted else ())
+        },
+        "test": summarise(test, _key(shape, sigma)),
         "test_cases": test,
-        "speed": speed(shape),
+        "speed": speed(shape, sigma),
     }
     name = "sensor_transfer_quick" if args.quick else "sensor_transfer"
     write_result(f"{name}.json", result, args.results)

@@ -26,7 +26,7 @@ from benchmarks.common import RESULTS, SHARED_DATA, machine_info, write_result
 from lads.physics.projection import MIN_RANGE_M
 from lads.readers import get_reader
 from lads.sensors.profile import SensorProfile, load_profile
-from lads.transfer.metrics import covered_rings
+from lads.transfer.fov import covered_rings
 from lads.transfer.scan import WindowScan, transfer_surfels, window_surfels
 from lads.transfer.window import DEFAULT_NEIGHBOURS, window_of
 from tests.trees import _link

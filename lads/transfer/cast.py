@@ -79,6 +79,7 @@ def cast_parts(
     max_range_m: float = np.inf,
     depth_tol_m: float = 0.1,
     depth_tol_share: float = 0.01,
+    view_sigma_rad: float = math.inf,
 ) -> BeamHits:
     """The nearest surfel hit of each beam of a (len(elevation_rad), columns) grid, against
     the `kept` surfels of several parts (the scans of a window).
@@ -96,6 +97,10 @@ def cast_parts(
             azimuth_offset_rad + (j + 0.5) 2 pi / W.
         max_range_m: disks whose nearest point lies beyond this are skipped.
         depth_tol_m, depth_tol_share: the depth window of the blend (`_blend`).
+        view_sigma_rad: a surfel's reflectivity vote counts exp(-(angle / sigma)^2) less
+            where the beam looks at it from another direction than its own scan did (its
+            albedo carries its normal's error, which cancels only along its own view);
+            inf: every view counts the same.
 
     Returns:
         BeamHits; a beam's surfel (owner) is its index among the kept surfels of all parts,
@@ -107,7 +112,16 @@ def cast_parts(
     best = np.full((len(el), int(columns)), np.inf)
     best_cos = np.ones((len(el), int(columns)))
     buffers = _record_parts(
-        parts, kept, to_target, el, azimuth_offset_rad, columns, max_range_m, best, best_cos
+        parts,
+        kept,
+        to_target,
+        el,
+        azimuth_offset_rad,
+        columns,
+        max_range_m,
+        best,
+        best_cos,
+        view_sigma_rad,
     )
     t, owner, refl, cos = _blend(  # type: ignore[call-arg]
         best, best_cos, *buffers.trimmed(), depth_tol_m, depth_tol_share
@@ -125,6 +139,7 @@ def _record_parts(
     max_range_m: float,
     best: F64,
     best_cos: F64,
+    view_sigma_rad: float,
 ) -> _HitBuffers:
     """Pass 1 over all parts: the hit records; updates (H, W) best (m), best_cos in place."""
     total = sum(len(k) for k in kept)
@@ -153,6 +168,7 @@ def _record_parts(
                 float(azimuth_offset_rad),
                 int(columns),
                 float(max_range_m),
+                _view_k(view_sigma_rad),
                 best,
                 best_cos,
                 *buffers.arrays(),
@@ -220,6 +236,7 @@ def _record_hits(
     az0: float,
     columns: int,
     max_range: float,
+    view_k: float,
     best: F64,
     best_cos: F64,
     hit_pix: npt.NDArray[np.int64],
@@ -247,8 +264,8 @@ def _record_hits(
     cap = hit_pix.shape[0]
     for ii in range(idx.shape[0]):
         i = idx[ii]
-        cx, cy, cz = _turned(turn, centre[i, 0], centre[i, 1], centre[i, 2])
-        cx, cy, cz = cx + shift[0], cy + shift[1], cz + shift[2]
+        vx, vy, vz = _turned(turn, centre[i, 0], centre[i, 1], centre[i, 2])
+        cx, cy, cz = vx + shift[0], vy + shift[1], vz + shift[2]
         nx, ny, nz = _turned(turn, normal[i, 0], normal[i, 1], normal[i, 2])
         rad = radius[i]
         r = math.sqrt(cx * cx + cy * cy + cz * cz)
@@ -324,8 +341,19 @@ def _record_hits(
                 # normal error cancels against its source's when the views agree.
                 hit_seen[n] = albedo[i] if retro[i] else albedo[i] * abs(denom)
                 hit_trust[n] = trust[i]
+                if view_k > 0.0:
+                    # 1 - cos(angle) between the beam and the surfel's own scan's view of it
+                    off = 1.0 - (dx * vx + dy * vy + dz * vz) / math.sqrt(
+                        vx * vx + vy * vy + vz * vz
+                    )
+                    hit_trust[n] *= math.exp(-view_k * off)
                 n += 1
     return hit_pix, hit_t, hit_cos, hit_w, hit_i, hit_seen, hit_trust, n
+
+
+def _view_k(view_sigma_rad: float) -> float:
+    """exp(-(angle / sigma)^2) ~ exp(-k (1 - cos angle)) with k = 2 / sigma^2 (0: off)."""
+    return 0.0 if not math.isfinite(view_sigma_rad) else 2.0 / (view_sigma_rad * view_sigma_rad)
 
 
 @numba.njit(cache=True, nogil=True, inline="always")

@@ -91,19 +91,6 @@ def compare_scans(
     }
 
 
-def covered_rings(
-    source_el_deg: npt.ArrayLike, target_el_deg: npt.ArrayLike
-) -> npt.NDArray[np.bool_]:
-    """(target channels,) True where the target's elevation lies within the source's vertical
-    field of view, widened by half its edge ring gaps: the rings a transfer can fill (between
-    source rings too), the others have nothing the source saw."""
-    src = np.asarray(source_el_deg, dtype=np.float64)
-    tgt = np.asarray(target_el_deg, dtype=np.float64)
-    low = src[0] - 0.5 * (src[1] - src[0])
-    high = src[-1] + 0.5 * (src[-1] - src[-2])
-    return (tgt >= low) & (tgt <= high)
-
-
 def _image(scan: GridScan, channels: int, width: int) -> npt.NDArray[np.int64]:
     """(channels, width) index of the nearest point on each beam, -1 where none."""
     img = np.full((channels, width), -1, dtype=np.int64)

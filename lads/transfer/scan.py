@@ -9,6 +9,7 @@ intensity in the target's encoding and the source return behind every output poi
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
@@ -19,6 +20,7 @@ from lads.errors import InputDataError
 from lads.physics.materials import class_ids, class_roles, has_instance_bits
 from lads.sensors.profile import SensorProfile
 from lads.transfer.cast import BeamHits, cast_parts
+from lads.transfer.fov import covered_rings, hidden_beyond_view
 from lads.transfer.surfels import (
     ALBEDO_MIN_COS,
     DEFAULT_SHAPE,
@@ -33,6 +35,10 @@ F64 = npt.NDArray[np.float64]
 # scan is moving: its surfels come from the centre scan only. Twice a car's centroid jitter
 # from changing viewpoints, far below the 1 m it travels in 0.1 s at 36 km/h.
 MOVING_INSTANCE_M = 0.5
+# Width of the weighting of a surfel's reflectivity vote by how far the beam's view of it is
+# from its own scan's, degrees (inf: every view the same; `cast.cast_parts`); chosen on
+# validation streets by intensity error (benchmarks/sensor_transfer.py).
+VIEW_SIGMA_DEG = 20.0
 # (albedo, cos incidence, range m) -> bool: whether the target's detector sees the return.
 Detector = Callable[[F64, F64, F64], npt.NDArray[np.bool_]]
 
@@ -182,6 +188,7 @@ def transfer_surfels(
     azimuth_offset_rad: float = 0.0,
     target_from_source: F64 | None = None,
     detector: Detector | None = None,
+    view_sigma_rad: float = math.radians(VIEW_SIGMA_DEG),
 ) -> TransferredScan:
     """`transfer_scan` from each window scan's surfels (`window_surfels`) and poses."""
     if not 0 <= centre < len(parts) or len(poses) != len(parts):
@@ -205,9 +212,16 @@ def transfer_surfels(
         target.range_image_width,
         azimuth_offset_rad=azimuth_offset_rad,
         max_range_m=target.max_range_m,
+        view_sigma_rad=view_sigma_rad,
     )
     return _returns(
-        hits, _Lookup(parts, kept), source, target, rng, detector or profile_detector(target)
+        hits,
+        _Lookup(parts, kept),
+        centre,
+        source,
+        target,
+        rng,
+        detector or profile_detector(target),
     )
 
 
@@ -218,15 +232,22 @@ class _Lookup:
     parts: Sequence[Surfels]
     kept: list[npt.NDArray[np.int64]]
 
-    def __call__(self, who: npt.NDArray[np.int64], name: str) -> npt.NDArray[np.generic]:
-        """Field `name` of the gathered surfels `who` (indices into the gathered scene)."""
+    def part(self, who: npt.NDArray[np.int64]) -> npt.NDArray[np.int64]:
+        """The window scan each of the gathered surfels `who` came from."""
         offsets = np.cumsum([0] + [len(k) for k in self.kept])
-        part = np.searchsorted(offsets, who, side="right") - 1
-        first = getattr(self.parts[0], name)
-        out = np.empty(len(who), dtype=first.dtype)
-        for p in np.unique(part):
-            mine = part == p
-            out[mine] = getattr(self.parts[p], name)[self.kept[p][who[mine] - offsets[p]]]
+        return np.searchsorted(offsets, who, side="right") - 1  # type: ignore[no-any-return]
+
+    def __call__(self, who: npt.NDArray[np.int64], *names: str) -> list[npt.NDArray[np.generic]]:
+        """Fields `names` of the gathered surfels `who` (indices into the gathered scene)."""
+        offsets = np.cumsum([0] + [len(k) for k in self.kept])
+        part = self.part(who)
+        out = [np.empty(len(who), dtype=getattr(self.parts[0], n).dtype) for n in names]
+        for p in range(len(self.parts)):
+            mine = np.flatnonzero(part == p)
+            if mine.size:
+                rows = self.kept[p][who[mine] - offsets[p]]
+                for values, n in zip(out, names, strict=True):
+                    values[mine] = getattr(self.parts[p], n)[rows]
         return out
 
 
@@ -271,9 +292,36 @@ def _world_instances(part: Surfels, pose: F64) -> tuple[npt.NDArray[np.int64], F
     return found.ids, found.centre_m @ np.ascontiguousarray(pose[:3, :3].T) + pose[:3, 3]
 
 
+def _beyond_view(
+    owner: npt.NDArray[np.int64],
+    range_m: F64,
+    lookup: _Lookup,
+    centre: int,
+    source: SensorProfile,
+    target: SensorProfile,
+) -> npt.NDArray[np.bool_]:
+    """(H, W) beams outside the source's view that a neighbour lends a surface behind a
+    moving thing of the centre scan (`fov.hidden_beyond_view`)."""
+    hit = np.flatnonzero(owner.reshape(-1) >= 0)
+    who = owner.reshape(-1)[hit]
+    part = lookup.part(who)
+    (moving,) = lookup(who, "moving")
+    moving_here = np.zeros(owner.size, dtype=bool)
+    moving_here[hit] = (part == centre) & moving.astype(bool)
+    lent = np.zeros(owner.size, dtype=bool)
+    lent[hit] = part != centre
+    return hidden_beyond_view(
+        range_m,
+        moving_here.reshape(owner.shape),
+        lent.reshape(owner.shape),
+        covered_rings(source.elevation_deg, target.elevation_deg),
+    )
+
+
 def _returns(
     hits: BeamHits,
     lookup: _Lookup,
+    centre: int,
     source: SensorProfile,
     target: SensorProfile,
     rng: np.random.Generator,
@@ -283,11 +331,13 @@ def _returns(
     t = hits.range_m
     in_range = np.isfinite(t) & (t >= target.min_range_m) & (t <= target.max_range_m)
     owner = np.where(in_range, hits.owner, -1)
+    owner[_beyond_view(owner, t, lookup, centre, source, target)] = -1
     flat = np.flatnonzero(owner[::-1].reshape(-1) >= 0)  # top channel first, then azimuth
     rows, cols = np.divmod(flat, t.shape[1])
     ring = (t.shape[0] - 1 - rows).astype(np.int64)
     who = owner[ring, cols]
-    cos = np.where(lookup(who, "retro"), 1.0, hits.cos_incidence[ring, cols])
+    (retro,) = lookup(who, "retro")
+    cos = np.where(retro, 1.0, hits.cos_incidence[ring, cols])
     albedo = hits.reflectivity[ring, cols] / np.maximum(cos, ALBEDO_MIN_COS)
     rng_m = t[ring, cols]
     seen = detector(albedo, cos, rng_m)
@@ -298,15 +348,16 @@ def _returns(
     if extra > 0:
         rng_m = rng_m + rng.normal(0.0, extra, rng_m.size)
     d = hits.directions()[ring, cols]
+    label, frame, point = lookup(who, "label", "frame", "point")
     image = np.zeros_like(t)
     image[ring, cols] = rng_m
     return TransferredScan(
         xyz=(d * rng_m[:, None]).astype(np.float32),
         intensity=target.intensity.from_reflectivity(refl),
-        labels=lookup(who, "label").astype(np.uint32),
+        labels=label.astype(np.uint32),
         ring=ring,
         column=cols.astype(np.int64),
-        source_frame=lookup(who, "frame").astype(np.int32),
-        source_point=lookup(who, "point").astype(np.int64),
+        source_frame=frame.astype(np.int32),
+        source_point=point.astype(np.int64),
         range_m=image,
     )

@@ -16,12 +16,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 
+import numba
 import numpy as np
 import numpy.typing as npt
 
 from lads.physics.image_kernels import image_normals
 from lads.physics.modalities import DEFAULT_MAX_DEPTH_JUMP, MAX_COLUMN_GAP
-from lads.physics.projection import MIN_RANGE_M, channels_of, organise
+from lads.physics.projection import MIN_RANGE_M, RangeImage, channels_of, organise
 from lads.sensors.profile import SensorProfile
 
 # Semi-axes of a surfel as a share of its beam cell (azimuth step by ring gap, at its range),
@@ -32,6 +33,11 @@ from lads.sensors.profile import SensorProfile
 # (benchmarks/sensor_transfer.py).
 RADIUS_SHARE = 0.75
 MIN_COS = 0.1
+# Share of the beam cell at a silhouette, along the axis where the next return of the scan is
+# missing or lies behind (the object's edge lies anywhere in the gap, half-way on average):
+# a full share there fattens every object by the part of the gap it never reached. Chosen
+# on validation streets with the shares above (benchmarks/sensor_transfer.py).
+EDGE_SHARE = 0.5
 # Floor of the cos an albedo is divided by (against division by zero only).
 ALBEDO_MIN_COS = 0.02
 F64 = npt.NDArray[np.float64]
@@ -39,11 +45,13 @@ F64 = npt.NDArray[np.float64]
 
 @dataclass(frozen=True, slots=True)
 class SurfelShape:
-    """How large surfels are: `radius_share` of the beam cell, stretched on oblique surfaces
-    down to an incidence cosine of `min_cos`."""
+    """How large surfels are: `radius_share` of the beam cell (`edge_share` along an axis
+    that ends at a silhouette), stretched on oblique surfaces down to an incidence cosine of
+    `min_cos`."""
 
     radius_share: float = RADIUS_SHARE
     min_cos: float = MIN_COS
+    edge_share: float = EDGE_SHARE
 
 
 DEFAULT_SHAPE = SurfelShape()
@@ -162,10 +170,23 @@ def scan_surfels(
     pts, rng_m = xyz64[valid], r[valid]
     chan = channels_of(pts, profile, None if ring is None else np.asarray(ring)[valid])
     view = pts / rng_m[:, None]
-    normal = _normals(pts, rng_m, view, chan, profile)
+    image = organise(pts, rng_m, chan, profile.channels, profile.range_image_width)
+    normal = _normals(pts, view, image)
     cos_raw = -np.einsum("ij,ij->i", normal, view)
     cos = np.clip(cos_raw, shape.min_cos, 1.0)
     axis_a, axis_b = _cell_axes(pts, rng_m, view, normal, cos, profile, chan, shape.radius_share)
+    if shape.edge_share != shape.radius_share:
+        edge_a, edge_b = silhouette_sides(
+            image.range_m.astype(np.float64),
+            image.index,
+            image.row,
+            image.col,
+            rng_m,
+            DEFAULT_MAX_DEPTH_JUMP,
+            MAX_COLUMN_GAP,
+        )
+        axis_a[edge_a] *= shape.edge_share / shape.radius_share
+        axis_b[edge_b] *= shape.edge_share / shape.radius_share
     radius = np.linalg.norm(axis_a, axis=1) + np.linalg.norm(axis_b, axis=1)
     refl = np.asarray(reflectivity, dtype=np.float64)[valid]
     is_retro = (np.zeros(len(r), bool) if retro is None else np.asarray(retro, bool))[valid]
@@ -192,13 +213,10 @@ def scan_surfels(
     )
 
 
-def _normals(
-    pts: F64, r: F64, view: F64, chan: npt.NDArray[np.int64], profile: SensorProfile
-) -> F64:
+def _normals(pts: F64, view: F64, image: RangeImage) -> F64:
     """(N, 3) unit normals facing the sensor, from the scan's range image; a return that
     does not own its pixel or has no usable neighbourhood gets the view direction reversed
     (a disk facing the sensor)."""
-    image = organise(pts, r, chan, profile.channels, profile.range_image_width)
     raw, ok = image_normals(
         image.xyz.astype(np.float64),
         image.range_m.astype(np.float64),
@@ -246,3 +264,46 @@ def _cell_axes(
         return step + view * along[:, None]
 
     return onto_plane(east * (scale * d_az)[:, None]), onto_plane(up * (scale * d_el)[:, None])
+
+
+@numba.njit(cache=True, nogil=True)
+def silhouette_sides(
+    range_img: F64,
+    index: npt.NDArray[np.int64],
+    row: npt.NDArray[np.int64],
+    col: npt.NDArray[np.int64],
+    range_m: F64,
+    max_depth_jump: float,
+    max_column_gap: int,
+) -> tuple[npt.NDArray[np.bool_], npt.NDArray[np.bool_]]:
+    """Per return, whether its surface ends next to it along azimuth (first array) and along
+    elevation (second): on one side the nearest return of the scan (the adjacent row; the
+    nearest occupied column within `max_column_gap`) is missing or lies more than
+    `max_depth_jump` x its range behind it. The image's top and bottom rows are the sensor's
+    field of view, not a silhouette.
+
+    Args:
+        range_img: (H, W) range of each pixel's owner in m, index: (H, W) its row, -1 empty.
+        row, col: (N,) pixel of each return; range_m: (N,) its range in m.
+    """
+    height, width = index.shape
+    n = row.shape[0]
+    edge_a = np.zeros(n, dtype=np.bool_)
+    edge_b = np.zeros(n, dtype=np.bool_)
+    for i in range(n):
+        far = range_m[i] * (1.0 + max_depth_jump)
+        for sign in (-1, 1):
+            v = row[i] + sign
+            if 0 <= v < height and (index[v, col[i]] < 0 or range_img[v, col[i]] > far):
+                edge_b[i] = True
+            seen = False
+            for step in range(1, max_column_gap + 1):
+                u = (col[i] + sign * step) % width
+                if index[row[i], u] >= 0:
+                    seen = True
+                    if range_img[row[i], u] > far:
+                        edge_a[i] = True
+                    break
+            if not seen:
+                edge_a[i] = True
+    return edge_a, edge_b

@@ -12,7 +12,8 @@ from lads.errors import InputDataError
 from lads.sensors.profile import load_profile
 from lads.synth.frames import detection_limit, synth_frames
 from lads.transfer.baselines import nearest_rings, ring_drop
-from lads.transfer.metrics import GridScan, compare_scans, covered_rings, grid_column
+from lads.transfer.fov import covered_rings
+from lads.transfer.metrics import GridScan, compare_scans, grid_column
 from lads.transfer.scan import WindowScan, transfer_scan
 from lads.transfer.surfels import scan_surfels
 

@@ -1,5 +1,6 @@
-"""The cast's pass 1 tests only the beams a surfel's angular bounds keep: it must find exactly
-the hits that testing every beam of the grid finds."""
+"""The cast's parts: pass 1 tests only the beams a surfel's angular bounds keep and must find
+exactly the hits that testing every beam finds; silhouettes; what lies beyond the source's
+view."""
 
 from __future__ import annotations
 
@@ -8,6 +9,8 @@ import math
 import numpy as np
 
 from lads.transfer.cast import _HitBuffers, _record_hits
+from lads.transfer.fov import hidden_beyond_view
+from lads.transfer.surfels import silhouette_sides
 
 ROWS, COLUMNS = 32, 1024
 
@@ -85,6 +88,7 @@ def test_pass_one_finds_the_hits_that_testing_every_beam_finds() -> None:
             0.0,
             COLUMNS,
             1e3,
+            0.0,
             np.full((ROWS, COLUMNS), np.inf),
             np.ones((ROWS, COLUMNS)),
             *buffers.arrays(),
@@ -95,3 +99,52 @@ def test_pass_one_finds_the_hits_that_testing_every_beam_finds() -> None:
     inside, near = _every_beam(s, el)
     assert len(inside) > 200  # the surfels meet beams: the comparison is not empty
     assert inside <= found <= near
+
+
+def test_beyond_the_source_view_a_lent_surface_behind_a_moving_thing_is_hidden() -> None:
+    # Rings 0-1 lie below the source's view; the edge ring 2 shows a moving car at 3 m in
+    # columns 4-6; below it neighbours lend road at 3.5 m (behind the car) and at 2 m (in
+    # front of it), and one beam hits the scan's own surfel.
+    rows, cols = 5, 12
+    covered = np.array([False, False, True, True, True])
+    range_m = np.full((rows, cols), 8.0)
+    moving_here = np.zeros((rows, cols), bool)
+    lent = np.zeros((rows, cols), bool)
+    moving_here[2, 4:7] = True
+    range_m[2, 4:7] = 3.0
+    lent[:2, :] = True
+    range_m[:2, :] = 3.5
+    range_m[0, 5] = 2.0
+    lent[1, 8] = False
+    hidden = hidden_beyond_view(range_m, moving_here, lent, covered)
+    expected = np.zeros((rows, cols), bool)
+    expected[:2, 3:8] = True  # the car's columns and one on either side
+    expected[0, 5] = False  # road in front of the car
+    assert np.array_equal(hidden, expected)
+    # Nothing moving at the edge, or every ring covered: nothing is hidden.
+    assert not hidden_beyond_view(range_m, np.zeros_like(moving_here), lent, covered).any()
+    assert not hidden_beyond_view(range_m, moving_here, lent, np.ones(rows, bool)).any()
+
+
+def test_silhouette_sides_mark_returns_whose_next_return_is_missing_or_behind() -> None:
+    # A 4 x 6 image: a wall at 10 m over columns 1-4 of rows 1-2, background at 30 m
+    # elsewhere; row 3 is empty (sky) and so is pixel (1, 0) (a lost return).
+    rng_img = np.full((4, 6), 30.0)
+    index = np.arange(24, dtype=np.int64).reshape(4, 6)
+    rng_img[1:3, 1:5] = 10.0
+    index[3, :] = -1
+    index[1, 0] = -1
+    row, col = np.nonzero(index >= 0)
+    edge_a, edge_b = silhouette_sides(
+        rng_img, index, row.astype(np.int64), col.astype(np.int64), rng_img[row, col], 0.1, 1
+    )
+    a = {(int(r), int(c)) for r, c in zip(row[edge_a], col[edge_a], strict=True)}
+    b = {(int(r), int(c)) for r, c in zip(row[edge_b], col[edge_b], strict=True)}
+    # Along azimuth: the wall's ends (background or the lost return beside them), and the
+    # background pixel whose other side is the lost return (columns wrap). A background
+    # return beside the nearer wall is no silhouette: its neighbour lies in front.
+    assert a == {(1, 1), (1, 4), (1, 5), (2, 1), (2, 4)}
+    # Along elevation: the wall's lower row (background behind it below), the whole row
+    # under the empty one, and the background pixel above the lost return; the image's
+    # first row has no row beyond it, which is the field of view, not a silhouette.
+    assert b == {(0, 0), (1, 1), (1, 2), (1, 3), (1, 4)} | {(2, c) for c in range(6)}
