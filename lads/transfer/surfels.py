@@ -33,11 +33,11 @@ from lads.sensors.profile import SensorProfile
 # (benchmarks/sensor_transfer.py).
 RADIUS_SHARE = 0.75
 MIN_COS = 0.1
-# Share of the beam cell at a silhouette, along the axis where the next return of the scan is
-# missing or lies behind (the object's edge lies anywhere in the gap, half-way on average):
+# Share of the beam cell at a silhouette, along the axis where the next return of the scan
+# lies behind (the object's edge lies anywhere in the gap, half-way on average):
 # a full share there fattens every object by the part of the gap it never reached. Chosen
 # on validation streets with the shares above (benchmarks/sensor_transfer.py).
-EDGE_SHARE = 0.5
+EDGE_SHARE = 0.6
 # Floor of the cos an albedo is divided by (against division by zero only).
 ALBEDO_MIN_COS = 0.02
 F64 = npt.NDArray[np.float64]
@@ -278,9 +278,9 @@ def silhouette_sides(
 ) -> tuple[npt.NDArray[np.bool_], npt.NDArray[np.bool_]]:
     """Per return, whether its surface ends next to it along azimuth (first array) and along
     elevation (second): on one side the nearest return of the scan (the adjacent row; the
-    nearest occupied column within `max_column_gap`) is missing or lies more than
-    `max_depth_jump` x its range behind it. The image's top and bottom rows are the sensor's
-    field of view, not a silhouette.
+    nearest occupied column within `max_column_gap`) lies more than `max_depth_jump` x its
+    range behind it. A missing neighbour is no silhouette: real scans drop returns of dark or
+    wet surfaces, and shrinking the surfels around every dropout leaves holes.
 
     Args:
         range_img: (H, W) range of each pixel's owner in m, index: (H, W) its row, -1 empty.
@@ -294,16 +294,12 @@ def silhouette_sides(
         far = range_m[i] * (1.0 + max_depth_jump)
         for sign in (-1, 1):
             v = row[i] + sign
-            if 0 <= v < height and (index[v, col[i]] < 0 or range_img[v, col[i]] > far):
+            if 0 <= v < height and index[v, col[i]] >= 0 and range_img[v, col[i]] > far:
                 edge_b[i] = True
-            seen = False
             for step in range(1, max_column_gap + 1):
                 u = (col[i] + sign * step) % width
                 if index[row[i], u] >= 0:
-                    seen = True
                     if range_img[row[i], u] > far:
                         edge_a[i] = True
                     break
-            if not seen:
-                edge_a[i] = True
     return edge_a, edge_b

@@ -140,11 +140,10 @@ def test_silhouette_sides_mark_returns_whose_next_return_is_missing_or_behind() 
     )
     a = {(int(r), int(c)) for r, c in zip(row[edge_a], col[edge_a], strict=True)}
     b = {(int(r), int(c)) for r, c in zip(row[edge_b], col[edge_b], strict=True)}
-    # Along azimuth: the wall's ends (background or the lost return beside them), and the
-    # background pixel whose other side is the lost return (columns wrap). A background
-    # return beside the nearer wall is no silhouette: its neighbour lies in front.
-    assert a == {(1, 1), (1, 4), (1, 5), (2, 1), (2, 4)}
-    # Along elevation: the wall's lower row (background behind it below), the whole row
-    # under the empty one, and the background pixel above the lost return; the image's
-    # first row has no row beyond it, which is the field of view, not a silhouette.
-    assert b == {(0, 0), (1, 1), (1, 2), (1, 3), (1, 4)} | {(2, c) for c in range(6)}
+    # Along azimuth: the wall's ends where the background lies beside them; not where the
+    # lost return does (a dropout is no silhouette), and not the background beside the
+    # nearer wall (its neighbour lies in front).
+    assert a == {(1, 4), (2, 1), (2, 4)}
+    # Along elevation: the wall's lower row, with background behind it below; not the upper
+    # row under the empty one (sky and dropouts look the same), nor the first row.
+    assert b == {(1, 1), (1, 2), (1, 3), (1, 4)}
