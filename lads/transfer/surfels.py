@@ -14,6 +14,7 @@ ray-cast against (`lads.transfer.cast`).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, replace
 
 import numba
@@ -224,14 +225,35 @@ def _normals(pts: F64, view: F64, image: RangeImage) -> F64:
         MAX_COLUMN_GAP,
         DEFAULT_MAX_DEPTH_JUMP,
     )
-    normal = -view.copy()
-    owner = image.index[image.row, image.col] == np.arange(len(pts))
-    good = owner & ok[image.row, image.col]
-    est = raw[image.row[good], image.col[good]]
-    est /= np.linalg.norm(est, axis=1, keepdims=True)
-    flip = np.einsum("ij,ij->i", est, view[good]) > 0
-    est[flip] *= -1.0
-    normal[good] = est
+    return _facing(raw, ok, image.index, image.row, image.col, view)
+
+
+@numba.njit(cache=True, nogil=True)
+def _facing(
+    raw: F64,
+    ok: npt.NDArray[np.bool_],
+    index: npt.NDArray[np.int64],
+    row: npt.NDArray[np.int64],
+    col: npt.NDArray[np.int64],
+    view: F64,
+) -> F64:
+    """(N, 3) each return's unit normal from its pixel's (H, W, 3) unnormalised `raw` one,
+    turned to face the sensor (against the (N, 3) unit view); -view where the return does not
+    own its pixel or the pixel has none (`ok` false)."""
+    n = view.shape[0]
+    normal = np.empty((n, 3))
+    for i in range(n):
+        v, u = row[i], col[i]
+        if index[v, u] != i or not ok[v, u]:
+            for k in range(3):
+                normal[i, k] = -view[i, k]
+            continue
+        x, y, z = raw[v, u, 0], raw[v, u, 1], raw[v, u, 2]
+        length = math.sqrt(x * x + y * y + z * z)
+        x, y, z = x / length, y / length, z / length
+        if x * view[i, 0] + y * view[i, 1] + z * view[i, 2] > 0:
+            x, y, z = -x, -y, -z
+        normal[i, 0], normal[i, 1], normal[i, 2] = x, y, z
     return normal
 
 
@@ -253,17 +275,43 @@ def _cell_axes(
     above = np.concatenate([gaps, [gaps[-1]]])
     d_el = np.maximum(below, above)[chan]
     d_az = 2.0 * np.pi / profile.range_image_width
-    horiz = np.maximum(np.hypot(pts[:, 0], pts[:, 1]), 1e-9)
-    east = np.stack([-pts[:, 1] / horiz, pts[:, 0] / horiz, np.zeros(len(pts))], axis=1)
-    up = np.cross(view, east)  # unit, along rising elevation
-    scale = share * r
+    return _projected_steps(pts, r, view, normal, cos, d_el, d_az, share)
 
-    def onto_plane(step: F64) -> F64:
-        # x - v (n . x) / (n . v): where the beam's neighbour would meet the plane.
-        along = np.einsum("ij,ij->i", normal, step) / cos
-        return step + view * along[:, None]
 
-    return onto_plane(east * (scale * d_az)[:, None]), onto_plane(up * (scale * d_el)[:, None])
+@numba.njit(cache=True, nogil=True)
+def _projected_steps(
+    pts: F64, r: F64, view: F64, normal: F64, cos: F64, d_el: F64, d_az: float, share: float
+) -> tuple[F64, F64]:
+    """`_cell_axes` per return: the steps east (azimuth) and up (elevation, view x east) of
+    share x range x the angular step, moved along the beam onto the plane: x - v (n.x) / cos,
+    where the beam's neighbour would meet it (cos: the clipped incidence)."""
+    n = pts.shape[0]
+    axis_a = np.empty((n, 3))
+    axis_b = np.empty((n, 3))
+    for i in range(n):
+        horiz = max(math.hypot(pts[i, 0], pts[i, 1]), 1e-9)
+        ex, ey = -pts[i, 1] / horiz, pts[i, 0] / horiz
+        vx, vy, vz = view[i, 0], view[i, 1], view[i, 2]
+        ux, uy, uz = -vz * ey, vz * ex, vx * ey - vy * ex  # view x east (east has no z)
+        scale = share * r[i]
+        sa, sb = scale * d_az, scale * d_el[i]
+        ax, ay, az = ex * sa, ey * sa, 0.0 * sa
+        bx, by, bz = ux * sb, uy * sb, uz * sb
+        nx, ny, nz = normal[i, 0], normal[i, 1], normal[i, 2]
+        # In numpy's einsum order, so the axes come out to the bit as they did from it.
+        along_a = ((nx * ax + nz * az) + ny * ay) / cos[i]
+        along_b = ((nx * bx + nz * bz) + ny * by) / cos[i]
+        axis_a[i, 0], axis_a[i, 1], axis_a[i, 2] = (
+            ax + vx * along_a,
+            ay + vy * along_a,
+            az + vz * along_a,
+        )
+        axis_b[i, 0], axis_b[i, 1], axis_b[i, 2] = (
+            bx + vx * along_b,
+            by + vy * along_b,
+            bz + vz * along_b,
+        )
+    return axis_a, axis_b
 
 
 @numba.njit(cache=True, nogil=True)
