@@ -174,10 +174,10 @@ def _check_points(
     elif mode == "aligned":
         rules += [("output == source", o == s)]
         rules += [("kept+attenuated+particle+displaced+lost == source", returned + lost == s)]
-    rb = scan.get("record_bytes", 0) if scan else 0
+    rb = _source_record_bytes(v.run_json, scan.get("record_bytes", 0) if scan else 0)
     src_scan = sources.get(scan["path"], {}) if scan else {}
     if rb and count(src_scan.get("bytes")):
-        rules += [("source bytes == source x record_bytes", src_scan["bytes"] == s * rb)]
+        rules += [("source bytes == source x source record_bytes", src_scan["bytes"] == s * rb)]
     for rule, holds in rules:
         if not holds:
             what = f"{item_id} ({mode} mode): {rule} fails for points {pts}"
@@ -186,3 +186,13 @@ def _check_points(
         src = sources.get(out["path"])
         if out.get("role") != "scan" and src and src.get("sha256") != out.get("sha256"):
             v.add(out["path"], "aligned_label_differs", f"{item_id}: differs from source")
+
+
+def _source_record_bytes(run: dict[str, Any], output_record_bytes: int) -> int:
+    """Bytes per point of the source's scan files: 4 per float32 column run.json records
+    for them (`source_point_columns`; a transfer may write the target's record), else, in
+    older trees, the output's; 0 (no rule) for text formats."""
+    columns = run.get("source_point_columns")
+    if output_record_bytes and isinstance(columns, list) and columns:
+        return 4 * len(columns)
+    return output_record_bytes
