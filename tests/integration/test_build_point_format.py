@@ -89,6 +89,19 @@ def test_the_native_tree_verifies_and_regenerates(native: Path, street: Path):
     assert check.ok, [f"{p.kind} {p.path}: {p.message}" for p in check.problems]
 
 
+def test_the_bytes_do_not_depend_on_the_job_count(native: Path, street: Path, tmp_path):
+    pipeline = pipeline_for("semantickitti", "sensor-hdl32e").with_overrides(
+        neighbours=1, point_format="target"
+    )
+    out = tmp_path / "two"
+    report = run_build("semantickitti", street, out, pipeline, jobs=2, progress=False)
+    assert report.complete, report.failed
+    assert (out / "manifest.jsonl").read_bytes() == (native / "manifest.jsonl").read_bytes()
+    for item in get_reader("semantickitti", street).items():
+        for rel in item.source_relpaths():
+            assert (out / rel).read_bytes() == (native / rel).read_bytes()
+
+
 def test_the_default_stays_the_sources_record(native: Path, street: Path, tmp_path):
     """`--point-format source` (the default) writes the 4-column record, whose xyz,
     intensity and labels are the native tree's point for point."""
