@@ -148,10 +148,9 @@ class PipelineConfig:
         return native_record(target) if self.point_format == "target" and target else None
 
     def to_dict(self) -> dict[str, Any]:
-        """Canonical dict, as saved in OUT/pipeline.yaml (`sources` only when restricted,
-        `writer.point_format` only when not the default, so older trees keep their hash)."""
+        """Canonical dict as saved in OUT/pipeline.yaml; `sources`, `point_format` when set."""
         writer: dict[str, Any] = {"points": self.points, "particle_label": self.particle_label}
-        if self.point_format != DEFAULT_POINT_FORMAT:
+        if self.point_format != DEFAULT_POINT_FORMAT:  # absent: older trees keep their hash
             writer["point_format"] = self.point_format
         out = {
             "schema_version": SCHEMA_VERSION,
@@ -166,8 +165,7 @@ class PipelineConfig:
 
     def check_source(self, source: str, where: str) -> None:
         """Raise ConfigError if this pipeline is not meant for reader `source`, or
-        PointFormatError if a `source` tree cannot hold the record it writes
-        (`lads.point_format.target_record`)."""
+        PointFormatError if a `source` tree cannot hold its record (`target_record`)."""
         if self.sources and source not in self.sources:
             raise ConfigError(
                 f"{where}: pipeline '{self.variant}' applies to sources "
@@ -186,8 +184,8 @@ class PipelineConfig:
 
         Stage parameters (rate_mm_h, visibility_m, mode, device) go to every stage that
         accepts them; `intensity="physics"` drops the learned intensity stage and any other
-        value names its model; `points`, `particle_label` and `point_format` go to the
-        writer (`point_format` only on a pipeline with a sensor stage). A stage
+        value names its model; `points`, `particle_label`, `point_format` (sensor stage
+        only) go to the writer. A stage
         parameter no stage accepts is an error, so `--visibility-m` on a snow pipeline is refused.
         `severity` replaces the weather stages' rate or visibility by its preset's (both are
         recorded); an explicit rate or visibility replaces a preset of the pipeline file, and
