@@ -19,6 +19,7 @@ from lads.correspondence import POINT_MODES
 from lads.errors import LadsError
 from lads.exit_codes import EXIT_INCOMPLETE, EXIT_LADS_ERROR
 from lads.physics.severity import SEVERITIES
+from lads.point_format import POINT_FORMATS
 from lads.readers import READERS
 
 if TYPE_CHECKING:
@@ -216,6 +217,13 @@ def variants() -> None:
     "frame from its own scan, no poses needed). docs/transfer.md.",
 )
 @click.option(
+    "--point-format",
+    type=click.Choice(POINT_FORMATS),
+    help="Sensor variants: write each scan in the source's point record (source, the default) "
+    "or in the target sensor's native one (target: e.g. x, y, z, intensity, ring for the "
+    "hdl32e), at the source's paths. docs/transfer.md §3.",
+)
+@click.option(
     "--intensity",
     "intensity_model",
     help="'physics' keeps the physics intensity (drops the learned intensity stage); a shipped "
@@ -310,6 +318,7 @@ class _BuildOptions:
     detection: str | float | None
     mode: str | None
     neighbours: int | None
+    point_format: str | None
     source_sensor: str | None
     points: str | None
     particle_label: int | None
@@ -351,6 +360,7 @@ def _build_pipeline(opts: _BuildOptions) -> PipelineConfig:
         particle_label=opts.particle_label,
         intensity=opts.intensity_model,
         neighbours=opts.neighbours,
+        point_format=opts.point_format,
     )
     if opts.device is not None:
         pipeline = pipeline.with_overrides(device=opts.device)

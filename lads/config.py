@@ -17,6 +17,14 @@ import yaml
 
 from lads.correspondence import POINT_MODES
 from lads.errors import ConfigError
+from lads.point_format import (
+    DEFAULT_POINT_FORMAT,
+    PointRecord,
+    check_point_format,
+    native_record,
+    no_sensor_stage,
+    target_record,
+)
 from lads.readers import READERS
 from lads.resources import pipelines_dir
 from lads.stage_params import SEVERITY_STAGES, STAGE_PARAMS, STRENGTHS, check_stage, resolved
@@ -64,6 +72,8 @@ class PipelineConfig:
         particle_label: label of particle returns in physical mode; None = reader default.
         description: free text.
         sources: the readers (`--source`) this pipeline applies to; empty = every reader.
+        point_format: "source" or "target" (sensor pipelines only): the scans' point record,
+            the source's or the target sensor's native one (`lads.point_format`).
     """
 
     variant: str
@@ -72,6 +82,7 @@ class PipelineConfig:
     particle_label: int | None = None
     description: str = ""
     sources: tuple[str, ...] = ()
+    point_format: str = DEFAULT_POINT_FORMAT
 
     def __post_init__(self) -> None:
         if not self.variant or not self.variant.replace("-", "").replace("_", "").isalnum():
@@ -90,6 +101,7 @@ class PipelineConfig:
                 "Use points: physical (both returns written, strongest first) or another mode."
             )
         self._check_sensor_stage()
+        check_point_format(self.point_format, self.sensor_target(), self.variant)
         if self.particle_label is not None and not 0 <= self.particle_label < 2**16:
             raise ConfigError(
                 f"writer.particle_label is {self.particle_label}; expected a class id in 0..65535."
@@ -119,32 +131,49 @@ class PipelineConfig:
                 "set writer.points to resampled."
             )
 
+    def sensor_target(self) -> str | None:
+        """The target profile of the sensor stage, None without one."""
+        targets = [s.params["target"] for s in self.stages if s.stage == "sensor"]
+        return str(targets[0]) if targets else None
+
     def output_sensor(self, source_sensor: str) -> str:
         """The sensor profile of the built tree's scans: a sensor stage's target, else the
         source's own."""
-        targets = [s.params["target"] for s in self.stages if s.stage == "sensor"]
-        return str(targets[0]) if targets else source_sensor
+        return self.sensor_target() or source_sensor
+
+    def point_record(self) -> PointRecord | None:
+        """The target's native record the scans are written in (point_format "target"),
+        None when they keep the source's. Raises PointFormatError: the target has none."""
+        target = self.sensor_target()
+        return native_record(target) if self.point_format == "target" and target else None
 
     def to_dict(self) -> dict[str, Any]:
-        """Canonical dict, as saved in OUT/pipeline.yaml (`sources` only when restricted)."""
+        """Canonical dict as saved in OUT/pipeline.yaml; `sources`, `point_format` when set."""
+        writer: dict[str, Any] = {"points": self.points, "particle_label": self.particle_label}
+        if self.point_format != DEFAULT_POINT_FORMAT:  # absent: older trees keep their hash
+            writer["point_format"] = self.point_format
         out = {
             "schema_version": SCHEMA_VERSION,
             "variant": self.variant,
             "description": self.description,
             "stages": [s.to_dict() for s in self.stages],
-            "writer": {"points": self.points, "particle_label": self.particle_label},
+            "writer": writer,
         }
         if self.sources:
             out["sources"] = list(self.sources)
         return out
 
     def check_source(self, source: str, where: str) -> None:
-        """Raise ConfigError if this pipeline is not meant for reader `source`."""
+        """Raise ConfigError if this pipeline is not meant for reader `source`, or
+        PointFormatError if a `source` tree cannot hold its record (`target_record`)."""
         if self.sources and source not in self.sources:
             raise ConfigError(
                 f"{where}: pipeline '{self.variant}' applies to sources "
                 f"{', '.join(self.sources)}, not {source!r}."
             )
+        target = self.sensor_target()
+        if self.point_format == "target" and target is not None:
+            target_record(source, target)
 
     def config_hash(self) -> str:
         """sha256 hex of the canonical JSON (sorted keys, no spaces) of `to_dict()`."""
@@ -155,7 +184,8 @@ class PipelineConfig:
 
         Stage parameters (rate_mm_h, visibility_m, mode, device) go to every stage that
         accepts them; `intensity="physics"` drops the learned intensity stage and any other
-        value names its model; `points` and `particle_label` go to the writer. A stage
+        value names its model; `points`, `particle_label`, `point_format` (sensor stage
+        only) go to the writer. A stage
         parameter no stage accepts is an error, so `--visibility-m` on a snow pipeline is refused.
         `severity` replaces the weather stages' rate or visibility by its preset's (both are
         recorded); an explicit rate or visibility replaces a preset of the pipeline file, and
@@ -163,7 +193,9 @@ class PipelineConfig:
         """
         given = {k: v for k, v in overrides.items() if v is not None}
         severity = given.pop("severity", None)
-        top = {k: given.pop(k) for k in ("points", "particle_label") if k in given}
+        top = {k: given.pop(k) for k in ("points", "particle_label", "point_format") if k in given}
+        if "point_format" in top and self.sensor_target() is None:
+            raise no_sensor_stage(self.variant, "--point-format")
         stages = list(self.stages)
         intensity = given.pop("intensity", None)
         if intensity is not None:
@@ -260,7 +292,7 @@ def parse_pipeline(data: Any, where: str) -> PipelineConfig:
     writer = data.get("writer") or {}
     if not isinstance(writer, dict):
         raise ConfigError(f"{where}: 'writer' must be a mapping.")
-    _reject_unknown(writer, {"points", "particle_label"}, f"{where}: writer")
+    _reject_unknown(writer, {"points", "particle_label", "point_format"}, f"{where}: writer")
     sources = data.get("sources") or []
     if not isinstance(sources, list) or not all(isinstance(s, str) and s for s in sources):
         raise ConfigError(f"{where}: 'sources' must be a list of reader names.")
@@ -271,6 +303,7 @@ def parse_pipeline(data: Any, where: str) -> PipelineConfig:
         particle_label=writer.get("particle_label"),
         description=str(data.get("description", "")),
         sources=tuple(sources),
+        point_format=str(writer.get("point_format") or DEFAULT_POINT_FORMAT),
     )
 
 

@@ -19,6 +19,12 @@ class SensorProfileError(ConfigError):
     """A sensor profile YAML is missing, malformed or inconsistent."""
 
 
+class PointFormatError(ConfigError):
+    """A build cannot write the point record it was asked for (`--point-format`,
+    `writer.point_format`): no sensor stage, a target without a native format, or a source
+    format whose own tooling cannot read the target's record."""
+
+
 class InputDataError(LadsError):
     """Point-cloud arrays handed to a library function are unusable as given."""
 

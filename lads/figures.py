@@ -91,6 +91,7 @@ def variant_figure(
     columns: int = 4,
     extent_m: float = 40.0,
     variant_sensor: str | None = None,
+    variant_columns: int | None = None,
 ) -> Path:
     """One row per tree (source first, then each variant): BEV coloured by outcome and a
     range image of intensity; a last panel overlays the intensity histograms.
@@ -100,7 +101,8 @@ def variant_figure(
         relpath: the scan to show (same relative path in every tree).
         sensor: profile used for the range-image projection; variant_sensor: the
             variants' profile when it differs (a sensor transfer).
-        columns: float32 columns per point in the scan file.
+        columns: float32 columns per point in the source's scan file; variant_columns: in
+            the variants' when it differs (a transfer written in the target's record).
     """
     plt = _plt()
     rows = 1 + len(variants)
@@ -109,7 +111,7 @@ def variant_figure(
     src = _scan(source_root / relpath, columns)
     trees = [("source", src, np.full(src.shape[0], Outcome.KEPT, np.uint8), sensor)]
     for name, root in variants.items():
-        pts = _scan(root / relpath, columns)
+        pts = _scan(root / relpath, variant_columns or columns)
         _, outcome, _ = provenance.read_item(root, relpath)
         trees.append((name, pts, outcome, variant_sensor or sensor))
     hist_ax = fig.add_subplot(grid[:, 2])

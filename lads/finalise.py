@@ -30,7 +30,7 @@ from lads.built_tree import (
 from lads.files import atomic_write, sha256_file
 from lads.frame import Item
 from lads.run_info import git_commit, library_versions
-from lads.worker import reader_for
+from lads.worker import reader_for, writer_for
 
 
 def finalise(
@@ -57,6 +57,10 @@ def finalise(
         "variant": plan.pipeline.variant,
         "source_root": plan.source_root,
         "points_mode": plan.pipeline.points,
+        "point_format": plan.pipeline.point_format,
+        # What the scan files hold: readers of this tree read these (`lads.readers.get_reader`).
+        "point_columns": list(writer_for(plan).columns),
+        "source_point_columns": list(reader_for(plan).columns),
         "sensor": plan.pipeline.output_sensor(reader_for(plan).sensor),
         "device": _device(plan),
         "libraries": library_versions(),
@@ -100,7 +104,8 @@ def _preview(out_root: Path, plan: BuildPlan, manifest: list[dict[str, Any]]) ->
         scan["path"],
         out_root / relpath,
         sensor=reader.sensor,
-        columns=scan["record_bytes"] // 4,
+        columns=len(reader.columns),
+        variant_columns=scan["record_bytes"] // 4,
         variant_sensor=plan.pipeline.output_sensor(reader.sensor),
     )
     return [relpath]

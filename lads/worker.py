@@ -21,10 +21,10 @@ from lads.errors import LadsError, OutputWriteError
 from lads.files import atomic_write, sha256_bytes, sha256_file, write_error
 from lads.frame import Frame, Item
 from lads.jsontypes import json_types
-from lads.readers import get_reader
+from lads.readers import get_reader, with_columns
 from lads.readers.base import EncodedFile, Reader
 from lads.seeding import rng_for, seed_entropy
-from lads.stages import build_stage
+from lads.stages import build_stages
 from lads.stages.base import Stage
 from lads.windows import run_track_stage, run_window_stage, window_source_rows
 
@@ -40,12 +40,28 @@ _STAGE_CACHE: dict[str, tuple[Stage, ...]] = {}
 def stages_for(pipeline: PipelineConfig) -> tuple[Stage, ...]:
     key = pipeline.config_hash()
     if key not in _STAGE_CACHE:
-        _STAGE_CACHE[key] = tuple(build_stage(s) for s in pipeline.stages)
+        _STAGE_CACHE[key] = build_stages(pipeline)
     return _STAGE_CACHE[key]
 
 
 def reader_for(plan: BuildPlan) -> Reader:
     return _reader(plan.source, plan.source_root, plan.reader_options)
+
+
+@functools.lru_cache(maxsize=4)
+def _writer(
+    source: str, root: str, options: tuple[tuple[str, Any], ...], columns: tuple[str, ...]
+) -> Reader:
+    return with_columns(_reader(source, root, options), columns)
+
+
+def writer_for(plan: BuildPlan) -> Reader:
+    """The reader that encodes the build's outputs: the source's, in the point record the
+    pipeline writes (the source's own, or the target's native one: `point_record`)."""
+    record = plan.pipeline.point_record()
+    if record is None:
+        return reader_for(plan)
+    return _writer(plan.source, plan.source_root, plan.reader_options, record.columns)
 
 
 class _Clock:
@@ -148,7 +164,7 @@ def transform(
             else plan.pipeline.particle_label
         )
         encoded_frame, source_index, outcome = correspondence.physical(frame, label)
-    files = reader.encode(encoded_frame)
+    files = writer_for(plan).encode(encoded_frame)
     clock.lap("encode")
     fields = {
         "item_id": item.item_id,

@@ -89,8 +89,8 @@ def fields(
         **texts,
         "pretty_name": f"LADS {src.pretty}: {run.get('variant', 'variant')}",
         "summary": f"`{run.get('variant', '?')}`, a {texts['kind_word']} variant of "
-        f"{src.pretty} built by lads: every source scan once, in the source's own format and "
-        "folder layout.",
+        f"{src.pretty} built by lads: every source scan once, in {_record_words(run)} and the "
+        "source's folder layout.",
         "description": _description(run, src),
         "lads_version": str(run.get("lads_version", "?")),
         "source_pretty": src.pretty,
@@ -128,8 +128,17 @@ def _description(run: dict[str, Any], src: Source) -> str:
         f"Each scan of {src.pretty} was passed through the lads pipeline of variant "
         f"`{run.get('variant', '?')}` (sensor profile `{run.get('sensor', '?')}`, root seed "
         f"{run.get('seed', '?')}); the result is written at the scan's own relative path in "
-        "the source format. Calibration, poses, timestamps and tables are copied unchanged."
+        f"{_record_words(run)}. Calibration, poses, timestamps and tables are copied unchanged."
     )
+
+
+def _record_words(run: dict[str, Any]) -> str:
+    """The point record of the tree's scans in words: the source format's, or (a transfer
+    written with --point-format target) the target sensor's own, with its columns."""
+    if run.get("point_format") != "target":
+        return "the source's own format"
+    columns = ", ".join(str(c) for c in run.get("point_columns") or ())
+    return f"the target sensor's own point record ({columns}, float32)"
 
 
 def _layout(ok: list[dict[str, Any]], run: dict[str, Any]) -> str:
@@ -156,8 +165,9 @@ def _layout(ok: list[dict[str, Any]], run: dict[str, Any]) -> str:
 
 def _generation(run: dict[str, Any]) -> str:
     keys = ("lads_version", "git_commit", "config_hash", "seed", "variant", "source",
-            "source_root", "sensor", "points_mode", "device")  # fmt: skip
-    lines = [f"| {k} | `{run.get(k, '?')}` |" for k in keys]
+            "source_root", "sensor", "points_mode", "point_format", "device")  # fmt: skip
+    recorded = {"point_format": "source", **run}  # trees before the setting: the source's
+    lines = [f"| {k} | `{recorded.get(k, '?')}` |" for k in keys]
     libs = run.get("libraries") or {}
     if isinstance(libs, dict) and libs:
         lines.append(

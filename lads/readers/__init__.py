@@ -1,18 +1,21 @@
 """Dataset readers: one module per on-disk format, all following `lads.readers.base.Reader`.
 
 `READERS` maps each reader name (the `--source` of `lads build`, the `dataset` of an
-`Item`) to its class; `get_reader` builds one with its options.
+`Item`) to its class; `get_reader` builds one with its options, and with the point record
+a lads tree's run.json says its scans hold.
 """
 
 from __future__ import annotations
 
+import copy
 import inspect
+import json
 import os
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any, cast
 
-from lads.errors import ConfigError, InputDataError, LadsError
+from lads.errors import ConfigError, InputDataError, LadsError, PointFormatError
 from lads.frame import Frame
 from lads.physics.materials import LABEL_SETS
 from lads.readers.base import EncodedFile, Reader
@@ -62,10 +65,14 @@ def get_reader(name: str, root: str | Path, **options: Any) -> Reader:
 
     Every reader also takes `sensor`: the profile of the tree's scans when it is not the
     dataset's own (a tree lads transferred to another sensor, whose run.json names it).
+    A lads tree whose run.json records scans of other columns than the format's own (a
+    transfer written in the target's native record) is read with those columns
+    (`with_columns`).
 
     Raises:
         ConfigError: unknown reader name (the message lists the valid ones), an option the
-            reader does not take (the message lists the ones it does), or an unknown sensor.
+            reader does not take (the message lists the ones it does), an unknown sensor,
+            or a tree recorded in another sensor's point record than `sensor` names.
     """
     sensor = options.pop("sensor", None)
     reader = _build(name, root, options)
@@ -77,7 +84,7 @@ def get_reader(name: str, root: str | Path, **options: Any) -> Reader:
         except LadsError as exc:
             raise ConfigError(f"reader {name!r}: sensor {sensor!r}: {exc}") from None
         reader.sensor = str(sensor)  # the instance's profile shadows the dataset's
-    return reader
+    return _as_recorded(reader)
 
 
 def _build(name: str, root: str | Path, options: dict[str, Any]) -> Reader:
@@ -98,7 +105,61 @@ def _build(name: str, root: str | Path, options: dict[str, Any]) -> Reader:
     return cls(root, **options)
 
 
-__all__ = ["READERS", "EncodedFile", "Reader", "get_reader", "label_set_for"]
+def with_columns(reader: Reader, columns: Sequence[str]) -> Reader:
+    """`reader` for scan files of `columns` (float32 each, in file order) instead of its
+    format's own, in the same layout: a lads tree written in another sensor's native record
+    (`--point-format target`). `reader` itself when the columns are its own, else a copy.
+
+    Raises:
+        PointFormatError: the format's own tooling reads every scan with its own columns
+            (`record_fixed_by`), so files of other columns would be misread.
+    """
+    columns = tuple(str(c) for c in columns)
+    if columns == tuple(reader.columns):
+        return reader
+    if reader.record_fixed_by:
+        raise PointFormatError(
+            f"{reader.root}: {reader.name} scans of {len(columns)} columns "
+            f"({', '.join(columns)}) cannot be read or written: {reader.record_fixed_by}. "
+            f"Keep the {reader.name} record ({', '.join(reader.columns)}), --point-format source."
+        )
+    out = copy.copy(reader)
+    out.columns = columns  # the instance's record shadows the format's
+    return out
+
+
+def _as_recorded(reader: Reader) -> Reader:
+    """`reader` with the scan columns its tree's run.json records (`point_columns`), when
+    the tree is a lads build whose scans hold another record than the format's own.
+
+    Raises:
+        ConfigError: the record is malformed, or is another sensor's than the reader's.
+    """
+    from lads.built_tree import RUN_JSON
+
+    path = Path(reader.root) / RUN_JSON
+    try:
+        run = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return reader  # no run.json, or a dataset's own file of that name: the format's record
+    columns = run.get("point_columns") if isinstance(run, dict) and "lads_version" in run else None
+    if columns is None or columns == list(reader.columns):
+        return reader
+    if not (isinstance(columns, list) and columns and all(isinstance(c, str) for c in columns)):
+        raise ConfigError(
+            f"{path}: point_columns is {columns!r}; expected the list of column names lads "
+            "wrote. The file was edited: restore it from the tree's SHA256SUMS or rebuild."
+        )
+    if run.get("sensor") != reader.sensor:
+        raise ConfigError(
+            f"{path}: the scans hold the {run.get('sensor')} record ({', '.join(columns)}), but "
+            f"the {reader.name} reader was told sensor {reader.sensor}; pass --sensor "
+            f"{run.get('sensor')} (reader option sensor) to read this tree."
+        )
+    return with_columns(reader, columns)
+
+
+__all__ = ["READERS", "EncodedFile", "Reader", "get_reader", "label_set_for", "with_columns"]
 
 
 def read_scan(name: str, root: str | Path, path: str | Path) -> Frame:

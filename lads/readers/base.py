@@ -56,7 +56,14 @@ class Reader(Protocol):
             (`lads.physics.materials.LABEL_SETS`), None when the format has no labels;
             whether its labels carry instance bits is the label set's
             (`lads.physics.materials.has_instance_bits`).
-        columns: names of the float32 columns of its scan files, in file order.
+        columns: names of the float32 columns of its scan files, in file order. A tree lads
+            built in another sensor's record says so in its run.json, and `get_reader` gives
+            that instance the recorded columns (`lads.readers.with_columns`).
+        record_fixed_by: the tooling of this format that reads every scan file with its own
+            column count, so a file of other columns would be misread (nuScenes' devkit
+            reads each `.pcd.bin` as 5 float32 columns); None when the format's loaders are
+            told the column count (headerless KITTI-style `.bin`), so that a tree may hold
+            another sensor's native record (`--point-format target`, docs/transfer.md §3).
         root: the source root directory.
 
     Optional methods, outside the protocol (only some readers have them; callers check):
@@ -72,6 +79,7 @@ class Reader(Protocol):
     particle_label: int
     label_set: str | None
     columns: tuple[str, ...]
+    record_fixed_by: str | None
     root: Path
 
     def items(self) -> list[Item]:

@@ -65,6 +65,11 @@ TABLES = (
     "map",
 )
 CHANNEL = "LIDAR_TOP"
+# Why a nuScenes scan file holds exactly nuScenes' five columns (`Reader.record_fixed_by`).
+DEVKIT_RECORD = (
+    "nuscenes-devkit, whose LidarPointCloud.from_file reads every .pcd.bin as 5 float32 "
+    "columns (x, y, z, intensity, ring)"
+)
 PANOPTIC_DTYPE = np.dtype(np.uint16)
 _NPZ_DATE = (1980, 1, 1, 0, 0, 0)
 
@@ -108,6 +113,7 @@ class NuScenesReader:
     particle_label = 0  # "noise": dust, fog, raindrops, smoke
     label_set = "nuscenes"
     columns: tuple[str, ...] = ("x", "y", "z", "intensity", "ring")
+    record_fixed_by: str | None = DEVKIT_RECORD
     label_dtype = np.dtype(np.uint8)
 
     def __init__(

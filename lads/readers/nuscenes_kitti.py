@@ -59,6 +59,7 @@ class NuScenesKittiReader:
     particle_label = 0  # lidarseg "noise"
     label_set = "nuscenes"
     columns: tuple[str, ...] = ("x", "y", "z", "intensity")
+    record_fixed_by: str | None = None  # headerless .bin: loaders are told the column count
     label_dtype = np.dtype(np.uint8)
     copied_names: tuple[str, ...] = ("poses.txt",)
 
@@ -122,12 +123,13 @@ class NuScenesKittiReader:
         )
 
     def read(self, item: Item) -> Frame:
-        """Scan (N, 4) float32 and, when the scene is labelled, labels (N,) uint8."""
+        """Scan (N, C) float32 of the C `columns` (4 in the export's own record) and, when
+        the scene is labelled, labels (N,) uint8."""
         points, labels = read_scan_and_labels(
             self.root,
             item,
             self.columns,
-            "nuScenes KITTI-style scan (N x 4 float32)",
+            f"nuScenes KITTI-style scan (N x {len(self.columns)} float32)",
             self.label_dtype,
             "lidarseg labels (uint8 per point)",
             f"this scene has a {LABELS}/ folder",
@@ -135,8 +137,9 @@ class NuScenesKittiReader:
         return Frame.from_source(item, self.sensor, self.columns, points, labels)
 
     def encode(self, frame: Frame) -> list[EncodedFile]:
-        """The scan (M x 16 bytes) and, if the item has one, the label file (M bytes)."""
-        return encode_scan_and_labels(frame, 4, self.label_dtype)
+        """The scan (M x 4 C bytes for the C `columns`: 16 in the export's own record) and, if
+        the item has one, the label file (M bytes)."""
+        return encode_scan_and_labels(frame, len(self.columns), self.label_dtype)
 
     def scan_position(self, item: Item) -> tuple[str, int]:
         """(scene, keyframe number) of an item: its place in time, for a sensor transfer's

@@ -23,6 +23,7 @@ import numpy as np
 from lads.errors import DatasetNotFoundError
 from lads.frame import Frame, Item
 from lads.readers.base import EncodedFile, encode_scan_and_labels, read_scan_and_labels
+from lads.readers.nuscenes import DEVKIT_RECORD
 
 SCAN_SUFFIX = ".pcd.bin"
 POINTS_NAME, LABELS_NAME = "points.bin", "ground.bin"
@@ -43,6 +44,7 @@ class NuScenesScansReader:
     particle_label = 0  # lidarseg "noise"
     label_set = "nuscenes"
     columns: tuple[str, ...] = ("x", "y", "z", "intensity", "ring")
+    record_fixed_by: str | None = DEVKIT_RECORD
     label_dtype = np.dtype(np.uint8)
 
     def __init__(self, root: str | Path):

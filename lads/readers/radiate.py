@@ -59,6 +59,9 @@ class RadiateReader:
     particle_label = 0  # unused: RADIATE has no point labels
     label_set = None
     columns: tuple[str, ...] = ("x", "y", "z", "intensity", "ring")
+    record_fixed_by: str | None = (
+        "RADIATE's velo_lidar CSV, one line of 5 fields (x, y, z, intensity, ring) per point"
+    )
 
     def __init__(self, root: str | Path, *, sequences: Iterable[str] | None = None):
         self.root = Path(root)

@@ -64,6 +64,7 @@ class SemanticKittiReader:
     particle_label = 1  # "outlier"
     label_set: str | None = "semantickitti"
     columns: tuple[str, ...] = ("x", "y", "z", "intensity")
+    record_fixed_by: str | None = None  # headerless .bin: loaders are told the column count
     label_dtype = np.dtype(np.uint32)
     copied_names: tuple[str, ...] = (CALIB_FILE, POSES_FILE, TIMES_FILE)
     scan_what = "SemanticKITTI scan (N x 4 float32: x, y, z, remission)"
@@ -147,21 +148,30 @@ class SemanticKittiReader:
         return sorted(out)
 
     def read(self, item: Item) -> Frame:
-        """Scan (N, 4) float32 and, when the item has them, labels (N,) uint32."""
+        """Scan (N, C) float32 of the C `columns` (4 in SemanticKITTI's own record) and, when
+        the item has them, labels (N,) uint32."""
         points, labels = read_scan_and_labels(
             self.root,
             item,
             self.columns,
-            self.scan_what,
+            self._scan_what(),
             self.label_dtype,
             self.label_what,
             "this sequence has a labels/ folder",
         )
         return Frame.from_source(item, self.sensor, self.columns, points, labels)
 
+    def _scan_what(self) -> str:
+        """What read errors call a scan file: the format's own, or a lads tree's record."""
+        if self.columns == type(self).columns:
+            return self.scan_what
+        names = ", ".join(self.columns)
+        return f"{self.name} scan of a lads tree (N x {len(self.columns)} float32: {names})"
+
     def encode(self, frame: Frame) -> list[EncodedFile]:
-        """The scan (M x 16 bytes) and, if the item has one, the label file (M x 4 bytes)."""
-        return encode_scan_and_labels(frame, 4, self.label_dtype)
+        """The scan (M x 4 C bytes for the C `columns`: 16 in SemanticKITTI's own record) and,
+        if the item has one, the label file (M x 4 bytes)."""
+        return encode_scan_and_labels(frame, len(self.columns), self.label_dtype)
 
     def scan_position(self, item: Item) -> tuple[str, int]:
         """(sequence, scan number) of an item: its place in time, for a sensor transfer's

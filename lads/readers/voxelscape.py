@@ -75,6 +75,7 @@ class VoxelscapeReader:
     particle_label = 1  # kitti_labels 1 "outlier" keeps its SemanticKITTI meaning
     label_set = "voxelscape"
     columns: tuple[str, ...] = ("x", "y", "z", "intensity")
+    record_fixed_by: str | None = None  # headerless .bin: loaders are told the column count
     label_dtype = np.dtype(np.uint32)
 
     def __init__(self, root: str | Path, *, sequences: Iterable[str | int] | None = None):
@@ -161,9 +162,11 @@ class VoxelscapeReader:
         return sorted(rel for rel in out if not (self.root / rel).is_dir())
 
     def read(self, item: Item) -> Frame:
-        """Scan (N, 4) float32, kitti labels (N,) uint32, extras (N,) int32 each."""
+        """Scan (N, C) float32 of the C `columns` (4 in Voxelscape's own record), kitti labels
+        (N,) uint32, extras (N,) int32 each."""
         path = self.root / item.relpath
-        points = read_records(path, np.float32, 4, "Voxelscape scan (N x 4 float32)")
+        c = len(self.columns)
+        points = read_records(path, np.float32, c, f"Voxelscape scan (N x {c} float32)")
         check_finite(points, path, self.columns)
         n = points.shape[0]
         labels = None
@@ -193,7 +196,7 @@ class VoxelscapeReader:
         """Scan, kitti_labels (uint32) and orig_labels / _subl (int32), as the item has them."""
         item = frame.item
         n = frame.points.shape[0]
-        files = encode_scan_and_labels(frame, 4, self.label_dtype)
+        files = encode_scan_and_labels(frame, len(self.columns), self.label_dtype)
         for role, rel in item.extra_relpaths:
             files.append(
                 encode_labels(

@@ -154,6 +154,10 @@ class SensorProfile:
         forward_azimuth_deg: azimuth atan2(y, x) of the vehicle's forward direction in the
             sensor frame, degrees (0 when x points forward, 90 for nuScenes LIDAR_TOP,
             whose y points forward); None when unknown.
+        native_format: the dataset format the sensor's scans are natively recorded in, a
+            reader name of `lads.readers.READERS` ("nuscenes" for the HDL-32E); its reader's
+            `columns` are the sensor's native point record (`--point-format target`). None
+            when unknown.
     """
 
     name: str
@@ -176,6 +180,7 @@ class SensorProfile:
     sources: tuple[str, ...]
     sweep_period_s: float | None = None
     forward_azimuth_deg: float | None = None
+    native_format: str | None = None
 
     @property
     def beam_divergence_rad(self) -> float:
@@ -227,7 +232,8 @@ def load_profile(name_or_path: str | Path) -> SensorProfile:
 
 # Keys a profile may leave out (older or user-written profiles); the stages that need them
 # say so when they are missing.
-_OPTIONAL_KEYS = ("sweep_period_s", "forward_azimuth_deg")
+_OPTIONAL_NUMBERS = ("sweep_period_s", "forward_azimuth_deg")
+_OPTIONAL_KEYS = (*_OPTIONAL_NUMBERS, "native_format")
 
 
 def _build(raw: dict[str, Any], path: Path) -> SensorProfile:
@@ -259,7 +265,8 @@ def _build(raw: dict[str, Any], path: Path) -> SensorProfile:
             intensity=enc,
             has_ring_column=bool(raw["has_ring_column"]),
             sources=tuple(str(s) for s in raw["sources"]),
-            **{k: float(raw[k]) for k in _OPTIONAL_KEYS if raw.get(k) is not None},
+            **{k: float(raw[k]) for k in _OPTIONAL_NUMBERS if raw.get(k) is not None},
+            native_format=None if raw.get("native_format") is None else str(raw["native_format"]),
         )
     except (TypeError, ValueError, KeyError, IndexError, AttributeError) as exc:
         raise SensorProfileError(

@@ -1,14 +1,15 @@
 """Pipeline stages: pure functions of (frame, rng) -> frame, built from a StageConfig.
 
 STAGES is the one explicit table of stage names; `build_stage` turns a config entry into a
-callable stage object.
+callable stage object, `build_stages` every stage of a pipeline.
 """
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Protocol, cast
 
-from lads.config import StageConfig
+from lads.config import PipelineConfig, StageConfig
 from lads.errors import ConfigError
 from lads.stages.base import Stage
 from lads.stages.intensity import IntensityStage
@@ -51,3 +52,21 @@ def build_stage(config: StageConfig) -> Stage:
     # Every stage class is a frozen dataclass: its name and version are read-only, which
     # mypy's reading of the Stage protocol (plain, settable attributes) does not accept.
     return cast(Stage, cls.from_config(config))
+
+
+def build_stages(pipeline: PipelineConfig) -> tuple[Stage, ...]:
+    """Every stage of `pipeline`, in order; its sensor stage writes the point record the
+    pipeline's writer names (`PipelineConfig.point_record`: the target's native one, or
+    the frame's own columns).
+
+    Raises:
+        ConfigError: an unknown stage, or a record the sensor stage cannot fill.
+    """
+    stages = [build_stage(s) for s in pipeline.stages]
+    record = pipeline.point_record()
+    if record is None:
+        return tuple(stages)
+    return tuple(
+        cast(Stage, replace(s, columns=record.columns)) if isinstance(s, SensorStage) else s
+        for s in stages
+    )

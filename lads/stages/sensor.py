@@ -7,7 +7,9 @@ target sensor (`Outcome.RESAMPLED`): its source index is the row of the return w
 it hit, in the window scan its `source_scan` names. Labels follow the surface hit; the
 intensity is the surface's albedo seen by the target at its incidence, in the target's
 encoding; a nuScenes-style `ring` column gets the target's channel; further per-point arrays
-(nuScenes panoptic) take the value of the return each beam hit.
+(nuScenes panoptic) take the value of the return each beam hit. The points keep the frame's
+columns, or take the target's native record (`columns`, set from the pipeline's
+`writer.point_format`, `lads.stages.build_stages`).
 """
 
 from __future__ import annotations
@@ -19,7 +21,7 @@ import numpy as np
 import numpy.typing as npt
 
 from lads.config import StageConfig
-from lads.errors import InputDataError
+from lads.errors import ConfigError, InputDataError
 from lads.frame import RING_COLUMN, Frame
 from lads.physics.result import Outcome
 from lads.readers import label_set_for
@@ -52,12 +54,23 @@ class SensorStage:
         target: the target sensor profile (`lads profiles`, or a profile YAML path).
         neighbours: neighbouring scans of the sequence in each frame's window
             (`lads.transfer.window`); 0 transfers each frame from its own scan.
+        columns: the point columns written (the target's native record when the pipeline
+            writes point_format "target"); () keeps the frame's own columns.
     """
 
     name: str
     target: str
     neighbours: int = DEFAULT_NEIGHBOURS
     version: str = SENSOR_STAGE_VERSION
+    columns: tuple[str, ...] = ()
+
+    def __post_init__(self) -> None:
+        if self.columns and not _fills(self.columns):
+            raise ConfigError(
+                f"sensor stage: the point record {self.columns} has columns the stage cannot "
+                f"fill; it writes {_KNOWN_COLUMNS} (x, y, z, intensity first). Build with "
+                "--point-format source."
+            )
 
     @classmethod
     def from_config(cls, config: StageConfig) -> SensorStage:
@@ -117,16 +130,18 @@ class SensorStage:
             rng,
             label_set=label_set_for(frame.item.dataset),
         )
-        points = np.zeros((out.xyz.shape[0], len(frame.columns)), np.float32)
+        columns = self.columns or frame.columns
+        points = np.zeros((out.xyz.shape[0], len(columns)), np.float32)
         points[:, :3] = out.xyz
         points[:, 3] = out.intensity
-        if RING_COLUMN in frame.columns:
-            points[:, frame.columns.index(RING_COLUMN)] = out.ring
+        if RING_COLUMN in columns:
+            points[:, columns.index(RING_COLUMN)] = out.ring
         labels = None if frame.labels is None else out.labels.astype(frame.labels.dtype)
         m = out.xyz.shape[0]
         return replace(
             frame,
             sensor=self.target,
+            columns=columns,
             points=points,
             labels=labels,
             extra_labels=_lent_extras(frame, parts, out.source_frame, out.source_point),
@@ -159,9 +174,13 @@ def _lent_extras(
     return out
 
 
+def _fills(columns: tuple[str, ...]) -> bool:
+    """Whether the stage can fill every column: x, y, z, intensity first, then only ring."""
+    return columns[:4] == _KNOWN_COLUMNS[:4] and set(columns) <= set(_KNOWN_COLUMNS)
+
+
 def _check_columns(frame: Frame) -> None:
-    unknown = [c for c in frame.columns if c not in _KNOWN_COLUMNS]
-    if unknown or frame.columns[:4] != _KNOWN_COLUMNS[:4]:
+    if not _fills(frame.columns):
         raise InputDataError(
             f"{frame.item.relpath}: the sensor stage writes the columns {_KNOWN_COLUMNS}, but "
             f"this source has {frame.columns}; transfer a source of x, y, z, intensity "

@@ -174,10 +174,7 @@ def _check_points(
     elif mode == "aligned":
         rules += [("output == source", o == s)]
         rules += [("kept+attenuated+particle+displaced+lost == source", returned + lost == s)]
-    rb = scan.get("record_bytes", 0) if scan else 0
-    src_scan = sources.get(scan["path"], {}) if scan else {}
-    if rb and count(src_scan.get("bytes")):
-        rules += [("source bytes == source x record_bytes", src_scan["bytes"] == s * rb)]
+    rules += _record_rules(v.run_json, scan, sources, s)
     for rule, holds in rules:
         if not holds:
             what = f"{item_id} ({mode} mode): {rule} fails for points {pts}"
@@ -186,3 +183,25 @@ def _check_points(
         src = sources.get(out["path"])
         if out.get("role") != "scan" and src and src.get("sha256") != out.get("sha256"):
             v.add(out["path"], "aligned_label_differs", f"{item_id}: differs from source")
+
+
+def _record_rules(
+    run: dict[str, Any], scan: dict[str, Any] | None, sources: Any, n_source: int
+) -> list[tuple[str, bool]]:
+    """(rule, holds) for the point records of one item's scans (binary formats only): the
+    output's record is 4 bytes per column run.json records (`point_columns`), the source
+    scan holds its points in 4 bytes per `source_point_columns` (older trees lack both
+    keys: the source's record is the output's)."""
+    rb = scan.get("record_bytes", 0) if scan else 0
+    if not (scan and rb):
+        return []  # a text format (RADIATE) has no record size
+    rules = []
+    columns, source_columns = run.get("point_columns"), run.get("source_point_columns")
+    if isinstance(columns, list) and columns:
+        rules += [("scan record_bytes == 4 x run.json point_columns", rb == 4 * len(columns))]
+    if isinstance(source_columns, list) and source_columns:
+        rb = 4 * len(source_columns)
+    src_bytes = sources.get(scan["path"], {}).get("bytes")
+    if count(src_bytes):
+        rules += [("source bytes == source x source record_bytes", src_bytes == n_source * rb)]
+    return rules

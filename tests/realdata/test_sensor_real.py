@@ -2,8 +2,9 @@
 
 SemanticKITTI: every labelled frame of sequence 00 (000000-000002, 000052, 000088, 000850,
 004501) with KITTI's ground-truth poses standing in for SemanticKITTI's own poses.txt (the
-reference data lack it: ../shared/data/SOURCES.md); sequence 90 has no poses, so its frames
-fail by name and build with `neighbours: 0`. nuScenes: the 40 labelled keyframes of the
+reference data lack it: ../shared/data/SOURCES.md), in KITTI's record and (`--point-format
+target`) in the HDL-32E's native one; sequence 90 has no poses, so its frames fail by name
+and build with `neighbours: 0`. nuScenes: the 40 labelled keyframes of the
 KITTI-style export with their lidar -> global poses, to the HDL-64E.
 """
 
@@ -78,6 +79,39 @@ def test_real_kitti_frames_to_the_hdl32e(shared_data, tmp_path):
             3 if item.relpath.endswith(("00000.bin", "00001.bin", "00002.bin")) else 1
         )
     assert (out / "figures" / "preview.png").is_file()
+
+
+def test_real_kitti_frames_in_the_hdl32es_native_record(shared_data, tmp_path):
+    """`--point-format target`: each real frame at its KITTI path as nuScenes' 5 columns,
+    the ring the channel of each point's beam; the tree verifies and lads reads it back."""
+    src = _kitti_tree(tmp_path / "src")
+    pipeline = pipeline_for("semantickitti", "sensor-hdl32e").with_overrides(point_format="target")
+    out = tmp_path / "native"
+    report = run_build(
+        "semantickitti",
+        src,
+        out,
+        pipeline,
+        reader_options={"sequences": ["00"]},
+        jobs=2,
+        progress=False,
+        figures=False,
+    )
+    assert report.complete, report.failed
+    check = verify_tree(out, src, regenerate=1, seed=0)
+    assert check.ok, [f"{p.kind} {p.path}: {p.message}" for p in check.problems]
+    target = load_profile("hdl32e")
+    reader = get_reader("semantickitti", out, sequences=["00"], sensor="hdl32e")
+    assert len(reader.items()) == len(KITTI_SEQ00) + len(KITTI_MORE)
+    for item in reader.items():
+        frame = reader.read(item)
+        assert frame.columns == ("x", "y", "z", "intensity", "ring")
+        assert (out / item.relpath).stat().st_size == 20 * len(frame.points)
+        assert 10_000 < len(frame.points) < 70_000
+        ring = frame.points[:, 4]
+        assert (target.channel_of(frame.xyz) == ring).all()
+        assert _on_target_beams(frame.xyz, target) < 1e-3
+        assert frame.labels is not None and len(frame.labels) == len(frame.points)
 
 
 def test_a_sequence_without_poses_fails_by_name_and_builds_alone(shared_data, tmp_path):

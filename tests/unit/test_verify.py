@@ -278,6 +278,23 @@ def test_points_arithmetic(tree):
     assert any("output + lost == source" in p.message for p in report.problems)
 
 
+def test_scan_records_must_be_the_ones_run_json_names(tree):
+    """A tree records its scans' columns (a transfer may write the target's record): the
+    manifest's record bytes must be four per column, and the source's scans the source's."""
+    src, out = tree
+    run = read_run(out)
+    assert run.get("point_columns", ["x", "y", "z", "intensity"]) == ["x", "y", "z", "intensity"]
+    write_run(out, {**run, "point_columns": ["x", "y", "z", "intensity", "ring"]})
+    write_sums(out)
+    report = verify_tree(out, src)
+    assert kinds(report) == {"manifest_inconsistent"}
+    assert any("run.json point_columns" in p.message for p in report.problems)
+    write_run(out, {**run, "source_point_columns": ["x", "y", "z", "intensity", "ring"]})
+    write_sums(out)
+    report = verify_tree(out, src)
+    assert any("source x source record_bytes" in p.message for p in report.problems)
+
+
 def test_aligned_label_must_equal_source(tmp_path):
     src, out = build_fake_tree(tmp_path, mode="aligned")
     rows = read_manifest(out)
