@@ -160,13 +160,12 @@ def choose_shape(cases: list[dict[str, Any]]) -> SurfelShape:
     return min(SHAPES, key=score)
 
 
-def choose_view_sigma(cases: list[dict[str, Any]], shape: SurfelShape) -> float:
-    """The view weighting with the lowest intensity error over the validation cases, each
-    case's error taken relative to every view counting the same (the two directions encode
+def view_sigma_scores(cases: list[dict[str, Any]], shape: SurfelShape) -> dict[float, float]:
+    """Each view weighting's mean intensity error over the validation cases, each case's
+    error taken relative to every view counting the same (the two directions encode
     intensity on different scales)."""
-
-    def score(sigma: float) -> float:
-        return float(
+    return {
+        sigma: float(
             np.mean(
                 [
                     c[_key(shape, sigma)]["intensity_mae"]
@@ -175,8 +174,8 @@ def choose_view_sigma(cases: list[dict[str, Any]], shape: SurfelShape) -> float:
                 ]
             )
         )
-
-    return min((UNIFORM, *VIEW_SIGMAS_DEG), key=score)
+        for sigma in (UNIFORM, *VIEW_SIGMAS_DEG)
+    }
 
 
 def speed(shape: SurfelShape, view_sigma_deg: float) -> dict[str, Any]:
@@ -305,13 +304,15 @@ def main(argv: list[str] | None = None) -> None:
     cases = [(s, pair, m) for s in val_seeds for pair in DIRECTIONS for m in MOTIONS]
     if args.quick:
         shape, sigma, validation, weighted = DEFAULT_SHAPE, VIEW_SIGMA_DEG, [], []
+        scores = {}
     else:
         validation = [run_case(s, pair, SHAPES, m, (UNIFORM,)) for s, pair, m in cases]
         shape = choose_shape(validation)
         weighted = [
             run_case(s, pair, (shape,), m, (UNIFORM, *VIEW_SIGMAS_DEG)) for s, pair, m in cases
         ]
-        sigma = choose_view_sigma(weighted, shape)
+        scores = view_sigma_scores(weighted, shape)
+        sigma = min(scores, key=lambda v: scores[v])
     test = [
         run_case(s, pair, (shape,), m, (sigma,))
         for s in test_seeds
@@ -333,10 +334,7 @@ def main(argv: list[str] | None = None) -> None:
             )
             for s in (SHAPES if validation else ())
         },
-        "validation_intensity_by_view_sigma": {
-            str(v): _mean([c[_key(shape, v)]["intensity_mae"] for c in weighted])
-            for v in ((UNIFORM, *VIEW_SIGMAS_DEG) if weighted else ())
-        },
+        "validation_relative_intensity_error_by_view_sigma": {str(v): x for v, x in scores.items()},
         "test": summarise(test, _key(shape, sigma)),
         "test_cases": test,
         "speed": speed(shape, sigma),
