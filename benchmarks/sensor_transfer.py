@@ -52,7 +52,9 @@ DIRECTIONS = (("hdl64e", "hdl32e"), ("hdl32e", "hdl64e"))
 SHAPES = tuple(
     SurfelShape(r, c, e) for r in (0.75, 1.0) for c in (0.1, 0.25) for e in (r, 0.6, 0.5)
 )
-METHODS = ("transfer", "ring_drop", "row_resample")
+METHODS = ("transfer", "ring_drop", "row_resample", "transfer_on_ring_drop_beams")
+# The transfer scored on the beams ring dropping returned only: the same beams for both.
+ON_RING_DROP = " on ring_drop beams"
 MOTIONS = ("driving", "stopped")
 # Reflectivity votes weighted by how far the beam's view of a surfel is from its own scan's
 # (cast_parts view_sigma_rad): every view the same, or these widths, degrees.
@@ -125,6 +127,7 @@ def run_case(
         "motion": motion,
         "rings_not_covered": [int(k) for k in np.flatnonzero(~covered)],
     }
+    transferred = {}
     for shape in shapes:
         parts = [window_surfels(w, k, source, "semantickitti", shape) for k, w in enumerate(window)]
         for sigma in view_sigmas_deg:
@@ -140,13 +143,27 @@ def run_case(
                 detector=_synth_detector(target),
                 view_sigma_rad=math.radians(sigma),
             )
-            scores = compare_scans(_grid(moved, target, offset), reference, *grid)
-            out[_key(shape, sigma)] = scores
+            transferred[_key(shape, sigma)] = _grid(moved, target, offset)
     c = src[CENTRE]
+    baselines = {}
     for name, fn in (("ring_drop", ring_drop), ("row_resample", row_resample)):
         base = fn(c.xyz, c.intensity, c.labels, c.ring, source, target, azimuth_offset_rad=offset)
-        out[name] = compare_scans(_grid(base, target, offset), reference, *grid)
+        baselines[name] = _grid(base, target, offset)
+        out[name] = compare_scans(baselines[name], reference, *grid)
+    for key, scan in transferred.items():
+        out[key] = compare_scans(scan, reference, *grid)
+        same = _on_beams(scan, baselines["ring_drop"], target.range_image_width)
+        out[key + ON_RING_DROP] = compare_scans(same, reference, *grid)
     return out
+
+
+def _on_beams(scan: GridScan, other: GridScan, width: int) -> GridScan:
+    """The points of `scan` on the beams (ring, column) where `other` has a point."""
+    mine = scan.ring * width + scan.column
+    keep = np.isin(mine, other.ring * width + other.column)
+    return GridScan(
+        scan.xyz[keep], scan.ring[keep], scan.column[keep], scan.labels[keep], scan.intensity[keep]
+    )
 
 
 def choose_shape(cases: list[dict[str, Any]]) -> SurfelShape:
@@ -228,8 +245,9 @@ def summarise(cases: list[dict[str, Any]], key: str) -> dict[str, Any]:
                 c for c in cases if (c["source"], c["target"]) == pair and c["motion"] == motion
             ]
             rows = {}
+            names = {"transfer": key, "transfer_on_ring_drop_beams": key + ON_RING_DROP}
             for method in METHODS:
-                name = key if method == "transfer" else method
+                name = names.get(method, method)
                 metrics = [c[name] for c in mine]
                 rows[method] = {m: _mean([x[m] for x in metrics]) for m in metrics[0]}
             table[f"{pair[0]} -> {pair[1]}, {motion}"] = rows
@@ -285,7 +303,11 @@ def figure(result: dict[str, Any], path: Path) -> None:
         for c, metric in enumerate(metrics):
             ax = axes[r, c]
             vals = [rows[m][metric] or 0.0 for m in METHODS]
-            ax.bar(METHODS, vals, color=["tab:green", "tab:gray", "tab:orange"])
+            ax.bar(
+                ["transfer", "ring drop", "row resample", "transfer\n(ring drop's beams)"],
+                vals,
+                color=["tab:green", "tab:gray", "tab:orange", "tab:olive"],
+            )
             ax.set_title(f"{direction}: {metric}", fontsize=9)
             ax.tick_params(axis="x", labelsize=7)
     fig.tight_layout()

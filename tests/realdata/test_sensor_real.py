@@ -50,10 +50,9 @@ def _on_target_beams(xyz: np.ndarray, profile) -> float:
     return float(np.median(np.abs(el[:, None] - np.asarray(profile.elevation_deg)).min(axis=1)))
 
 
-def test_real_kitti_frames_to_the_hdl32e(shared_data, tmp_path):
-    src = _kitti_tree(tmp_path / "src")
-    pipeline = pipeline_for("semantickitti", "sensor-hdl32e")
-    out = tmp_path / "seq00"
+def _build_and_verify(src, out, pipeline, *, figures):
+    """Sequence 00 of `src` built with `pipeline` (two jobs) into `out`, verified against it
+    with one frame regenerated."""
     report = run_build(
         "semantickitti",
         src,
@@ -62,11 +61,17 @@ def test_real_kitti_frames_to_the_hdl32e(shared_data, tmp_path):
         reader_options={"sequences": ["00"]},
         jobs=2,
         progress=False,
-        figures=True,
+        figures=figures,
     )
     assert report.complete, report.failed
     check = verify_tree(out, src, regenerate=1, seed=0)
     assert check.ok, [f"{p.kind} {p.path}: {p.message}" for p in check.problems]
+
+
+def test_real_kitti_frames_to_the_hdl32e(shared_data, tmp_path):
+    src = _kitti_tree(tmp_path / "src")
+    out = tmp_path / "seq00"
+    _build_and_verify(src, out, pipeline_for("semantickitti", "sensor-hdl32e"), figures=True)
     target = load_profile("hdl32e")
     reader = get_reader("semantickitti", out, sequences=["00"])
     for item in reader.items():
@@ -87,19 +92,7 @@ def test_real_kitti_frames_in_the_hdl32es_native_record(shared_data, tmp_path):
     src = _kitti_tree(tmp_path / "src")
     pipeline = pipeline_for("semantickitti", "sensor-hdl32e").with_overrides(point_format="target")
     out = tmp_path / "native"
-    report = run_build(
-        "semantickitti",
-        src,
-        out,
-        pipeline,
-        reader_options={"sequences": ["00"]},
-        jobs=2,
-        progress=False,
-        figures=False,
-    )
-    assert report.complete, report.failed
-    check = verify_tree(out, src, regenerate=1, seed=0)
-    assert check.ok, [f"{p.kind} {p.path}: {p.message}" for p in check.problems]
+    _build_and_verify(src, out, pipeline, figures=False)
     target = load_profile("hdl32e")
     reader = get_reader("semantickitti", out, sequences=["00"], sensor="hdl32e")
     assert len(reader.items()) == len(KITTI_SEQ00) + len(KITTI_MORE)
