@@ -19,6 +19,7 @@ import numba
 import numpy as np
 import numpy.typing as npt
 
+from lads.transfer.bounds import angular_radius, azimuth_radius, in_plane
 from lads.transfer.surfels import Surfels
 
 F64 = npt.NDArray[np.float64]
@@ -29,12 +30,6 @@ VOTE_FIELDS = ("albedo", "weight", "retro")
 # The depth window of a grazing beam widens as 1 / cos(incidence), down to this cosine: the
 # disks of one surface spread along such a beam by their normal errors over cos.
 MIN_TOL_COS = 0.1
-# The angular bounds of a surfel's hits are widened by this factor against rounding: a beam
-# they keep out must never be one its exact test would accept.
-BOUND_SLACK = 1.0 + 1e-9
-# Axes whose squared part along the normal is below this share of their squared length lie in
-# the plane as far as the bounds can tell (their angles change by far less than BOUND_SLACK).
-FLAT = 1e-24
 
 
 @dataclass(frozen=True, slots=True)
@@ -277,10 +272,10 @@ def _record_hits(
         gbb = bx * bx + by * by + bz * bz
         gab = ax * bx + ay * by + az_ * bz
         # The hits of a beam are where its plane coordinates (alpha, beta) fall in the unit
-        # disk: the ellipse whose in-plane conjugate semi-axes `_in_plane` gives (the axes
+        # disk: the ellipse whose in-plane conjugate semi-axes `bounds.in_plane` gives (the axes
         # themselves, unless a grazing surfel's stretching stopped at min_cos).
-        pax, pay, paz, pbx, pby, pbz = _in_plane(ax, ay, az_, bx, by, bz, nx, ny, nz, gaa, gbb, gab)
-        half = _angular_radius(pax, pay, paz, pbx, pby, pbz, cx / r, cy / r, cz / r, r)
+        pax, pay, paz, pbx, pby, pbz = in_plane(ax, ay, az_, bx, by, bz, nx, ny, nz, gaa, gbb, gab)
+        half = angular_radius(pax, pay, paz, pbx, pby, pbz, cx / r, cy / r, cz / r, r)
         if half < 0.0:
             continue
         e_i = math.asin(cz / r)
@@ -288,7 +283,7 @@ def _record_hits(
         hi = np.searchsorted(el, e_i + half, side="right")
         if lo >= hi:
             continue
-        w = _azimuth_radius(pax, pay, pbx, pby, cx, cy)
+        w = azimuth_radius(pax, pay, pbx, pby, cx, cy)
         if w >= math.pi:
             j0, count = 0, columns
         else:
@@ -354,102 +349,6 @@ def _record_hits(
 def _view_k(view_sigma_rad: float) -> float:
     """exp(-(angle / sigma)^2) ~ exp(-k (1 - cos angle)) with k = 2 / sigma^2 (0: off)."""
     return 0.0 if not math.isfinite(view_sigma_rad) else 2.0 / (view_sigma_rad * view_sigma_rad)
-
-
-@numba.njit(cache=True, nogil=True, inline="always")
-def _in_plane(
-    ax: float,
-    ay: float,
-    az: float,
-    bx: float,
-    by: float,
-    bz: float,
-    nx: float,
-    ny: float,
-    nz: float,
-    gaa: float,
-    gbb: float,
-    gab: float,
-) -> tuple[float, float, float, float, float, float]:
-    """The conjugate semi-axes, in the plane of unit normal n, of the region a beam's hit
-    must fall in: where the plane coordinates G^-1 (e.A, e.B) (G the Gram matrix of A, B)
-    have norm <= 1. With P = the axes' projections onto the plane, that region is P Gp^-1 G
-    times the unit disk (Gp = P^T P); for axes in the plane it is (A, B) itself."""
-    a_n = ax * nx + ay * ny + az * nz
-    b_n = bx * nx + by * ny + bz * nz
-    if a_n * a_n <= FLAT * gaa and b_n * b_n <= FLAT * gbb:
-        return ax, ay, az, bx, by, bz
-    pax, pay, paz = ax - a_n * nx, ay - a_n * ny, az - a_n * nz
-    pbx, pby, pbz = bx - b_n * nx, by - b_n * ny, bz - b_n * nz
-    # Gp = G minus the parts along n; M = Gp^-1 G, applied to P's columns.
-    paa, pbb, pab = gaa - a_n * a_n, gbb - b_n * b_n, gab - a_n * b_n
-    det = paa * pbb - pab * pab
-    if det <= 0.0:
-        return ax, ay, az, bx, by, bz
-    inv = 1.0 / det
-    m00 = (pbb * gaa - pab * gab) * inv
-    m01 = (pbb * gab - pab * gbb) * inv
-    m10 = (paa * gab - pab * gaa) * inv
-    m11 = (paa * gbb - pab * gab) * inv
-    return (
-        pax * m00 + pbx * m10,
-        pay * m00 + pby * m10,
-        paz * m00 + pbz * m10,
-        pax * m01 + pbx * m11,
-        pay * m01 + pby * m11,
-        paz * m01 + pbz * m11,
-    )
-
-
-@numba.njit(cache=True, nogil=True, inline="always")
-def _angular_radius(
-    ax: float,
-    ay: float,
-    az: float,
-    bx: float,
-    by: float,
-    bz: float,
-    ux: float,
-    uy: float,
-    uz: float,
-    r: float,
-) -> float:
-    """A bound on the angle between the view direction u of an ellipse's centre (at range r)
-    and any point of it, radians; -1 when the ellipse reaches the sensor.
-
-    A point is c + d with d = alpha A + beta B, alpha^2 + beta^2 <= 1: d's part along u is
-    at most s_par = |(A.u, B.u)| and its part across u at most s_perp, the Frobenius norm of
-    A and B without their parts along u, so the angle is at most atan(s_perp / (r - s_par)).
-    Far tighter than asin(|A| + |B| / r) on oblique surfaces, whose long axis lies nearly
-    along the beam, and exact in what it keeps: no hit is lost."""
-    ua = ax * ux + ay * uy + az * uz
-    ub = bx * ux + by * uy + bz * uz
-    s_par = math.sqrt(ua * ua + ub * ub)
-    if r <= s_par:
-        return -1.0
-    across = ax * ax + ay * ay + az * az - ua * ua + bx * bx + by * by + bz * bz - ub * ub
-    return math.atan2(math.sqrt(max(across, 0.0)), r - s_par) * BOUND_SLACK
-
-
-@numba.njit(cache=True, nogil=True, inline="always")
-def _azimuth_radius(ax: float, ay: float, bx: float, by: float, cx: float, cy: float) -> float:
-    """A bound on how far in azimuth any point of an ellipse (centre c, semi-axes A, B) lies
-    from its centre's, radians; pi when it reaches round the vertical axis.
-
-    In the horizontal basis along (u) and across (v) the centre's azimuth, a point is at
-    (rho + d.u, d.v) with |d.v| <= s_v = |(A.v, B.v)| and d.u >= -s_u = -|(A.u, B.u)|, so its
-    azimuth differs by at most atan(s_v / (rho - s_u)): the ellipse's width across the beam,
-    not its elevation extent, sets the columns it can meet."""
-    rho = math.sqrt(cx * cx + cy * cy)
-    if rho <= 0.0:
-        return math.pi
-    ux, uy = cx / rho, cy / rho
-    au, bu = ax * ux + ay * uy, bx * ux + by * uy
-    av, bv = ay * ux - ax * uy, by * ux - bx * uy
-    s_u = math.sqrt(au * au + bu * bu)
-    if rho <= s_u:
-        return math.pi
-    return math.atan2(math.sqrt(av * av + bv * bv), rho - s_u) * BOUND_SLACK
 
 
 @numba.njit(cache=True, nogil=True, inline="always")

@@ -156,11 +156,10 @@ def scan_surfels(
             `to_reflectivity` of the stored intensity).
         profile: the source sensor (elevations, range image width).
         labels: (N,) stored labels, or None.
-        retro: (N,) bool, returns of retro-reflectors (their albedo is not divided by cos).
-        moving: (N,) bool, returns of things that move (only their own scan shows them).
+        retro, moving: (N,) bool, returns of retro-reflectors (their albedo is not divided by
+            cos) and of things that move (only their own scan shows them), or None.
         ring: (N,) channel per point, or None to take the nearest elevation.
-        frame: the scan's index in its window (kept per surfel).
-        shape: surfel size (`SurfelShape`).
+        frame: the scan's index in its window (kept per surfel); shape: `SurfelShape`.
 
     Returns:
         Surfels, one per return beyond MIN_RANGE_M, in file order.
@@ -177,26 +176,11 @@ def scan_surfels(
     cos = np.clip(cos_raw, shape.min_cos, 1.0)
     axis_a, axis_b = _cell_axes(pts, rng_m, view, normal, cos, profile, chan, shape.radius_share)
     if shape.edge_share != shape.radius_share:
-        edge_a, edge_b = silhouette_sides(
-            image.range_m.astype(np.float64),
-            image.index,
-            image.row,
-            image.col,
-            rng_m,
-            DEFAULT_MAX_DEPTH_JUMP,
-            MAX_COLUMN_GAP,
-        )
-        axis_a[edge_a] *= shape.edge_share / shape.radius_share
-        axis_b[edge_b] *= shape.edge_share / shape.radius_share
+        _shrink_at_silhouettes(axis_a, axis_b, image, rng_m, shape)
     radius = np.linalg.norm(axis_a, axis=1) + np.linalg.norm(axis_b, axis=1)
     refl = np.asarray(reflectivity, dtype=np.float64)[valid]
-    is_retro = (np.zeros(len(r), bool) if retro is None else np.asarray(retro, bool))[valid]
-    moves = (np.zeros(len(r), bool) if moving is None else np.asarray(moving, bool))[valid]
-    # The target multiplies by its own cos of the same normal: dividing by the same raw cos
-    # here (floored only against division by zero) keeps the two estimates' errors cancelling.
-    c = np.clip(cos_raw, ALBEDO_MIN_COS, 1.0)
-    albedo = np.where(is_retro, refl, refl / c)
-    weight = np.where(is_retro, 1.0, c * c)
+    is_retro = _flags(retro, len(r))[valid]
+    albedo, weight = _albedo(refl, cos_raw, is_retro)
     lab = np.zeros(len(pts), np.uint32) if labels is None else np.asarray(labels)[valid]
     return Surfels(
         pts,
@@ -210,8 +194,40 @@ def scan_surfels(
         is_retro,
         np.full(len(pts), frame, np.int32),
         valid.astype(np.int64),
-        moves,
+        _flags(moving, len(r))[valid],
     )
+
+
+def _flags(values: npt.ArrayLike | None, n: int) -> npt.NDArray[np.bool_]:
+    """(n,) bool of `values`, all False for None."""
+    return np.zeros(n, bool) if values is None else np.asarray(values, bool)
+
+
+def _albedo(refl: F64, cos_raw: F64, retro: npt.NDArray[np.bool_]) -> tuple[F64, F64]:
+    """(N,) albedo (reflectivity / cos of incidence; a retro-reflector's reflectivity) and the
+    trust in it (cos^2; 1 for a retro-reflector). The target multiplies by its own cos of the
+    same normal: dividing by the same raw cos here (floored only against division by zero)
+    keeps the two estimates' errors cancelling."""
+    c = np.clip(cos_raw, ALBEDO_MIN_COS, 1.0)
+    return np.where(retro, refl, refl / c), np.where(retro, 1.0, c * c)
+
+
+def _shrink_at_silhouettes(
+    axis_a: F64, axis_b: F64, image: RangeImage, range_m: F64, shape: SurfelShape
+) -> None:
+    """Scale, in place, each (N, 3) semi-axis that ends at a silhouette (`silhouette_sides`
+    of the scan's range image) from `shape.radius_share` of the cell to `shape.edge_share`."""
+    edge_a, edge_b = silhouette_sides(
+        image.range_m.astype(np.float64),
+        image.index,
+        image.row,
+        image.col,
+        range_m,
+        DEFAULT_MAX_DEPTH_JUMP,
+        MAX_COLUMN_GAP,
+    )
+    axis_a[edge_a] *= shape.edge_share / shape.radius_share
+    axis_b[edge_b] *= shape.edge_share / shape.radius_share
 
 
 def _normals(pts: F64, view: F64, image: RangeImage) -> F64:
