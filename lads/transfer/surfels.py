@@ -169,10 +169,7 @@ def scan_surfels(
     valid = np.flatnonzero(r > MIN_RANGE_M)
     pts, rng_m = xyz64[valid], r[valid]
     chan = channels_of(pts, profile, None if ring is None else np.asarray(ring)[valid])
-    view = pts / rng_m[:, None]
-    image = organise(pts, rng_m, chan, profile.channels, profile.range_image_width)
-    normal = _normals(pts, view, image)
-    cos_raw = -np.einsum("ij,ij->i", normal, view)
+    view, image, normal, cos_raw = _geometry(pts, rng_m, chan, profile)
     cos = np.clip(cos_raw, shape.min_cos, 1.0)
     axis_a, axis_b = _cell_axes(pts, rng_m, view, normal, cos, profile, chan, shape.radius_share)
     if shape.edge_share != shape.radius_share:
@@ -210,6 +207,17 @@ def _albedo(refl: F64, cos_raw: F64, retro: npt.NDArray[np.bool_]) -> tuple[F64,
     keeps the two estimates' errors cancelling."""
     c = np.clip(cos_raw, ALBEDO_MIN_COS, 1.0)
     return np.where(retro, refl, refl / c), np.where(retro, 1.0, c * c)
+
+
+def _geometry(
+    pts: F64, range_m: F64, chan: npt.NDArray[np.int64], profile: SensorProfile
+) -> tuple[F64, RangeImage, F64, F64]:
+    """(N, 3) unit view directions, the scan's range image, (N, 3) unit normals facing the
+    sensor and (N,) the raw cos of incidence (normal against view, may be < 0.02)."""
+    view = pts / range_m[:, None]
+    image = organise(pts, range_m, chan, profile.channels, profile.range_image_width)
+    normal = _normals(pts, view, image)
+    return view, image, normal, -np.einsum("ij,ij->i", normal, view)
 
 
 def _shrink_at_silhouettes(
