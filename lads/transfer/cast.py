@@ -280,7 +280,10 @@ def _record_hits(
             continue
         e_i = math.asin(cz / r)
         lo = np.searchsorted(el, e_i - half)
-        hi = np.searchsorted(el, e_i + half, side="right")
+        hi = lo  # the rows a surfel spans are few: step up instead of a second search
+        top = e_i + half
+        while hi < el.shape[0] and el[hi] <= top:
+            hi += 1
         if lo >= hi:
             continue
         w = azimuth_radius(pax, pay, pbx, pby, cx, cy)
