@@ -232,15 +232,13 @@ class _Lookup:
     parts: Sequence[Surfels]
     kept: list[npt.NDArray[np.int64]]
 
-    def part(self, who: npt.NDArray[np.int64]) -> npt.NDArray[np.int64]:
-        """The window scan each of the gathered surfels `who` came from."""
+    def __call__(
+        self, who: npt.NDArray[np.int64], *names: str
+    ) -> tuple[npt.NDArray[np.int64], list[npt.NDArray[np.generic]]]:
+        """The window scan each of the gathered surfels `who` (indices into the gathered
+        scene) came from, and their fields `names`."""
         offsets = np.cumsum([0] + [len(k) for k in self.kept])
-        return np.searchsorted(offsets, who, side="right") - 1  # type: ignore[no-any-return]
-
-    def __call__(self, who: npt.NDArray[np.int64], *names: str) -> list[npt.NDArray[np.generic]]:
-        """Fields `names` of the gathered surfels `who` (indices into the gathered scene)."""
-        offsets = np.cumsum([0] + [len(k) for k in self.kept])
-        part = self.part(who)
+        part = np.searchsorted(offsets, who, side="right") - 1
         out = [np.empty(len(who), dtype=getattr(self.parts[0], n).dtype) for n in names]
         for p in range(len(self.parts)):
             mine = np.flatnonzero(part == p)
@@ -248,7 +246,7 @@ class _Lookup:
                 rows = self.kept[p][who[mine] - offsets[p]]
                 for values, n in zip(out, names, strict=True):
                     values[mine] = getattr(self.parts[p], n)[rows]
-        return out
+        return part, out
 
 
 def _static(
@@ -292,30 +290,18 @@ def _world_instances(part: Surfels, pose: F64) -> tuple[npt.NDArray[np.int64], F
     return found.ids, found.centre_m @ np.ascontiguousarray(pose[:3, :3].T) + pose[:3, 3]
 
 
-def _beyond_view(
-    owner: npt.NDArray[np.int64],
-    range_m: F64,
-    lookup: _Lookup,
-    centre: int,
-    source: SensorProfile,
-    target: SensorProfile,
-) -> npt.NDArray[np.bool_]:
-    """(H, W) beams outside the source's view that a neighbour lends a surface behind a
-    moving thing of the centre scan (`fov.hidden_beyond_view`)."""
-    hit = np.flatnonzero(owner.reshape(-1) >= 0)
-    who = owner.reshape(-1)[hit]
-    part = lookup.part(who)
-    (moving,) = lookup(who, "moving")
-    moving_here = np.zeros(owner.size, dtype=bool)
-    moving_here[hit] = (part == centre) & moving.astype(bool)
-    lent = np.zeros(owner.size, dtype=bool)
-    lent[hit] = part != centre
-    return hidden_beyond_view(
-        range_m,
-        moving_here.reshape(owner.shape),
-        lent.reshape(owner.shape),
-        covered_rings(source.elevation_deg, target.elevation_deg),
-    )
+def _owner_facts(owner: npt.NDArray[np.int64], lookup: _Lookup) -> dict[str, npt.NDArray]:
+    """Per beam of the (H, W) `owner` image, flattened: the window scan of its surfel
+    ("part", -1 without one) and the surfel's moving, retro, label, frame and point."""
+    names = ("moving", "retro", "label", "frame", "point")
+    beam = np.flatnonzero(owner.reshape(-1) >= 0)
+    part, values = lookup(owner.reshape(-1)[beam], *names)
+    facts = {"part": np.full(owner.size, -1, np.int64)}
+    facts["part"][beam] = part
+    for name, v in zip(names, values, strict=True):
+        facts[name] = np.zeros(owner.size, v.dtype)
+        facts[name][beam] = v
+    return facts
 
 
 def _returns(
@@ -331,33 +317,36 @@ def _returns(
     t = hits.range_m
     in_range = np.isfinite(t) & (t >= target.min_range_m) & (t <= target.max_range_m)
     owner = np.where(in_range, hits.owner, -1)
-    owner[_beyond_view(owner, t, lookup, centre, source, target)] = -1
+    facts = _owner_facts(owner, lookup)
+    here = (facts["part"] == centre).reshape(t.shape)
+    lent = (facts["part"] >= 0).reshape(t.shape) & ~here
+    moving_here = here & facts["moving"].reshape(t.shape).astype(bool)
+    covered = covered_rings(source.elevation_deg, target.elevation_deg)
+    owner[hidden_beyond_view(t, moving_here, lent, covered)] = -1
     flat = np.flatnonzero(owner[::-1].reshape(-1) >= 0)  # top channel first, then azimuth
     rows, cols = np.divmod(flat, t.shape[1])
     ring = (t.shape[0] - 1 - rows).astype(np.int64)
-    who = owner[ring, cols]
-    (retro,) = lookup(who, "retro")
-    cos = np.where(retro, 1.0, hits.cos_incidence[ring, cols])
+    cos = np.where(facts["retro"][ring * t.shape[1] + cols], 1.0, hits.cos_incidence[ring, cols])
     albedo = hits.reflectivity[ring, cols] / np.maximum(cos, ALBEDO_MIN_COS)
     rng_m = t[ring, cols]
     seen = detector(albedo, cos, rng_m)
-    ring, cols, who, rng_m = ring[seen], cols[seen], who[seen], rng_m[seen]
+    ring, cols, rng_m = ring[seen], cols[seen], rng_m[seen]
     refl = hits.reflectivity[ring, cols]
     # The source's range noise is already in its returns: only the excess is added.
     extra = np.sqrt(max(target.range_accuracy_m**2 - source.range_accuracy_m**2, 0.0))
     if extra > 0:
         rng_m = rng_m + rng.normal(0.0, extra, rng_m.size)
     d = hits.directions()[ring, cols]
-    label, frame, point = lookup(who, "label", "frame", "point")
+    beam = ring * t.shape[1] + cols
     image = np.zeros_like(t)
     image[ring, cols] = rng_m
     return TransferredScan(
         xyz=(d * rng_m[:, None]).astype(np.float32),
         intensity=target.intensity.from_reflectivity(refl),
-        labels=label.astype(np.uint32),
+        labels=facts["label"][beam].astype(np.uint32),
         ring=ring,
         column=cols.astype(np.int64),
-        source_frame=frame.astype(np.int32),
-        source_point=point.astype(np.int64),
+        source_frame=facts["frame"][beam].astype(np.int32),
+        source_point=facts["point"][beam].astype(np.int64),
         range_m=image,
     )
