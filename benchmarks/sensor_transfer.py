@@ -25,6 +25,7 @@ from __future__ import annotations
 import argparse
 import math
 import time
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
@@ -65,14 +66,6 @@ SPEED_FRAMES = 21  # streaming 64 -> 32 over this many scans
 
 def _key(shape: SurfelShape, view_sigma_deg: float) -> str:
     return f"transfer {shape.radius_share} {shape.min_cos} {shape.edge_share} {view_sigma_deg}"
-
-
-def _fields(shape: SurfelShape) -> dict[str, float]:
-    return {
-        "radius_share": shape.radius_share,
-        "min_cos": shape.min_cos,
-        "edge_share": shape.edge_share,
-    }
 
 
 def _firing_offset(seed: int, k: int, target: SensorProfile) -> float:
@@ -129,7 +122,7 @@ def run_case(
     }
     transferred = {}
     for shape in shapes:
-        parts = [window_surfels(w, k, source, "semantickitti", shape) for k, w in enumerate(window)]
+        parts = [window_surfels(w, source, "semantickitti", shape) for w in window]
         for sigma in view_sigmas_deg:
             moved = transfer_surfels(
                 parts,
@@ -210,7 +203,6 @@ def speed(shape: SurfelShape, view_sigma_deg: float) -> dict[str, Any]:
                 f = frames[k]
                 cache[k] = window_surfels(
                     WindowScan(f.xyz, f.intensity, f.labels, f.ring, f.pose),
-                    k,
                     source,
                     "semantickitti",
                     shape,
@@ -345,9 +337,9 @@ def main(argv: list[str] | None = None) -> None:
         "machine": machine_info(),
         "validation_seeds": list(val_seeds),
         "test_seeds": list(test_seeds),
-        "shape": _fields(shape),
+        "shape": asdict(shape),
         "view_sigma_deg": sigma,
-        "default_shape": _fields(DEFAULT_SHAPE),
+        "default_shape": asdict(DEFAULT_SHAPE),
         "default_view_sigma_deg": VIEW_SIGMA_DEG,
         "validation": summarise(weighted, _key(shape, sigma)) if weighted else None,
         "validation_chamfer_by_shape": {

@@ -59,11 +59,11 @@ def transfer_tree(reader: Any, source: SensorProfile, target: SensorProfile) -> 
     poses = reader.sensor_poses(items)
     frames = {it.relpath: reader.read(it) for it in items}
     surfels = {}
-    for k, it in enumerate(items):
+    for it in items:
         f = frames[it.relpath]
         ring = f.points[:, f.columns.index("ring")] if "ring" in f.columns else None
         scan = WindowScan(f.xyz, f.intensity, f.labels, ring, poses[it.relpath])
-        surfels[it.relpath] = window_surfels(scan, k, source, reader.label_set)
+        surfels[it.relpath] = window_surfels(scan, source, reader.label_set)
     out = []
     for it in items:
         window, centre = window_of(items, it, DEFAULT_NEIGHBOURS, reader.scan_position)

@@ -88,7 +88,7 @@ class SensorStage:
         )
         scan = WindowScan(frame.xyz, frame.intensity, frame.labels, ring, np.eye(4))
         label_set = label_set_for(frame.item.dataset)
-        surfels = window_surfels(scan, 0, load_profile(frame.sensor), label_set)
+        surfels = window_surfels(scan, load_profile(frame.sensor), label_set)
         return PreparedScan(surfels, dict(frame.extra_labels))
 
     def __call__(self, frame: Frame, rng: np.random.Generator) -> Frame:
@@ -117,12 +117,8 @@ class SensorStage:
             rng: randomness of the target's range noise.
         """
         _check_columns(frame)
-        numbered = [
-            replace(p.surfels, frame=np.full(len(p.surfels), k, np.int32))
-            for k, p in enumerate(parts)
-        ]
         out = transfer_surfels(
-            numbered,
+            [p.surfels for p in parts],
             poses,
             centre,
             load_profile(frame.sensor),

@@ -128,7 +128,7 @@ def transfer_scan(
     Raises:
         InputDataError: `centre` outside the window, or a pose that is not (4, 4) and finite.
     """
-    parts = [window_surfels(scan, k, source, label_set, shape) for k, scan in enumerate(window)]
+    parts = [window_surfels(scan, source, label_set, shape) for scan in window]
     return transfer_surfels(
         parts,
         [s.pose for s in window],
@@ -145,7 +145,6 @@ def transfer_scan(
 
 def window_surfels(
     scan: WindowScan,
-    index: int,
     source: SensorProfile,
     label_set: str | None,
     shape: SurfelShape = DEFAULT_SHAPE,
@@ -168,7 +167,6 @@ def window_surfels(
         retro=retro,
         moving=moving,
         ring=scan.ring,
-        frame=index,
         shape=shape,
     )
     if classes is not None and roles.ego:
@@ -292,8 +290,9 @@ def _world_instances(part: Surfels, pose: F64) -> tuple[npt.NDArray[np.int64], F
 
 def _owner_facts(owner: npt.NDArray[np.int64], lookup: _Lookup) -> dict[str, npt.NDArray]:
     """Per beam of the (H, W) `owner` image, flattened: the window scan of its surfel
-    ("part", -1 without one) and the surfel's moving, retro, label, frame and point."""
-    names = ("moving", "retro", "label", "frame", "point")
+    ("part", -1 without one: the source_frame of its return) and the surfel's moving, retro,
+    label and point."""
+    names = ("moving", "retro", "label", "point")
     beam = np.flatnonzero(owner.reshape(-1) >= 0)
     part, values = lookup(owner.reshape(-1)[beam], *names)
     facts = {"part": np.full(owner.size, -1, np.int64)}
@@ -346,7 +345,7 @@ def _returns(
         labels=facts["label"][beam].astype(np.uint32),
         ring=ring,
         column=cols.astype(np.int64),
-        source_frame=facts["frame"][beam].astype(np.int32),
+        source_frame=facts["part"][beam].astype(np.int32),
         source_point=facts["point"][beam].astype(np.int64),
         range_m=image,
     )

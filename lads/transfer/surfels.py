@@ -73,7 +73,6 @@ class Surfels:
         weight: (M,) float64 how much the albedo is to be trusted: the source's cos^2 of
             incidence (1 for retro-reflectors), the weight of a least-squares albedo.
         retro: (M,) bool, a retro-reflector (returns as much at any incidence).
-        frame: (M,) int32 index of the source scan in the window.
         point: (M,) int64 row of the source return in its scan file.
         moving: (M,) bool, of a class of things that move (`moving` in materials.yaml): a
             neighbouring scan does not lend it.
@@ -90,7 +89,6 @@ class Surfels:
     albedo: F64
     weight: F64
     retro: npt.NDArray[np.bool_]
-    frame: npt.NDArray[np.int32]
     point: npt.NDArray[np.int64]
     moving: npt.NDArray[np.bool_]
     instances: Instances | None = None
@@ -144,7 +142,6 @@ def scan_surfels(
     retro: npt.ArrayLike | None = None,
     moving: npt.ArrayLike | None = None,
     ring: npt.ArrayLike | None = None,
-    frame: int = 0,
     shape: SurfelShape = DEFAULT_SHAPE,
 ) -> Surfels:
     """The surfels of one scan, in its sensor frame.
@@ -159,7 +156,7 @@ def scan_surfels(
         retro, moving: (N,) bool, returns of retro-reflectors (their albedo is not divided by
             cos) and of things that move (only their own scan shows them), or None.
         ring: (N,) channel per point, or None to take the nearest elevation.
-        frame: the scan's index in its window (kept per surfel); shape: `SurfelShape`.
+        shape: `SurfelShape`.
 
     Returns:
         Surfels, one per return beyond MIN_RANGE_M, in file order.
@@ -189,7 +186,6 @@ def scan_surfels(
         albedo,
         weight,
         is_retro,
-        np.full(len(pts), frame, np.int32),
         valid.astype(np.int64),
         _flags(moving, len(r))[valid],
     )
