@@ -19,7 +19,13 @@ import numba
 import numpy as np
 import numpy.typing as npt
 
-from lads.transfer.bounds import angular_radius, azimuth_radius, in_plane
+from lads.transfer.bounds import (
+    ATAN2_ERROR_RAD,
+    angular_radius,
+    azimuth_radius,
+    coarse_atan2,
+    in_plane,
+)
 from lads.transfer.surfels import Surfels
 
 F64 = npt.NDArray[np.float64]
@@ -278,7 +284,9 @@ def _record_hits(
         half = angular_radius(pax, pay, paz, pbx, pby, pbz, cx / r, cy / r, cz / r, r)
         if half < 0.0:
             continue
-        e_i = math.asin(cz / r)
+        # The bounds are widened by the coarse angle's error: they only need to hold.
+        half += ATAN2_ERROR_RAD
+        e_i = coarse_atan2(cz, math.sqrt(cx * cx + cy * cy))
         lo = np.searchsorted(el, e_i - half)
         hi = lo  # the rows a surfel spans are few: step up instead of a second search
         top = e_i + half
@@ -290,7 +298,8 @@ def _record_hits(
         if w >= math.pi:
             j0, count = 0, columns
         else:
-            a_i = math.atan2(cy, cx)
+            a_i = coarse_atan2(cy, cx)
+            w += ATAN2_ERROR_RAD
             j0 = int(math.floor((a_i - w - az0) / step - 0.5)) + 1
             count = int(math.floor((a_i + w - az0) / step - 0.5)) - j0 + 1
             count = min(max(count, 0), columns)
@@ -298,9 +307,13 @@ def _record_hits(
         det = gaa * gbb - gab * gab
         if det <= 1e-18:
             continue
+        j0 %= columns
+        view_norm = math.sqrt(vx * vx + vy * vy + vz * vz)
+        albedo_i, retro_i, trust_i = albedo[i], retro[i], trust[i]
         for k in range(lo, hi):
-            for jj in range(count):
-                j = (j0 + jj) % columns
+            j = j0 - 1
+            for _ in range(count):
+                j = 0 if j == columns - 1 else j + 1
                 dx = cos_el[k] * cos_az[j]
                 dy = cos_el[k] * sin_az[j]
                 dz = sin_el[k]
@@ -337,13 +350,11 @@ def _record_hits(
                 hit_i[n] = offset + ii
                 # Each surfel predicts the beam's reflectivity with its own normal, so a
                 # normal error cancels against its source's when the views agree.
-                hit_seen[n] = albedo[i] if retro[i] else albedo[i] * abs(denom)
-                hit_trust[n] = trust[i]
+                hit_seen[n] = albedo_i if retro_i else albedo_i * abs(denom)
+                hit_trust[n] = trust_i
                 if view_k > 0.0:
                     # 1 - cos(angle) between the beam and the surfel's own scan's view of it
-                    off = 1.0 - (dx * vx + dy * vy + dz * vz) / math.sqrt(
-                        vx * vx + vy * vy + vz * vz
-                    )
+                    off = 1.0 - (dx * vx + dy * vy + dz * vz) / view_norm
                     hit_trust[n] *= math.exp(-view_k * off)
                 n += 1
     return hit_pix, hit_t, hit_cos, hit_w, hit_i, hit_seen, hit_trust, n

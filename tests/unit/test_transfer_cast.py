@@ -8,6 +8,12 @@ import math
 
 import numpy as np
 
+from lads.transfer.bounds import (
+    ATAN2_ERROR_RAD,
+    angular_radius,
+    azimuth_radius,
+    coarse_atan2,
+)
 from lads.transfer.cast import _HitBuffers, _record_hits
 from lads.transfer.fov import hidden_beyond_view
 from lads.transfer.surfels import silhouette_sides
@@ -99,6 +105,44 @@ def test_pass_one_finds_the_hits_that_testing_every_beam_finds() -> None:
     inside, near = _every_beam(s, el)
     assert len(inside) > 200  # the surfels meet beams: the comparison is not empty
     assert inside <= found <= near
+
+
+def test_the_angular_bounds_hold_every_point_of_the_ellipse_and_are_tight() -> None:
+    rng = np.random.default_rng(3)
+    s = _surfels(rng, 400)
+    phase = np.linspace(0.0, 2.0 * math.pi, 721)
+    slack = []
+    for c, a, b in zip(s["centre"], s["a"], s["b"], strict=True):
+        rim = c + np.cos(phase)[:, None] * a + np.sin(phase)[:, None] * b
+        r = float(np.linalg.norm(c))
+        u = c / r
+        half = angular_radius(*a, *b, *u, r)
+        if half < 0.0:
+            continue
+        angle = np.arccos(np.clip(rim @ u / np.linalg.norm(rim, axis=1), -1.0, 1.0))
+        width = azimuth_radius(a[0], a[1], b[0], b[1], c[0], c[1])
+        turn = np.angle(np.exp(1j * (np.arctan2(rim[:, 1], rim[:, 0]) - math.atan2(c[1], c[0]))))
+        assert angle.max() <= half
+        assert np.abs(turn).max() <= width
+        slack.append(half / max(angle.max(), 1e-12))
+    # Bounds, yet close: most ellipses span at least half of what their bound allows.
+    assert len(slack) > 300 and np.median(slack) < 2.0
+
+
+def test_the_coarse_angle_is_within_its_error_bound_all_round_the_circle() -> None:
+    # Every octant's edges (the axes and the diagonals, both zeros), the two sides of -pi /
+    # pi, and lengths from tiny to large.
+    edges = np.arange(8) * math.pi / 4
+    angles = np.concatenate([np.linspace(-math.pi, math.pi, 200_001), edges, edges + 1e-12])
+    worst = 0.0
+    for length in (1e-9, 1.0, 3e4):
+        for a in angles:
+            y, x = length * math.sin(a), length * math.cos(a)
+            for yy in (y, -0.0) if y == 0.0 else (y,):
+                off = abs(coarse_atan2(yy, x) - math.atan2(yy, x))
+                worst = max(worst, min(off, 2.0 * math.pi - off))  # -pi and pi are one angle
+    assert 1e-7 < worst <= ATAN2_ERROR_RAD  # coarse indeed, yet within its bound
+    assert coarse_atan2(0.0, 0.0) == 0.0
 
 
 def test_beyond_the_source_view_a_lent_surface_behind_a_moving_thing_is_hidden() -> None:
