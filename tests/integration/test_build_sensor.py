@@ -18,7 +18,7 @@ from lads.readers import get_reader
 from lads.runner import run_build
 from lads.sensors.profile import load_profile
 from lads.synth.writer import write_synthetic_dataset
-from lads.transfer.cast import MIN_TOL_COS
+from lads.transfer.blend import MIN_TOL_COS
 from lads.transfer.window import window_of
 from lads.verify import verify_tree
 from lads.worker import stages_for
