@@ -51,7 +51,7 @@ DIRECTIONS = (("hdl64e", "hdl32e"), ("hdl32e", "hdl64e"))
 # when the vehicle stands still and the window adds no new samples.
 # The share at silhouettes may be smaller: its neighbour inside the surface covers the gap.
 SHAPES = tuple(
-    SurfelShape(r, c, e) for r in (0.75, 1.0) for c in (0.1, 0.25) for e in (r, 0.6, 0.5)
+    SurfelShape(r, c, e) for r in (0.75, 1.0) for c in (0.05, 0.1, 0.25) for e in (r, 0.6, 0.5)
 )
 METHODS = ("transfer", "ring_drop", "row_resample", "transfer_on_ring_drop_beams")
 # The transfer scored on the beams ring dropping returned only: the same beams for both.

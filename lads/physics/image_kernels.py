@@ -14,6 +14,10 @@ import numba
 import numpy as np
 import numpy.typing as npt
 
+# `_row_line_side`: how far beyond its two row neighbours' spacing a pixel may continue their
+# line (the rings of a sensor meet flat ground ever farther apart with range).
+ROW_LINE_REACH = 6.0
+
 
 @numba.njit(cache=True, nogil=True)
 def pixel_owners(
@@ -43,6 +47,7 @@ def image_normals(
     occ: npt.NDArray[np.bool_],
     max_column_gap: int,
     max_depth_jump: float,
+    rows_by_line: bool = False,
 ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.bool_]]:
     """(H, W, 3) unnormalised normals and (H, W) validity of an organised image.
 
@@ -52,6 +57,10 @@ def image_normals(
         occ: (H, W) True where a point owns the pixel.
         max_column_gap: azimuth neighbours may sit up to this many columns away (wraps).
         max_depth_jump: relative range tolerance of a smooth surface.
+        rows_by_line: judge the central difference across rows by where the line through
+            the two row neighbours crosses the pixel's beam (`line_crossing_range`) instead
+            of by their ranges linearly interpolated: exact on any plane, also on far ground
+            that rings a degree or more apart meet metres apart.
 
     Elevation neighbours are the adjacent rows only and do not wrap.
     """
@@ -93,10 +102,17 @@ def image_normals(
                 r_next = rng[nv, nu] if has_next else 0.0
                 r_prev = rng[pv, pu] if has_prev else 0.0
                 interp = (n_gap * r_prev + p_gap * r_next) / (n_gap + p_gap)
+                if rows_by_line and axis == 1 and has_next and has_prev:
+                    interp = line_crossing_range(pts, v, u, pv, pu, nv, nu, r0, 0.0, 1.0)
                 central = has_next and has_prev and 2.0 * abs(interp - r0) <= max_depth_jump * r0
                 jump_next = abs(r_next - r0) if has_next else math.inf
                 jump_prev = abs(r_prev - r0) if has_prev else math.inf
                 one_sided = min(jump_next, jump_prev) <= max_depth_jump * r0
+                if rows_by_line and axis == 1 and not (central or one_sided):
+                    side = _row_line_side(pts, occ, v, u, r0, max_depth_jump)
+                    one_sided = side != 0
+                    jump_next = 0.0 if side == 1 else jump_next
+                    jump_prev = 0.0 if side == -1 else jump_prev
                 for k in range(3):
                     p_next = pts[nv, nu, k] if has_next else 0.0
                     p_prev = pts[pv, pu, k] if has_prev else 0.0
@@ -148,3 +164,60 @@ def pixel_normal_cos(
         scale = math.sqrt(n0 * n0 + n1 * n1 + n2 * n2) * math.sqrt(x * x + y * y + z * z)
         out[i] = min(abs(n0 * x + n1 * y + n2 * z) / scale, 1.0) if scale > 0.0 else 0.0
     return out
+
+
+@numba.njit(cache=True, nogil=True)
+def line_crossing_range(
+    pts: npt.NDArray[np.float64],
+    v: int,
+    u: int,
+    pv: int,
+    pu: int,
+    nv: int,
+    nu: int,
+    r0: float,
+    share_lo: float,
+    share_hi: float,
+) -> float:
+    """Range along pixel (v, u)'s beam (its point over r0) of the closest approach to the line
+    from pixel (pv, pu) (share 0) to (nv, nu) (share 1), m; inf where the line runs along the
+    beam or the approach's share of the way lies outside [share_lo, share_hi]. On a plane it
+    is r0 itself, at any incidence."""
+    d0, d1, d2 = pts[v, u, 0] / r0, pts[v, u, 1] / r0, pts[v, u, 2] / r0
+    e0 = pts[nv, nu, 0] - pts[pv, pu, 0]
+    e1 = pts[nv, nu, 1] - pts[pv, pu, 1]
+    e2 = pts[nv, nu, 2] - pts[pv, pu, 2]
+    # Minimising |t d - p - s e| over the beam's t and the line's s (p: the first pixel).
+    b = d0 * e0 + d1 * e1 + d2 * e2
+    c = e0 * e0 + e1 * e1 + e2 * e2
+    dp = d0 * pts[pv, pu, 0] + d1 * pts[pv, pu, 1] + d2 * pts[pv, pu, 2]
+    ep = e0 * pts[pv, pu, 0] + e1 * pts[pv, pu, 1] + e2 * pts[pv, pu, 2]
+    denom = c - b * b
+    if denom <= 1e-12 * c:
+        return math.inf
+    share = (b * dp - ep) / denom
+    if share < share_lo or share > share_hi:
+        return math.inf
+    return (c * dp - b * ep) / denom
+
+
+@numba.njit(cache=True, nogil=True)
+def _row_line_side(
+    pts: npt.NDArray[np.float64],
+    occ: npt.NDArray[np.bool_],
+    v: int,
+    u: int,
+    r0: float,
+    max_depth_jump: float,
+) -> int:
+    """+1 (-1) when the pixel continues the line of the two pixels above (below) it in its
+    column (the edge ring of far ground, whose other neighbour lies on another surface), else
+    0. The continuation may reach up to ROW_LINE_REACH times the two pixels' spacing."""
+    for side in (1, -1):
+        v1, v2 = v + side, v + 2 * side
+        if v2 < 0 or v2 >= occ.shape[0] or not occ[v1, u] or not occ[v2, u]:
+            continue
+        r_line = line_crossing_range(pts, v, u, v2, u, v1, u, r0, 1.0, 1.0 + ROW_LINE_REACH)
+        if 2.0 * abs(r_line - r0) <= max_depth_jump * r0:
+            return side
+    return 0

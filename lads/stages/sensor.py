@@ -31,7 +31,7 @@ from lads.transfer.surfels import Surfels
 from lads.transfer.window import DEFAULT_NEIGHBOURS
 
 # Bump when the stage's output bytes change for the same input.
-SENSOR_STAGE_VERSION = "3"  # 3: silhouettes, view-weighted reflectivity, beyond-view rule
+SENSOR_STAGE_VERSION = "4"  # 4: normals along the line of far ground, its surfels stretched further
 # Point columns the stage knows how to fill; any other column of a source format is refused.
 _KNOWN_COLUMNS = ("x", "y", "z", "intensity", RING_COLUMN)
 

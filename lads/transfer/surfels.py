@@ -33,12 +33,12 @@ from lads.sensors.profile import SensorProfile
 # window adds no new samples); both values chosen on validation streets by Chamfer distance
 # (benchmarks/sensor_transfer.py).
 RADIUS_SHARE = 0.75
-MIN_COS = 0.1
+MIN_COS = 0.05
 # Share of the beam cell at a silhouette, along the axis where the next return of the scan
 # lies behind (the object's edge lies anywhere in the gap, half-way on average):
 # a full share there fattens every object by the part of the gap it never reached. Chosen
 # on validation streets with the shares above (benchmarks/sensor_transfer.py).
-EDGE_SHARE = 0.6
+EDGE_SHARE = 0.5
 # Floor of the cos an albedo is divided by (against division by zero only).
 ALBEDO_MIN_COS = 0.02
 F64 = npt.NDArray[np.float64]
@@ -170,7 +170,7 @@ def scan_surfels(
     cos = np.clip(cos_raw, shape.min_cos, 1.0)
     axis_a, axis_b = _cell_axes(pts, rng_m, view, normal, cos, profile, chan, shape.radius_share)
     if shape.edge_share != shape.radius_share:
-        _shrink_at_silhouettes(axis_a, axis_b, image, rng_m, shape)
+        _shrink_at_silhouettes(axis_a, axis_b, image, rng_m, shape, pts, normal)
     radius = np.linalg.norm(axis_a, axis=1) + np.linalg.norm(axis_b, axis=1)
     refl = np.asarray(reflectivity, dtype=np.float64)[valid]
     is_retro = _flags(retro, len(r))[valid]
@@ -217,7 +217,13 @@ def _geometry(
 
 
 def _shrink_at_silhouettes(
-    axis_a: F64, axis_b: F64, image: RangeImage, range_m: F64, shape: SurfelShape
+    axis_a: F64,
+    axis_b: F64,
+    image: RangeImage,
+    range_m: F64,
+    shape: SurfelShape,
+    pts: F64,
+    normal: F64,
 ) -> None:
     """Scale, in place, each (N, 3) semi-axis that ends at a silhouette (`silhouette_sides`
     of the scan's range image) from `shape.radius_share` of the cell to `shape.edge_share`."""
@@ -229,6 +235,8 @@ def _shrink_at_silhouettes(
         range_m,
         DEFAULT_MAX_DEPTH_JUMP,
         MAX_COLUMN_GAP,
+        pts,
+        normal,
     )
     axis_a[edge_a] *= shape.edge_share / shape.radius_share
     axis_b[edge_b] *= shape.edge_share / shape.radius_share
@@ -244,6 +252,7 @@ def _normals(pts: F64, view: F64, image: RangeImage) -> F64:
         image.index >= 0,
         MAX_COLUMN_GAP,
         DEFAULT_MAX_DEPTH_JUMP,
+        True,
     )
     return _facing(raw, ok, image.index, image.row, image.col, view)
 
@@ -343,16 +352,20 @@ def silhouette_sides(
     range_m: F64,
     max_depth_jump: float,
     max_column_gap: int,
+    pts: F64,
+    normal: F64,
 ) -> tuple[npt.NDArray[np.bool_], npt.NDArray[np.bool_]]:
     """Per return, whether its surface ends next to it along azimuth (first array) and along
     elevation (second): on one side the nearest return of the scan (the adjacent row; the
     nearest occupied column within `max_column_gap`) lies more than `max_depth_jump` x its
-    range behind it. A missing neighbour is no silhouette: real scans drop returns of dark or
-    wet surfaces, and shrinking the surfels around every dropout leaves holes.
+    range behind it and off the return's plane (`_off_plane`: far ground, whose rings lie
+    metres apart, goes on). A missing neighbour is no silhouette: real scans drop returns of
+    dark or wet surfaces, and shrinking the surfels around every dropout leaves holes.
 
     Args:
         range_img: (H, W) range of each pixel's owner in m, index: (H, W) its row, -1 empty.
         row, col: (N,) pixel of each return; range_m: (N,) its range in m.
+        pts, normal: (N, 3) each return's point in m and its unit normal.
     """
     height, width = index.shape
     n = row.shape[0]
@@ -363,11 +376,23 @@ def silhouette_sides(
         for sign in (-1, 1):
             v = row[i] + sign
             if 0 <= v < height and index[v, col[i]] >= 0 and range_img[v, col[i]] > far:
-                edge_b[i] = True
+                j = index[v, col[i]]
+                edge_b[i] = edge_b[i] or _off_plane(pts, normal, i, j, max_depth_jump)
             for step in range(1, max_column_gap + 1):
                 u = (col[i] + sign * step) % width
-                if index[row[i], u] >= 0:
+                j = index[row[i], u]
+                if j >= 0:
                     if range_img[row[i], u] > far:
-                        edge_a[i] = True
+                        edge_a[i] = edge_a[i] or _off_plane(pts, normal, i, j, max_depth_jump)
                     break
     return edge_a, edge_b
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _off_plane(pts: F64, normal: F64, i: int, j: int, max_depth_jump: float) -> bool:
+    """Whether return j's beam meets return i's plane more than max_depth_jump x its range
+    away from it: |n.(p_j - p_i)| > jump r_j |n.d_j| (d_j its unit direction)."""
+    dx, dy, dz = pts[j, 0] - pts[i, 0], pts[j, 1] - pts[i, 1], pts[j, 2] - pts[i, 2]
+    off = abs(normal[i, 0] * dx + normal[i, 1] * dy + normal[i, 2] * dz)
+    along = abs(normal[i, 0] * pts[j, 0] + normal[i, 1] * pts[j, 1] + normal[i, 2] * pts[j, 2])
+    return off > max_depth_jump * along  # r_j |n.d_j| = |n.p_j|

@@ -72,6 +72,65 @@ def test_a_wall_is_scanned_at_the_target_elevations_and_its_exact_range():
     assert np.abs(src[:, 0] - 10.0).max() < 1e-3
 
 
+def ground_scan(profile, height_m: float = 1.8, max_range_m: float = 80.0):
+    """The source's own downward beams on flat ground z = -height_m within max_range_m, all
+    round, exact: (xyz, intensity, labels, ring)."""
+    el = np.radians(np.asarray(profile.elevation_deg))
+    width = profile.range_image_width
+    az = (np.arange(width) + 0.5) * 2 * math.pi / width
+    e, a = np.meshgrid(el, az, indexing="ij")
+    ring = np.broadcast_to(np.arange(profile.channels)[:, None], e.shape)
+    down = np.sin(e) < 0
+    t = np.where(down, height_m / -np.where(down, np.sin(e), -1.0), np.inf)
+    keep = t <= max_range_m
+    d = np.stack([np.cos(e) * np.cos(a), np.cos(e) * np.sin(a), np.sin(e)], axis=-1)
+    xyz = (d * np.where(keep, t, 0.0)[..., None])[keep]
+    n = len(xyz)
+    intensity = profile.intensity.from_reflectivity(np.full(n, 0.2))
+    return xyz.astype(np.float32), intensity, np.full(n, 40, np.uint32), ring[keep]
+
+
+def test_far_ground_between_sparse_rings_has_its_normal_and_no_gaps():
+    # An HDL-32E meets flat ground metres apart beyond 20 m: each ring's return still lies on
+    # the line of its column's neighbours, so its surfel lies flat and the ground shows on
+    # the HDL-64E's rings in between.
+    xyz, inten, labels, ring = ground_scan(HDL32)
+    s = scan_surfels(xyz, HDL32.intensity.to_reflectivity(inten), HDL32, labels=labels, ring=ring)
+    far = np.linalg.norm(s.centre, axis=1) > 20.0
+    assert far.sum() > 1000
+    assert np.abs(s.normal[far, 2]).min() > 0.999  # flat, also on the last ring of the ground
+    out = transfer_scan(
+        [WindowScan(xyz, inten, labels, ring, np.eye(4))],
+        0,
+        HDL32,
+        HDL64,
+        np.random.default_rng(0),
+        label_set="semantickitti",
+        detector=_always,
+    )
+    el64 = np.radians(np.asarray(HDL64.elevation_deg))
+    reach = 1.8 / -np.sin(el64)
+    inside = (el64 < 0) & (reach < 0.9 * 80.0) & (reach > 3.0)
+    per_ring = np.bincount(out.ring, minlength=HDL64.channels)
+    assert inside.sum() > 30
+    assert (per_ring[inside] >= 0.95 * HDL64.range_image_width).all()
+    assert np.abs(out.xyz[:, 2] + 1.8).max() < 1e-2  # on the ground
+
+
+def test_a_return_in_front_of_far_ground_does_not_continue_its_line():
+    # A post at 20 m stands on the ground's row: its return is no part of the ground's line,
+    # so it keeps a normal facing the sensor, not the ground's.
+    xyz, inten, labels, ring = ground_scan(HDL32)
+    column = np.round(np.arctan2(xyz[:, 1], xyz[:, 0]) / (2 * math.pi / HDL32.range_image_width))
+    rng_m = np.linalg.norm(xyz, axis=1)
+    on_ring = np.flatnonzero((column == 3) & (rng_m > 25.0) & (rng_m < 45.0))
+    post = on_ring[np.argmin(rng_m[on_ring])]
+    xyz[post] *= 20.0 / rng_m[post]
+    s = scan_surfels(xyz, HDL32.intensity.to_reflectivity(inten), HDL32, labels=labels, ring=ring)
+    row = np.flatnonzero(s.point == post)[0]
+    assert abs(s.normal[row, 2]) < 0.5
+
+
 def test_a_moving_instance_comes_from_the_centre_scan_only():
     wall = wall_scan(HDL64, 12.0)
     car_now = wall_scan(HDL64, 8.0, half_width_deg=5.0, label=(7 << 16) | 10)

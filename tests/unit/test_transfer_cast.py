@@ -170,17 +170,53 @@ def test_beyond_the_source_view_a_lent_surface_behind_a_moving_thing_is_hidden()
     assert not hidden_beyond_view(range_m, moving_here, lent, np.ones(rows, bool)).any()
 
 
+def test_far_ground_whose_next_ring_lies_far_behind_on_its_plane_is_no_silhouette() -> None:
+    # One column of flat ground 1.8 m below the sensor, rings 1.33 deg apart: each next ring
+    # lies 30-50 % farther, yet on the same plane, so no side is a silhouette; a post standing
+    # in front of the third ring makes the ring below it one (its neighbour is off its plane).
+    el = np.radians(np.array([-8.0, -6.67, -5.34, -4.01]))[::-1]  # row 0 is the highest
+    rng = 1.8 / -np.sin(el)
+    view = np.stack([np.cos(el), np.zeros(4), np.sin(el)], axis=1)
+    pts = view * rng[:, None]
+    normal = np.tile([0.0, 0.0, 1.0], (4, 1))
+    index = np.arange(4, dtype=np.int64).reshape(4, 1)
+    row, col = np.arange(4, dtype=np.int64), np.zeros(4, np.int64)
+    args = (0.1, 1, pts, normal)
+    _, edge_b = silhouette_sides(rng.reshape(4, 1), index, row, col, rng, *args)
+    assert not edge_b.any()
+    pts[1] = view[1] * (0.6 * rng[1])  # a post in front of ring 1 faces the sensor
+    normal[1] = -view[1]
+    rng[1] *= 0.6
+    _, edge_b = silhouette_sides(rng.reshape(4, 1), index, row, col, rng, *args)
+    assert edge_b.tolist() == [False, True, False, False]
+
+
 def test_silhouette_sides_mark_returns_whose_next_return_is_missing_or_behind() -> None:
     # A 4 x 6 image: a wall at 10 m over columns 1-4 of rows 1-2, background at 30 m
     # elsewhere; row 3 is empty (sky) and so is pixel (1, 0) (a lost return).
     rng_img = np.full((4, 6), 30.0)
-    index = np.arange(24, dtype=np.int64).reshape(4, 6)
     rng_img[1:3, 1:5] = 10.0
-    index[3, :] = -1
-    index[1, 0] = -1
-    row, col = np.nonzero(index >= 0)
+    occupied = np.ones((4, 6), bool)
+    occupied[3, :] = False
+    occupied[1, 0] = False
+    row, col = np.nonzero(occupied)
+    index = np.full((4, 6), -1, np.int64)
+    index[row, col] = np.arange(len(row))
+    # Rows 2 deg apart in elevation (row 0 highest), columns 2 deg in azimuth; every return
+    # faces the sensor, as a wall and a background square to it do.
+    el, az = np.radians(3.0 - 2.0 * row), np.radians(2.0 * col)
+    view = np.stack([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)], axis=1)
+    pts = view * rng_img[row, col][:, None]
     edge_a, edge_b = silhouette_sides(
-        rng_img, index, row.astype(np.int64), col.astype(np.int64), rng_img[row, col], 0.1, 1
+        rng_img,
+        index,
+        row.astype(np.int64),
+        col.astype(np.int64),
+        rng_img[row, col],
+        0.1,
+        1,
+        pts,
+        -view,
     )
     a = {(int(r), int(c)) for r, c in zip(row[edge_a], col[edge_a], strict=True)}
     b = {(int(r), int(c)) for r, c in zip(row[edge_b], col[edge_b], strict=True)}
