@@ -29,6 +29,7 @@ never from a measured intensity (docs/physics.md §10.7 item 5). The measured in
 from __future__ import annotations
 
 import functools
+from collections.abc import Callable, Collection
 from dataclasses import dataclass
 
 import numpy as np
@@ -134,6 +135,7 @@ def frame_image(
     range_exponent: float = 1.0,
     extinction_per_m: float = 0.0,
     width: int | None = None,
+    only: Collection[str] | None = None,
 ) -> FrameImage:
     """Organise one frame and compute its model inputs.
 
@@ -151,6 +153,7 @@ def frame_image(
         range_exponent: n of I_P (paper: 1).
         extinction_per_m: alpha of I_P in 1/m (0 in clear weather).
         width: azimuth bins; default the profile's range_image_width.
+        only: the channels a model reads (the others stay 0 in `point_inputs`); None: all.
 
     Returns:
         FrameImage.
@@ -175,6 +178,7 @@ def frame_image(
         styles=styles,
         range_exponent=range_exponent,
         extinction_per_m=extinction_per_m,
+        only=only,
     )
 
 
@@ -211,6 +215,7 @@ def _frame_of(
     styles: bool,
     range_exponent: float,
     extinction_per_m: float,
+    only: Collection[str] | None = None,
 ) -> FrameImage:
     """The FrameImage of an `_organised` frame: point modalities, channels and target."""
     n = len(r)
@@ -234,6 +239,7 @@ def _frame_of(
         style,
         range_exponent=range_exponent,
         extinction_per_m=extinction_per_m,
+        only=only,
     )
     return FrameImage(
         channels=names,
@@ -263,19 +269,21 @@ def _point_columns(
     *,
     range_exponent: float,
     extinction_per_m: float,
+    only: Collection[str] | None = None,
 ) -> npt.NDArray[np.float32]:
     """(C, N) float32 model inputs of the N points, one row per channel of `names`: range
     (m), incidence cosine, reflectance, physics intensity, material, elevation (deg) and
-    flags, as the channels' docs in this module say."""
+    flags, as the channels' docs in this module say. Channels outside `only` (when given)
+    are left 0: the model never reads them."""
     n = r.size
-    per_point = {
-        "ln_range": np.log(r),
-        "cos_incidence": cos,
-        "reflectance": rho,
-        "ln_physics": np.log(phys.astype(np.float64) + PHYSICS_FLOOR),
-        "particle": is_particle.astype(np.float32),
-        "material": (material + 1).astype(np.float32),
-        "ln_geometry": np.log(
+    per_point: dict[str, Callable[[], npt.ArrayLike]] = {
+        "ln_range": lambda: np.log(r),
+        "cos_incidence": lambda: cos,
+        "reflectance": lambda: rho,
+        "ln_physics": lambda: np.log(phys.astype(np.float64) + PHYSICS_FLOOR),
+        "particle": lambda: is_particle.astype(np.float32),
+        "material": lambda: (material + 1).astype(np.float32),
+        "ln_geometry": lambda: np.log(
             physics_intensity(
                 np.ones(n),
                 cos,
@@ -285,14 +293,15 @@ def _point_columns(
             ).astype(np.float64)
             + GEOMETRY_FLOOR
         ),
-        "elevation": elevation_deg / ELEVATION_SCALE_DEG,
-        "mask": np.ones(n, dtype=np.float32),
+        "elevation": lambda: elevation_deg / ELEVATION_SCALE_DEG,
+        "mask": lambda: np.ones(n, dtype=np.float32),
     }
     if style is not None:
-        per_point[style] = np.ones(n, dtype=np.float32)
+        per_point[style] = lambda: np.ones(n, dtype=np.float32)
     columns = np.zeros((len(names), n), dtype=np.float32)
     for name, values in per_point.items():
-        columns[names.index(name)] = values
+        if only is None or name in only:
+            columns[names.index(name)] = values()
     return columns
 
 

@@ -41,6 +41,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
+import numba
 import numpy as np
 import numpy.typing as npt
 from scipy import sparse
@@ -111,14 +112,19 @@ class FittedPhysics:
         g = np.asarray(group, dtype=np.int64)
         a = self.intercept_of(g)
         incidence = np.log(oren_nayar(cos_theta, self.sigma_rad))
-        shared = a + self.b1 * np.log(r) + self.b2 * r / 10.0 + incidence
-        return shared + self.laser_term(r, elevation_deg) - 2.0 * extinction_per_m * r
+        ln_r = np.log(r)
+        shared = a + self.b1 * ln_r + self.b2 * r / 10.0 + incidence
+        return shared + self.laser_term(r, elevation_deg, ln_r) - 2.0 * extinction_per_m * r
 
     def laser_term(
-        self, range_m: npt.NDArray[np.float64], elevation_deg: npt.ArrayLike | None
+        self,
+        range_m: npt.NDArray[np.float64],
+        elevation_deg: npt.ArrayLike | None,
+        ln_range: npt.NDArray[np.float64] | None = None,
     ) -> npt.NDArray[np.float64]:
         """(N,) s_l(ln R) of each point's nearest laser by elevation; 0 without elevations
-        or per-laser curves. range_m must already be clamped to the fitted support."""
+        or per-laser curves. range_m must already be clamped to the fitted support;
+        ln_range, when given, is its log (computed once by `ln_predict`)."""
         if elevation_deg is None or not self.laser_curves:
             return np.zeros(np.shape(range_m))
         laser = nearest_laser(self.laser_elevation_deg, elevation_deg)
@@ -127,7 +133,8 @@ class FittedPhysics:
         if len(knots) == 1:
             return flat[laser]
         # The hat basis evaluated in place: the curve's two knots around each ln R, blended.
-        x = np.clip(np.log(range_m), knots[0], knots[-1])
+        ln_r = np.log(range_m) if ln_range is None else ln_range
+        x = np.clip(ln_r, knots[0], knots[-1])
         j = np.clip(np.searchsorted(knots, x, side="right") - 1, 0, len(knots) - 2)
         t = (x - knots[j]) / np.diff(knots)[j]
         at = laser * len(knots) + j
@@ -201,12 +208,27 @@ def nearest_laser(
 ) -> npt.NDArray[np.int64]:
     """(N,) index into the increasing elevation table of each elevation's nearest entry."""
     table = np.asarray(table_deg, dtype=np.float64)
-    e = np.asarray(elevation_deg, dtype=np.float64)
-    right = np.clip(np.searchsorted(table, e), 1, max(len(table) - 1, 1))
-    left = right - 1
+    e = np.asarray(elevation_deg)
     if len(table) == 1:
         return np.zeros(e.shape, dtype=np.int64)
-    return np.where(np.abs(e - table[left]) <= np.abs(table[right] - e), left, right)
+    # float32 elevations (a frame's table entries) are widened inside the compiled pass.
+    kind = np.float32 if e.dtype == np.float32 else np.float64
+    flat: npt.NDArray[Any] = np.ascontiguousarray(e.reshape(-1), dtype=kind)
+    return _nearest_entries(table, flat).reshape(e.shape)
+
+
+@numba.njit(cache=True, nogil=True)
+def _nearest_entries(table: npt.NDArray[np.float64], e: npt.NDArray[Any]) -> npt.NDArray[np.int64]:
+    """`nearest_laser` for a table of two or more entries, one compiled pass (the same
+    comparisons in float64 as its numpy form: ties go to the lower entry)."""
+    out = np.empty(e.shape[0], dtype=np.int64)
+    last = table.shape[0] - 1
+    for i in range(e.shape[0]):
+        v = np.float64(e[i])
+        right: int = min(max(int(np.searchsorted(table, v)), 1), last)
+        left = right - 1
+        out[i] = left if abs(v - table[left]) <= abs(table[right] - v) else right
+    return out
 
 
 def hat_basis(

@@ -216,6 +216,12 @@ class PointGenerator(nn.Module):
         nn.init.zeros_(self.out.weight)
         nn.init.zeros_(cast(torch.Tensor, self.out.bias))  # Conv2d has a bias by default
 
+    @property
+    def reads(self) -> tuple[str, ...]:
+        """The input channels the MLP reads (the others may be left 0)."""
+        picked = [self.channels[i] for i in self.picked.tolist()]
+        return tuple(picked + (["material"] if self.material_channel >= 0 else []))
+
     def forward(
         self, raw: torch.Tensor, mask: torch.Tensor, law: torch.Tensor | None = None
     ) -> torch.Tensor:

@@ -34,6 +34,7 @@ from lads.errors import ModelError
 from lads.intensity.checkpoint import IntensityModel, TargetSpec
 from lads.intensity.features import PHYSICS_FLOOR, FrameImage, frame_image
 from lads.intensity.fitted_physics import FittedPhysics
+from lads.intensity.model import PointGenerator
 from lads.sensors.conformity import check_scan_of
 from lads.sensors.profile import SensorProfile
 
@@ -255,6 +256,8 @@ def _prepare(model: IntensityModel, req: PointRequest) -> _Prepared:
         styles=weather,
         range_exponent=model.meta.range_exponent,
         extinction_per_m=req.extinction_per_m,
+        # A pointwise generator reads a few channels: the others are not computed.
+        only=model.generator.reads if isinstance(model.generator, PointGenerator) else None,
     )
     return _Prepared(fi, spec, out_profile, shift, req.extinction_per_m)
 

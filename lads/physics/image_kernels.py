@@ -41,6 +41,22 @@ def pixel_owners(
 
 
 @numba.njit(cache=True, nogil=True)
+def point_ranges(xyz: npt.NDArray[np.float64]) -> tuple[npt.NDArray[np.float64], int]:
+    """(N,) range in m of each (N, 3) point and how many points have a NaN or infinite
+    coordinate, in one pass. The squares are summed x, z, then y: numpy's einsum order, so
+    the ranges are the bits `np.sqrt(np.einsum("ij,ij->i", xyz, xyz))` gave."""
+    n = xyz.shape[0]
+    r = np.empty(n)
+    bad = 0
+    for i in range(n):
+        x, y, z = xyz[i, 0], xyz[i, 1], xyz[i, 2]
+        if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
+            bad += 1
+        r[i] = math.sqrt((x * x + z * z) + y * y)
+    return r, bad
+
+
+@numba.njit(cache=True, nogil=True)
 def image_normals(
     pts: npt.NDArray[np.float64],
     rng: npt.NDArray[np.float64],

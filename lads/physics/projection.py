@@ -14,7 +14,7 @@ import numpy as np
 import numpy.typing as npt
 
 from lads.errors import ConfigError, InvalidPointsError
-from lads.physics.image_kernels import pixel_owners
+from lads.physics.image_kernels import pixel_owners, point_ranges
 from lads.sensors.profile import SensorProfile
 
 MIN_RANGE_M = 1e-6  # docs/physics.md §10.3: a point is valid if its range exceeds this
@@ -128,13 +128,12 @@ def checked_xyz(
             f"xyz: expected an (N, 3) real array in m, got shape {arr.shape} and dtype "
             f"{arr.dtype}; pass points[:, :3]."
         )
-    arr = arr.astype(np.float64, copy=False)
-    bad = int(np.count_nonzero(~np.isfinite(arr).all(axis=1)))
+    arr = np.ascontiguousarray(arr, dtype=np.float64)
+    r, bad = point_ranges(arr)
     if bad:
         raise InvalidPointsError(
             f"xyz: {bad} of {len(arr)} points have NaN or infinite coordinates."
         )
-    r = np.sqrt(np.einsum("ij,ij->i", arr, arr))
     zero = 0 if allow_zero else int(np.count_nonzero(r <= MIN_RANGE_M))
     if zero:
         raise InvalidPointsError(
