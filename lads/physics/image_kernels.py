@@ -1,4 +1,4 @@
-"""Compiled range-image loops (numba, cached on disk): pixel ownership and image normals.
+"""Compiled range-image loops (numba, cached on disk): ranges, pixel ownership, image normals.
 
 The numpy forms of these loops sort every point and roll (H, W, 3) arrays a dozen times per
 frame; they were most of the intensity stage's time. The loops below do the same arithmetic
@@ -226,9 +226,10 @@ def _row_line_side(
     r0: float,
     max_depth_jump: float,
 ) -> int:
-    """+1 (-1) when the pixel continues the line of the two pixels above (below) it in its
-    column (the edge ring of far ground, whose other neighbour lies on another surface), else
-    0. The continuation may reach up to ROW_LINE_REACH times the two pixels' spacing."""
+    """+1 (-1) when the pixel continues the line of the two pixels in the next (previous)
+    rows of its column (the edge ring of far ground, whose other neighbour lies on another
+    surface), else 0. The continuation may reach up to ROW_LINE_REACH times the two pixels'
+    spacing."""
     for side in (1, -1):
         v1, v2 = v + side, v + 2 * side
         if v2 < 0 or v2 >= occ.shape[0] or not occ[v1, u] or not occ[v2, u]:
