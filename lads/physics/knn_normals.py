@@ -1,11 +1,12 @@
 """Local PCA normals from the k nearest neighbours within a radius (numba, cached on disk).
 
 The incidence of a point without a usable range-image normal comes from the plane through
-its neighbourhood (rules in `lads.physics.modalities`). pykdtree's k-d tree finds the
-neighbours: the same exact k nearest as scipy's cKDTree, in about half the time on one core.
-The covariance and its 3 x 3 eigenproblem (cyclic Jacobi rotations) run in one compiled
-loop, because numpy's batched matmul and eigh over ~10k tiny matrices took as long as the
-tree itself. Eigenvalues and vectors agree with LAPACK to ~1e-12 relative.
+its neighbourhood (rules in `lads.physics.modalities`). `lads.physics.sphere_knn` finds the
+neighbours: the same exact k nearest as pykdtree's and scipy's k-d trees, from a grid of the
+scan's directions (it hands scans it does not suit to pykdtree). The covariance and its
+3 x 3 eigenproblem (cyclic Jacobi rotations) run in one compiled loop, because numpy's
+batched matmul and eigh over ~10k tiny matrices took as long as the neighbour search.
+Eigenvalues and vectors agree with LAPACK to ~1e-12 relative.
 """
 
 from __future__ import annotations
@@ -15,12 +16,10 @@ import math
 import numba
 import numpy as np
 import numpy.typing as npt
-from pykdtree.kdtree import KDTree
+
+from lads.physics.sphere_knn import knn_within
 
 _JACOBI_SWEEPS = 12
-# Points per leaf of the k-d tree: larger leaves than pykdtree's default (16) make the
-# build plus the fallback's queries of a 64-beam frame faster; the neighbours are the same.
-TREE_LEAF_POINTS = 32
 
 
 @numba.njit(cache=True, nogil=True)
@@ -68,7 +67,8 @@ def _plane_cos(
 ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.bool_]]:
     """(M,) |cos| of the PCA normal of each query's neighbours and (M,) found flags.
 
-    `neighbours` is (M, k); entries >= N mark missing neighbours (the k-d trees' convention).
+    `neighbours` is (M, k) in ascending distance (the sums run in that order); entries >= N
+    mark missing neighbours (the k-d trees' convention).
     """
     n = xyz.shape[0]
     m = query.shape[0]
@@ -144,20 +144,20 @@ def neighbour_cos(
         xyz64: (N, 3) float64 coordinates in m, sensor at the origin.
         query: (M,) indices into xyz64.
         k: at most this many neighbours, the query point itself included.
-        radius_m: neighbours lie within this distance (the tree's distance_upper_bound).
+        radius_m: neighbours lie closer than this (strictly, as the trees' distance_upper_bound).
         min_neighbours: fewer neighbours than this: not found.
         min_planarity: second / largest covariance eigenvalue below this (points on a
             line, as along one ring): not found.
 
     Returns:
         (M,) float64 |cos| between the normal and the ray in [0, 1]; (M,) bool found.
+
+    Raises:
+        ConfigError, InvalidPointsError: see `lads.physics.sphere_knn.knn_within`.
     """
     xyz = np.ascontiguousarray(xyz64, dtype=np.float64)
     q = np.ascontiguousarray(query, dtype=np.int64)
     if len(q) == 0 or len(xyz) == 0:
         return np.zeros(len(q)), np.zeros(len(q), dtype=bool)
-    tree = KDTree(xyz, leafsize=TREE_LEAF_POINTS)
-    _, idx = tree.query(xyz[q], k=min(k, len(xyz)), distance_upper_bound=radius_m)
-    # Missing neighbours come back as N (the number of points), as in scipy.
-    idx = np.minimum(np.asarray(idx, dtype=np.int64).reshape(len(q), -1), len(xyz))
+    idx, _ = knn_within(xyz, q, k=k, radius_m=radius_m)
     return _plane_cos(xyz, q, idx, int(min_neighbours), float(min_planarity))

@@ -1,0 +1,515 @@
+"""Exact k nearest neighbours within a radius, for a scan seen from the origin (numba).
+
+A spinning LiDAR's points are dense in direction and sparse in range, so they are binned by
+direction into a grid of elevation rows by azimuth columns, in CSR order by one counting sort
+(a row holds about one ring). Both angles are replaced by monotone stand-ins that need no
+transcendental call: t = z / (rho + |z|) for elevation and the "diamond angle"
+|y| / (|x| + |y|), unfolded over the four quadrants, for azimuth (rho: horizontal range).
+
+A query scans the bins in a window around its own and widens it in rounds, each side until
+its certified bound reaches a target distance, until no point outside can be nearer than the
+current k-th neighbour (or the radius):
+
+- a point whose ray makes an angle >= psi with the query's ray lies at least
+  r_q sin(min(psi, 90 deg)) from it, and an elevation difference >= d gives psi >= d;
+- a point whose azimuth differs by >= d lies at least rho_q sin(min(d, 90 deg)) from it
+  horizontally.
+
+Each bound is the query's distance to the ray of a window edge (a cross product with the
+edge's exact direction), less a relative slack for rounding. Points at the origin itself
+(x = y = z = 0) have no direction and are offered to every query separately. Near the sensor
+directions say little: a query within NEAR_RADII radii that would need a window wider than
+30 deg searches slabs of x of the points within NEAR_RADII + 1 radii instead, bounded by |dx|.
+
+Squared distances are summed as pykdtree sums them (dx^2 + dy^2 + dz^2 in float64), a
+neighbour lies strictly inside the radius (pykdtree and scipy both leave out a point at
+exactly the radius), and neighbours come in ascending distance: the same sets as the trees'.
+Points at exactly equal distances may come in another order, or at the k-th place be another
+of the equals.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+import numpy.typing as npt
+from pykdtree.kdtree import KDTree
+
+from lads.errors import ConfigError, InvalidPointsError
+
+AZIMUTH_BINS = 1024  # a multiple of 4: one unit of the azimuth stand-in per quadrant
+ELEVATION_BINS = 64
+# A query whose window would need an angle beyond asin(this) (30 deg) is too close to the
+# sensor for directions to help; it can only be one within 1 / this = NEAR_RADII radii.
+_NEAR_SIN = 0.5
+NEAR_RADII = 1.0 / _NEAR_SIN
+# Relative slack on every certified bound: the stand-ins, edges and cross products round at
+# ~1e-15 relative (both stand-ins have slopes within [1/2, 1] of the true angles).
+_SLACK = 1e-9
+# Relative margin on the rounded ranges that decide which points the slabs hold.
+_MARGIN = 1e-6
+# Coordinates must stay below this (m) so that squared distances cannot overflow.
+_MAX_ABS = 1e150
+# Points a query may scan on average before the rest of the scan goes to a k-d tree: ~3x
+# what a 64-beam scan needs (~110), and about what a tree query costs; dense clusters at the
+# sensor and falling snow need more.
+WORK_PER_QUERY = 300
+WORK_ALLOWANCE = 50_000  # points scanned before the average counts (a few costly queries)
+# Points per leaf of the fallback k-d tree (pykdtree's default is 16; 32 was faster here).
+TREE_LEAF_POINTS = 32
+
+FloatArray = npt.NDArray[np.float64]
+IntArray = npt.NDArray[np.int32]
+IndexArray = npt.NDArray[np.int64]
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _angles(x: float, y: float, z: float) -> tuple[float, float]:
+    """(t, a): elevation stand-in in [-1, 1] and azimuth stand-in in [0, 4] of a direction.
+
+    Both are strictly increasing in the true angles; (0, 0) at the origin.
+    """
+    ax, ay = abs(x), abs(y)
+    den = math.sqrt(x * x + y * y) + abs(z)
+    t = z / den if den > 0.0 else 0.0
+    s = ax + ay
+    p = ay / s if s > 0.0 else 0.0
+    a = (p if x >= 0.0 else 2.0 - p) if y >= 0.0 else (4.0 - p if x >= 0.0 else 2.0 + p)
+    return t, a
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _bin(t: float, a: float, t_lo: float, per_t: float) -> int:
+    """Row-major bin of the stand-ins (rows clamped to the grid's elevation span)."""
+    e = min(max(int((t - t_lo) * per_t), 0), ELEVATION_BINS - 1)
+    c = min(int(a * (AZIMUTH_BINS // 4)), AZIMUTH_BINS - 1)
+    return e * AZIMUTH_BINS + c
+
+
+@numba.njit(cache=True, nogil=True, fastmath={"reassoc"})
+def _abs_sum(flat: FloatArray) -> float:
+    """Sum of |coordinates|: NaN or inf if any is, and >= any single one (reassociated: the
+    sum only feeds a threshold)."""
+    acc = 0.0
+    for i in range(flat.shape[0]):
+        acc += abs(flat[i])
+    return acc
+
+
+@numba.njit(cache=True, nogil=True)
+def _elevations(flat: FloatArray, out: FloatArray) -> tuple[float, float]:
+    """Elevation stand-in of every point into out; returns its (min, max)."""
+    for i in range(out.shape[0]):
+        x, y, z = flat[3 * i], flat[3 * i + 1], flat[3 * i + 2]
+        den = math.sqrt(x * x + y * y) + abs(z)
+        out[i] = z / den if den > 0.0 else 0.0
+    lo, hi = 1.0, -1.0
+    for i in range(out.shape[0]):
+        lo = min(lo, out[i])
+        hi = max(hi, out[i])
+    return lo, hi
+
+
+@numba.njit(cache=True, nogil=True)
+def _keys(flat: FloatArray, t: FloatArray, t_lo: float, per_t: float, key: IntArray) -> int:
+    """Grid bin of every point into key, -1 at the origin; returns the number at the origin."""
+    at_origin = 0
+    for i in range(key.shape[0]):
+        x, y, z = flat[3 * i], flat[3 * i + 1], flat[3 * i + 2]
+        ax, ay = abs(x), abs(y)
+        s = ax + ay
+        p = ay / s if s > 0.0 else 0.0
+        a = (p if x >= 0.0 else 2.0 - p) if y >= 0.0 else (4.0 - p if x >= 0.0 else 2.0 + p)
+        e = min(max(int((t[i] - t_lo) * per_t), 0), ELEVATION_BINS - 1)
+        c = min(int(a * (AZIMUTH_BINS // 4)), AZIMUTH_BINS - 1)
+        origin = s + abs(z) == 0.0
+        key[i] = -1 if origin else e * AZIMUTH_BINS + c
+        at_origin += origin
+    return at_origin
+
+
+@numba.njit(cache=True, nogil=True)
+def _counting_sort(
+    xyz: FloatArray, key: IntArray, n_bins: int
+) -> tuple[IntArray, FloatArray, IntArray]:
+    """CSR of the points by key (-1: left out), stable within a bin.
+
+    Returns (n_bins + 1,) int32 offsets, (G, 3) float64 coordinates and (G,) int32 point
+    indices, both in key order.
+    """
+    offsets = np.zeros(n_bins + 1, dtype=np.int32)
+    for i in range(key.shape[0]):
+        if key[i] >= 0:
+            offsets[key[i] + 1] += 1
+    for b in range(n_bins):
+        offsets[b + 1] += offsets[b]
+    fill = offsets[:-1].copy()
+    order = np.empty(offsets[n_bins], dtype=np.int32)
+    pts = np.empty((offsets[n_bins], 3))
+    for i in range(key.shape[0]):
+        b = key[i]
+        if b >= 0:
+            s = fill[b]
+            fill[b] = s + 1
+            order[s] = i
+            pts[s, 0] = xyz[i, 0]
+            pts[s, 1] = xyz[i, 1]
+            pts[s, 2] = xyz[i, 2]
+    return offsets, pts, order
+
+
+@numba.njit(cache=True, nogil=True)
+def _edges(t_lo: float, per_t: float) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """Unit directions of the bin edges: (ELEVATION_BINS + 1,) (rho, z) cos and sin of the
+    lower edge of each row, (AZIMUTH_BINS,) (x, y) of the lower edge of each column."""
+    e_cos = np.empty(ELEVATION_BINS + 1)
+    e_sin = np.empty(ELEVATION_BINS + 1)
+    for e in range(ELEVATION_BINS + 1):
+        t = min(max(t_lo + e / per_t, -1.0), 1.0)
+        norm = math.sqrt((1.0 - abs(t)) ** 2 + t * t)
+        e_cos[e] = (1.0 - abs(t)) / norm
+        e_sin[e] = t / norm
+    a_x = np.empty(AZIMUTH_BINS)
+    a_y = np.empty(AZIMUTH_BINS)
+    for c in range(AZIMUTH_BINS):
+        quadrant, rest = divmod(4 * c, AZIMUTH_BINS)
+        f = rest / AZIMUTH_BINS  # exact: a multiple of 1 / AZIMUTH_BINS
+        if quadrant == 0:
+            ex, ey = 1.0 - f, f
+        elif quadrant == 1:
+            ex, ey = -f, 1.0 - f
+        elif quadrant == 2:
+            ex, ey = f - 1.0, -f
+        else:
+            ex, ey = f, f - 1.0
+        norm = math.sqrt(ex * ex + ey * ey)
+        a_x[c] = ex / norm
+        a_y[c] = ey / norm
+    return e_cos, e_sin, a_x, a_y
+
+
+@numba.njit(cache=True, nogil=True)
+def _grid(xyz: FloatArray) -> tuple:  # type: ignore[type-arg]
+    """The direction grid of every point off the origin, and the points at the origin.
+
+    Returns (usable, grid, origin): usable is False if a coordinate is NaN, infinite or
+    beyond _MAX_ABS (the rest is then empty); grid is (offsets, pts, order) of
+    `_counting_sort`, t_lo and per_t (the rows' origin and rows per unit of t), then the
+    edges of `_edges`; origin is (pts, order) of the points at the origin.
+    """
+    flat = xyz.reshape(-1)
+    usable = _abs_sum(flat) < _MAX_ABS
+    n = xyz.shape[0] if usable else 0
+    t = np.empty(n)
+    t_lo, t_hi = _elevations(flat[: 3 * n], t)
+    per_t = ELEVATION_BINS / max(t_hi - t_lo, 1e-9)
+    key = np.empty(n, dtype=np.int32)
+    at_origin = _keys(flat[: 3 * n], t, t_lo, per_t, key)
+    offsets, pts, order = _counting_sort(xyz, key, ELEVATION_BINS * AZIMUTH_BINS)
+    o_pts = np.empty((at_origin, 3))
+    o_order = np.empty(at_origin, dtype=np.int32)
+    s = 0
+    for i in range(n):
+        if key[i] < 0:
+            o_pts[s, 0], o_pts[s, 1], o_pts[s, 2] = xyz[i, 0], xyz[i, 1], xyz[i, 2]
+            o_order[s] = i
+            s += 1
+    e_cos, e_sin, a_x, a_y = _edges(t_lo, per_t)
+    grid = (offsets, pts, order, t_lo, per_t, e_cos, e_sin, a_x, a_y)
+    return usable, grid, (o_pts, o_order)
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _insert(d2: float, i: int, count: int, k: int, best_d2: FloatArray, best_i: IndexArray) -> int:
+    """Insert neighbour i at squared distance d2 into the ascending list; returns the count."""
+    pos = count if count < k else k - 1
+    while pos > 0 and best_d2[pos - 1] > d2:  # equal distances keep their arrival order
+        best_d2[pos] = best_d2[pos - 1]
+        best_i[pos] = best_i[pos - 1]
+        pos -= 1
+    best_d2[pos] = d2
+    best_i[pos] = i
+    return count + 1 if count < k else k
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _scan(
+    start: int, stop: int, pts: FloatArray, order: IntArray, qx: float, qy: float, qz: float,
+    cap: float, k: int, count: int, best_d2: FloatArray, best_i: IndexArray,
+) -> int:  # fmt: skip
+    """Offer the sorted points start..stop-1 (those with d2 < cap) to the neighbour list."""
+    limit = best_d2[k - 1] if count == k else cap
+    for s in range(start, stop):
+        dx = qx - pts[s, 0]
+        dy = qy - pts[s, 1]
+        dz = qz - pts[s, 2]
+        d2 = dx * dx + dy * dy + dz * dz  # pykdtree's sum, in its order
+        if d2 < limit:
+            count = _insert(d2, order[s], count, k, best_d2, best_i)
+            limit = best_d2[k - 1] if count == k else cap
+    return count
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _edge_bound(px: float, py: float, ex: float, ey: float, norm: float, slack: float) -> float:
+    """Certified squared distance from the planar point (px, py), of length norm, to every
+    point beyond the edge ray along the unit (ex, ey): its distance to the ray less slack."""
+    if px * ex + py * ey < 0.0:
+        d = norm - slack  # the ray's nearest point is the origin
+    else:
+        d = abs(px * ey - py * ex) - slack
+    return d * d if d > 0.0 else 0.0
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _scan_rows(
+    e0: int, e1: int, c: int, n_cols: int, offsets: IntArray, pts: FloatArray,
+    order: IntArray, qx: float, qy: float, qz: float, cap: float, k: int, count: int,
+    best_d2: FloatArray, best_i: IndexArray, work: IndexArray,
+) -> int:  # fmt: skip
+    """Scan n_cols columns from c on (wrapping) of the rows e0..e1; work[0] counts points."""
+    if n_cols <= 0:
+        return count
+    first = min(n_cols, AZIMUTH_BINS - c)  # the columns before the wrap
+    for e in range(e0, e1 + 1):
+        b = e * AZIMUTH_BINS
+        work[0] += offsets[b + c + first] - offsets[b + c]
+        if first < n_cols:
+            work[0] += offsets[b + n_cols - first] - offsets[b]
+        count = _scan(offsets[b + c], offsets[b + c + first], pts, order, qx, qy, qz, cap, k,
+                      count, best_d2, best_i)  # fmt: skip
+        if first < n_cols:
+            count = _scan(offsets[b], offsets[b + n_cols - first], pts, order, qx, qy, qz, cap,
+                          k, count, best_d2, best_i)  # fmt: skip
+    return count
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _grid_search(
+    qx: float, qy: float, qz: float, grid: tuple, cap: float, guess2: float, esc2: float,  # type: ignore[type-arg]
+    k: int, count: int, best_d2: FloatArray, best_i: IndexArray, work: IndexArray,
+) -> int:  # fmt: skip
+    """Neighbours of a point off the origin through the grid, after `count` already listed.
+
+    The window is rows e0..e1 by the `width` columns c0.. (wrapping); each round widens every
+    side until its bound reaches `target`, which starts at guess2 and at least quadruples.
+    Returns the count, or -1 if the target reaches esc2 (directions cannot serve the query).
+    work[0] counts the points scanned.
+    """
+    offsets, pts, order, t_lo, per_t, e_cos, e_sin, a_x, a_y = grid
+    t, a = _angles(qx, qy, qz)
+    b = _bin(t, a, t_lo, per_t)
+    e0 = e1 = b // AZIMUTH_BINS
+    c0 = c1 = b - e0 * AZIMUTH_BINS
+    width = 1
+    rho = math.sqrt(qx * qx + qy * qy)
+    rq = math.sqrt(qx * qx + qy * qy + qz * qz)
+    slack = _SLACK * rq
+    inf = np.inf
+    count = _scan(offsets[b], offsets[b + 1], pts, order, qx, qy, qz, cap, k, count, best_d2,
+                  best_i)  # fmt: skip
+    work[0] += offsets[b + 1] - offsets[b]
+    certified = 0.0  # squared distance to every point outside the window, at least
+    while True:
+        limit = best_d2[k - 1] if count == k else cap
+        if certified >= limit:
+            return count
+        target = min(limit, max(4.0 * certified, guess2))
+        if target >= esc2:
+            return -1
+        n0, n1, m0, m1, w = e0, e1, c0, c1, width
+        while True:
+            lo = inf if n0 == 0 else _edge_bound(rho, qz, e_cos[n0], e_sin[n0], rq, slack)
+            if lo >= target:
+                break
+            n0 -= 1
+        while True:
+            hi = inf if n1 == ELEVATION_BINS - 1 else _edge_bound(
+                rho, qz, e_cos[n1 + 1], e_sin[n1 + 1], rq, slack)  # fmt: skip
+            if hi >= target:
+                break
+            n1 += 1
+        left = right = inf
+        while w < AZIMUTH_BINS:
+            left = _edge_bound(qx, qy, a_x[m0], a_y[m0], rho, slack)
+            if left >= target:
+                break
+            m0 = m0 - 1 if m0 > 0 else AZIMUTH_BINS - 1
+            w += 1
+        while w < AZIMUTH_BINS:
+            up = m1 + 1 if m1 + 1 < AZIMUTH_BINS else 0
+            right = _edge_bound(qx, qy, a_x[up], a_y[up], rho, slack)
+            if right >= target:
+                break
+            m1 = up
+            w += 1
+        if w == AZIMUTH_BINS:
+            left = right = inf
+        # the old rows gain columns on both sides, the new rows get all of them
+        n_left = c0 - m0 if c0 >= m0 else c0 - m0 + AZIMUTH_BINS
+        right_start = c1 + 1 if c1 + 1 < AZIMUTH_BINS else 0
+        count = _scan_rows(e0, e1, m0, n_left, offsets, pts, order, qx, qy, qz, cap, k, count,
+                           best_d2, best_i, work)  # fmt: skip
+        count = _scan_rows(e0, e1, right_start, w - width - n_left, offsets, pts, order, qx, qy,
+                           qz, cap, k, count, best_d2, best_i, work)  # fmt: skip
+        count = _scan_rows(n0, e0 - 1, m0, w, offsets, pts, order, qx, qy, qz, cap, k, count,
+                           best_d2, best_i, work)  # fmt: skip
+        count = _scan_rows(e1 + 1, n1, m0, w, offsets, pts, order, qx, qy, qz, cap, k, count,
+                           best_d2, best_i, work)  # fmt: skip
+        e0, e1, c0, c1, width = n0, n1, m0, m1, w
+        certified = min(min(lo, hi), min(left, right))
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _cap(
+    qx: float, qy: float, qz: float, xyz: FloatArray, prev: IndexArray, prev_count: int,
+    k: int, r2: float,
+) -> float:  # fmt: skip
+    """The squared distance a neighbour must stay below: r2, or just above the farthest of
+    the previous query's k neighbours when all lie within r2 (k points then do)."""
+    if prev_count < k:
+        return r2
+    far = 0.0
+    for t in range(k):
+        i = prev[t]
+        dx = qx - xyz[i, 0]
+        dy = qy - xyz[i, 1]
+        dz = qz - xyz[i, 2]
+        far = max(far, dx * dx + dy * dy + dz * dz)
+    return np.nextafter(far, np.inf) if far < r2 else r2
+
+
+@numba.njit(cache=True, nogil=True)
+def _knn_grid(xyz: FloatArray, query: IndexArray, k: int, radius: float) -> tuple:  # type: ignore[type-arg]
+    """The neighbours of the queries the direction grid serves, in the given order.
+
+    Consecutive queries of a scan are often neighbours, so each starts from the last one's
+    k-th distance and is capped by its neighbours (`_cap`).
+
+    Returns (usable, idx, d2, pending, stop): usable is False for NaN, infinite or absurd
+    coordinates; (M, k) int64 indices (N where missing) and (M, k) squared distances (inf);
+    pending: positions of the queries too near the sensor for directions; stop: the queries
+    from this position on were left unsearched, the grid having scanned more than
+    WORK_PER_QUERY points a query (M if it never did).
+    """
+    m = query.shape[0]
+    idx = np.full((m, k), xyz.shape[0], dtype=np.int64)
+    d2 = np.full((m, k), np.inf)
+    pending = np.empty(m, dtype=np.int64)
+    usable, grid, origin = _grid(xyz)
+    if not usable:
+        return False, idx, d2, pending[:0], 0
+    o_pts, o_order = origin
+    r2 = radius * radius
+    near2 = (NEAR_RADII * radius) ** 2
+    guess2 = 1e-4 * r2  # the first round's target; then the last query's k-th distance
+    best_d2 = np.empty(k)
+    best_i = np.empty(k, dtype=np.int64)
+    work = np.zeros(1, dtype=np.int64)
+    n_pending = 0
+    count = 0
+    for j in range(m):
+        if work[0] > WORK_PER_QUERY * j + WORK_ALLOWANCE:
+            return True, idx, d2, pending[:n_pending], j
+        qi = query[j]
+        qx, qy, qz = xyz[qi, 0], xyz[qi, 1], xyz[qi, 2]
+        cap = _cap(qx, qy, qz, xyz, best_i, count, k, r2)
+        rq2 = qx * qx + qy * qy + qz * qz
+        esc2 = _NEAR_SIN * _NEAR_SIN * rq2 if rq2 < near2 else np.inf
+        count = _scan(0, o_order.shape[0], o_pts, o_order, qx, qy, qz, cap, k, 0, best_d2,
+                      best_i)  # fmt: skip
+        if rq2 > 0.0:
+            count = _grid_search(qx, qy, qz, grid, cap, guess2, esc2, k, count, best_d2,
+                                 best_i, work)  # fmt: skip
+        else:
+            count = -1
+        if count < 0:
+            pending[n_pending] = j
+            n_pending += 1
+            count = 0
+            continue
+        if count == k:
+            guess2 = max(best_d2[k - 1], 1e-12 * r2)  # > 0, so that every round widens
+        for t in range(count):
+            idx[j, t] = best_i[t]
+            d2[j, t] = best_d2[t]
+    return True, idx, d2, pending[:n_pending], m
+
+
+def checked_arguments(
+    xyz64: npt.ArrayLike, query: npt.ArrayLike, k: int, radius_m: float
+) -> tuple[FloatArray, IndexArray]:
+    """(N, 3) float64 points and (M,) int64 queries, C-contiguous; raises on bad arguments.
+
+    Raises:
+        ConfigError: k < 1, or a radius that is not finite and positive.
+        InvalidPointsError: xyz not (N, 3), or query indices outside 0..N-1.
+    """
+    if int(k) < 1 or not 0.0 < float(radius_m) < np.inf:
+        raise ConfigError(f"k={k}, radius_m={radius_m}: need k >= 1 and 0 < radius_m < inf.")
+    xyz = np.ascontiguousarray(xyz64, dtype=np.float64)
+    if xyz.ndim != 2 or xyz.shape[1] != 3:
+        raise InvalidPointsError(f"xyz: shape {xyz.shape}, expected (N, 3) coordinates.")
+    q = np.ascontiguousarray(query, dtype=np.int64).reshape(-1)
+    if len(q) and (q.min() < 0 or q.max() >= len(xyz)):
+        raise InvalidPointsError(f"query: indices must lie in 0..{len(xyz) - 1}.")
+    return xyz, q
+
+
+def _tree_fill(
+    xyz: FloatArray, q: IndexArray, rows: IndexArray, k: int, radius: float,
+    idx: IndexArray, d2: FloatArray, points: IndexArray | None,
+) -> None:  # fmt: skip
+    """Neighbours of the queries q[rows] into idx[rows], d2[rows] by pykdtree, built on
+    `points` (indices into xyz, holding every candidate of these queries) or on all of xyz."""
+    data = xyz if points is None else xyz[points]
+    k_eff = min(k, len(data))
+    tree = KDTree(data, leafsize=TREE_LEAF_POINTS)
+    dist2, nb = tree.query(xyz[q[rows]], k=k_eff, distance_upper_bound=radius, sqr_dists=True)
+    nb = np.asarray(nb, dtype=np.int64).reshape(len(rows), k_eff)
+    if points is not None:  # back to indices into xyz; the tree's "missing" is len(data)
+        nb = np.append(points, len(xyz))[np.minimum(nb, len(data))]
+    idx[rows, :k_eff] = np.minimum(nb, len(xyz))
+    d2[rows, :k_eff] = np.asarray(dist2).reshape(len(rows), k_eff)
+
+
+def knn_within(
+    xyz64: npt.ArrayLike, query: npt.ArrayLike, *, k: int, radius_m: float
+) -> tuple[IndexArray, FloatArray]:
+    """The k nearest points strictly within radius_m of each query point, itself included.
+
+    Args:
+        xyz64: (N, 3) coordinates in m (cast to float64), sensor at the origin.
+        query: (M,) indices into xyz64.
+        k: at most this many neighbours (>= 1).
+        radius_m: neighbours lie at a distance < radius_m (finite, > 0).
+
+    Returns:
+        (M, k) int64 neighbour indices in ascending distance, N where fewer than k lie within
+        the radius; (M, k) float64 squared distances in m^2, inf where missing.
+
+    Raises:
+        ConfigError: see `checked_arguments`.
+        InvalidPointsError: see `checked_arguments`; also NaN, infinite or absurd (>= 1e150
+            m) coordinates.
+    """
+    xyz, q = checked_arguments(xyz64, query, k, radius_m)
+    k, radius = int(k), float(radius_m)
+    if len(q) == 0:
+        return np.zeros((0, k), dtype=np.int64), np.zeros((0, k))
+    usable, idx, d2, pending, stop = _knn_grid(xyz, q, k, radius)
+    if not usable:
+        raise InvalidPointsError(
+            f"xyz holds NaN, infinite or absurd coordinates (|value| >= {_MAX_ABS:g} m); "
+            "pass finite points in metres."
+        )
+    if stop < len(q):  # the grid does not pay off on this scan: a tree for the rest
+        rows = np.concatenate([pending, np.arange(stop, len(q))])
+        _tree_fill(xyz, q, rows, k, radius, idx, d2, None)
+    elif len(pending):  # their neighbours lie within NEAR_RADII + 1 radii of the sensor
+        r_max = (NEAR_RADII + 1.0) * radius * (1.0 + _MARGIN)
+        near = np.flatnonzero(np.einsum("ij,ij->i", xyz, xyz) < r_max * r_max)
+        _tree_fill(xyz, q, pending, k, radius, idx, d2, near)
+    return idx, d2
