@@ -1,25 +1,28 @@
 """Exact k nearest neighbours within a radius, for a scan seen from the origin (numba).
 
-A spinning LiDAR's points are dense in direction and sparse in range, so they are binned by
-direction into a grid of elevation rows by azimuth columns, in CSR order by one counting sort
-(a row holds about one ring). Both angles are replaced by monotone stand-ins that need no
-transcendental call: t = z / (rho + |z|) for elevation and the "diamond angle"
-|y| / (|x| + |y|), unfolded over the four quadrants, for azimuth (rho: horizontal range).
-
-A query scans the bins in a window around its own and widens it in rounds, each side until
-its certified bound reaches a target distance, until no point outside can be nearer than the
-current k-th neighbour (or the radius):
+The points sit in the direction grid of `lads.physics.sphere_grid` (elevation rows by
+azimuth columns). A query scans the bins in a window around its own and widens it in rounds,
+each side until its certified bound reaches a target distance, until no point outside can be
+nearer than its current k-th neighbour (or the radius):
 
 - a point whose ray makes an angle >= psi with the query's ray lies at least
-  r_q sin(min(psi, 90 deg)) from it, and an elevation difference >= d gives psi >= d;
+  r_q sin(min(psi, 90 deg)) from it (r_q: the query's range), and an elevation difference
+  >= d gives psi >= d;
 - a point whose azimuth differs by >= d lies at least rho_q sin(min(d, 90 deg)) from it
-  horizontally.
+  horizontally (rho_q: the query's horizontal range).
 
 Each bound is the query's distance to the ray of a window edge (a cross product with the
-edge's exact direction), less a relative slack for rounding. Points at the origin itself
-(x = y = z = 0) have no direction and are offered to every query separately. Near the sensor
-directions say little: a query within NEAR_RADII radii that would need a window wider than
-30 deg searches slabs of x of the points within NEAR_RADII + 1 radii instead, bounded by |dx|.
+edge's exact direction), less a relative slack for rounding, in the (rho, z) half-plane for
+elevation and the (x, y) plane for azimuth; a window reaching the grid's end, or every
+azimuth, is unbounded on that side. Points at the origin have no direction and are offered
+to every query besides. Each query starts from the last one's k-th distance, and is capped
+by the last one's neighbours (consecutive queries of a scan are often neighbours).
+
+Two kinds of query go to pykdtree instead (exact as well): those within NEAR_RADII radii of
+the sensor whose window would need more than 30 deg (there directions say little), on a tree
+of the points within NEAR_RADII + 1 radii; and, if the grid scans more than WORK_PER_QUERY
+points a query (dense clusters at the sensor, falling snow), the rest of the scan, on a tree
+of all points as before.
 
 Squared distances are summed as pykdtree sums them (dx^2 + dy^2 + dz^2 in float64), a
 neighbour lies strictly inside the radius (pykdtree and scipy both leave out a point at
@@ -38,9 +41,18 @@ import numpy.typing as npt
 from pykdtree.kdtree import KDTree
 
 from lads.errors import ConfigError, InvalidPointsError
+from lads.physics.sphere_grid import (
+    AZIMUTH_BINS,
+    ELEVATION_BINS,
+    MAX_ABS_M,
+    FloatArray,
+    IndexArray,
+    IntArray,
+    bin_of,
+    build_grid,
+    stand_ins,
+)
 
-AZIMUTH_BINS = 1024  # a multiple of 4: one unit of the azimuth stand-in per quadrant
-ELEVATION_BINS = 64
 # A query whose window would need an angle beyond asin(this) (30 deg) is too close to the
 # sensor for directions to help; it can only be one within 1 / this = NEAR_RADII radii.
 _NEAR_SIN = 0.5
@@ -48,10 +60,8 @@ NEAR_RADII = 1.0 / _NEAR_SIN
 # Relative slack on every certified bound: the stand-ins, edges and cross products round at
 # ~1e-15 relative (both stand-ins have slopes within [1/2, 1] of the true angles).
 _SLACK = 1e-9
-# Relative margin on the rounded ranges that decide which points the slabs hold.
+# Relative margin on the rounded ranges that decide which points the near tree holds.
 _MARGIN = 1e-6
-# Coordinates must stay below this (m) so that squared distances cannot overflow.
-_MAX_ABS = 1e150
 # Points a query may scan on average before the rest of the scan goes to a k-d tree: ~3x
 # what a 64-beam scan needs (~110), and about what a tree query costs; dense clusters at the
 # sensor and falling snow need more.
@@ -59,166 +69,6 @@ WORK_PER_QUERY = 300
 WORK_ALLOWANCE = 50_000  # points scanned before the average counts (a few costly queries)
 # Points per leaf of the fallback k-d tree (pykdtree's default is 16; 32 was faster here).
 TREE_LEAF_POINTS = 32
-
-FloatArray = npt.NDArray[np.float64]
-IntArray = npt.NDArray[np.int32]
-IndexArray = npt.NDArray[np.int64]
-
-
-@numba.njit(cache=True, nogil=True, inline="always")
-def _angles(x: float, y: float, z: float) -> tuple[float, float]:
-    """(t, a): elevation stand-in in [-1, 1] and azimuth stand-in in [0, 4] of a direction.
-
-    Both are strictly increasing in the true angles; (0, 0) at the origin.
-    """
-    ax, ay = abs(x), abs(y)
-    den = math.sqrt(x * x + y * y) + abs(z)
-    t = z / den if den > 0.0 else 0.0
-    s = ax + ay
-    p = ay / s if s > 0.0 else 0.0
-    a = (p if x >= 0.0 else 2.0 - p) if y >= 0.0 else (4.0 - p if x >= 0.0 else 2.0 + p)
-    return t, a
-
-
-@numba.njit(cache=True, nogil=True, inline="always")
-def _bin(t: float, a: float, t_lo: float, per_t: float) -> int:
-    """Row-major bin of the stand-ins (rows clamped to the grid's elevation span)."""
-    e = min(max(int((t - t_lo) * per_t), 0), ELEVATION_BINS - 1)
-    c = min(int(a * (AZIMUTH_BINS // 4)), AZIMUTH_BINS - 1)
-    return e * AZIMUTH_BINS + c
-
-
-@numba.njit(cache=True, nogil=True, fastmath={"reassoc"})
-def _abs_sum(flat: FloatArray) -> float:
-    """Sum of |coordinates|: NaN or inf if any is, and >= any single one (reassociated: the
-    sum only feeds a threshold)."""
-    acc = 0.0
-    for i in range(flat.shape[0]):
-        acc += abs(flat[i])
-    return acc
-
-
-@numba.njit(cache=True, nogil=True)
-def _elevations(flat: FloatArray, out: FloatArray) -> tuple[float, float]:
-    """Elevation stand-in of every point into out; returns its (min, max)."""
-    for i in range(out.shape[0]):
-        x, y, z = flat[3 * i], flat[3 * i + 1], flat[3 * i + 2]
-        den = math.sqrt(x * x + y * y) + abs(z)
-        out[i] = z / den if den > 0.0 else 0.0
-    lo, hi = 1.0, -1.0
-    for i in range(out.shape[0]):
-        lo = min(lo, out[i])
-        hi = max(hi, out[i])
-    return lo, hi
-
-
-@numba.njit(cache=True, nogil=True)
-def _keys(flat: FloatArray, t: FloatArray, t_lo: float, per_t: float, key: IntArray) -> int:
-    """Grid bin of every point into key, -1 at the origin; returns the number at the origin."""
-    at_origin = 0
-    for i in range(key.shape[0]):
-        x, y, z = flat[3 * i], flat[3 * i + 1], flat[3 * i + 2]
-        ax, ay = abs(x), abs(y)
-        s = ax + ay
-        p = ay / s if s > 0.0 else 0.0
-        a = (p if x >= 0.0 else 2.0 - p) if y >= 0.0 else (4.0 - p if x >= 0.0 else 2.0 + p)
-        e = min(max(int((t[i] - t_lo) * per_t), 0), ELEVATION_BINS - 1)
-        c = min(int(a * (AZIMUTH_BINS // 4)), AZIMUTH_BINS - 1)
-        origin = s + abs(z) == 0.0
-        key[i] = -1 if origin else e * AZIMUTH_BINS + c
-        at_origin += origin
-    return at_origin
-
-
-@numba.njit(cache=True, nogil=True)
-def _counting_sort(
-    xyz: FloatArray, key: IntArray, n_bins: int
-) -> tuple[IntArray, FloatArray, IntArray]:
-    """CSR of the points by key (-1: left out), stable within a bin.
-
-    Returns (n_bins + 1,) int32 offsets, (G, 3) float64 coordinates and (G,) int32 point
-    indices, both in key order.
-    """
-    offsets = np.zeros(n_bins + 1, dtype=np.int32)
-    for i in range(key.shape[0]):
-        if key[i] >= 0:
-            offsets[key[i] + 1] += 1
-    for b in range(n_bins):
-        offsets[b + 1] += offsets[b]
-    fill = offsets[:-1].copy()
-    order = np.empty(offsets[n_bins], dtype=np.int32)
-    pts = np.empty((offsets[n_bins], 3))
-    for i in range(key.shape[0]):
-        b = key[i]
-        if b >= 0:
-            s = fill[b]
-            fill[b] = s + 1
-            order[s] = i
-            pts[s, 0] = xyz[i, 0]
-            pts[s, 1] = xyz[i, 1]
-            pts[s, 2] = xyz[i, 2]
-    return offsets, pts, order
-
-
-@numba.njit(cache=True, nogil=True)
-def _edges(t_lo: float, per_t: float) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
-    """Unit directions of the bin edges: (ELEVATION_BINS + 1,) (rho, z) cos and sin of the
-    lower edge of each row, (AZIMUTH_BINS,) (x, y) of the lower edge of each column."""
-    e_cos = np.empty(ELEVATION_BINS + 1)
-    e_sin = np.empty(ELEVATION_BINS + 1)
-    for e in range(ELEVATION_BINS + 1):
-        t = min(max(t_lo + e / per_t, -1.0), 1.0)
-        norm = math.sqrt((1.0 - abs(t)) ** 2 + t * t)
-        e_cos[e] = (1.0 - abs(t)) / norm
-        e_sin[e] = t / norm
-    a_x = np.empty(AZIMUTH_BINS)
-    a_y = np.empty(AZIMUTH_BINS)
-    for c in range(AZIMUTH_BINS):
-        quadrant, rest = divmod(4 * c, AZIMUTH_BINS)
-        f = rest / AZIMUTH_BINS  # exact: a multiple of 1 / AZIMUTH_BINS
-        if quadrant == 0:
-            ex, ey = 1.0 - f, f
-        elif quadrant == 1:
-            ex, ey = -f, 1.0 - f
-        elif quadrant == 2:
-            ex, ey = f - 1.0, -f
-        else:
-            ex, ey = f, f - 1.0
-        norm = math.sqrt(ex * ex + ey * ey)
-        a_x[c] = ex / norm
-        a_y[c] = ey / norm
-    return e_cos, e_sin, a_x, a_y
-
-
-@numba.njit(cache=True, nogil=True)
-def _grid(xyz: FloatArray) -> tuple:  # type: ignore[type-arg]
-    """The direction grid of every point off the origin, and the points at the origin.
-
-    Returns (usable, grid, origin): usable is False if a coordinate is NaN, infinite or
-    beyond _MAX_ABS (the rest is then empty); grid is (offsets, pts, order) of
-    `_counting_sort`, t_lo and per_t (the rows' origin and rows per unit of t), then the
-    edges of `_edges`; origin is (pts, order) of the points at the origin.
-    """
-    flat = xyz.reshape(-1)
-    usable = _abs_sum(flat) < _MAX_ABS
-    n = xyz.shape[0] if usable else 0
-    t = np.empty(n)
-    t_lo, t_hi = _elevations(flat[: 3 * n], t)
-    per_t = ELEVATION_BINS / max(t_hi - t_lo, 1e-9)
-    key = np.empty(n, dtype=np.int32)
-    at_origin = _keys(flat[: 3 * n], t, t_lo, per_t, key)
-    offsets, pts, order = _counting_sort(xyz, key, ELEVATION_BINS * AZIMUTH_BINS)
-    o_pts = np.empty((at_origin, 3))
-    o_order = np.empty(at_origin, dtype=np.int32)
-    s = 0
-    for i in range(n):
-        if key[i] < 0:
-            o_pts[s, 0], o_pts[s, 1], o_pts[s, 2] = xyz[i, 0], xyz[i, 1], xyz[i, 2]
-            o_order[s] = i
-            s += 1
-    e_cos, e_sin, a_x, a_y = _edges(t_lo, per_t)
-    grid = (offsets, pts, order, t_lo, per_t, e_cos, e_sin, a_x, a_y)
-    return usable, grid, (o_pts, o_order)
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
@@ -299,8 +149,8 @@ def _grid_search(
     work[0] counts the points scanned.
     """
     offsets, pts, order, t_lo, per_t, e_cos, e_sin, a_x, a_y = grid
-    t, a = _angles(qx, qy, qz)
-    b = _bin(t, a, t_lo, per_t)
+    t, a = stand_ins(qx, qy, qz)
+    b = bin_of(t, a, t_lo, per_t)
     e0 = e1 = b // AZIMUTH_BINS
     c0 = c1 = b - e0 * AZIMUTH_BINS
     width = 1
@@ -398,7 +248,7 @@ def _knn_grid(xyz: FloatArray, query: IndexArray, k: int, radius: float) -> tupl
     idx = np.full((m, k), xyz.shape[0], dtype=np.int64)
     d2 = np.full((m, k), np.inf)
     pending = np.empty(m, dtype=np.int64)
-    usable, grid, origin = _grid(xyz)
+    usable, grid, origin = build_grid(xyz)
     if not usable:
         return False, idx, d2, pending[:0], 0
     o_pts, o_order = origin
@@ -502,7 +352,7 @@ def knn_within(
     usable, idx, d2, pending, stop = _knn_grid(xyz, q, k, radius)
     if not usable:
         raise InvalidPointsError(
-            f"xyz holds NaN, infinite or absurd coordinates (|value| >= {_MAX_ABS:g} m); "
+            f"xyz holds NaN, infinite or absurd coordinates (|value| >= {MAX_ABS_M:g} m); "
             "pass finite points in metres."
         )
     if stop < len(q):  # the grid does not pay off on this scan: a tree for the rest
