@@ -69,21 +69,23 @@ def _abs_sum(flat: FloatArray) -> float:
 
 @numba.njit(cache=True, nogil=True)
 def _elevations(flat: FloatArray, out: FloatArray) -> tuple[float, float]:
-    """Elevation stand-in of every point into out; returns its (min, max)."""
+    """Elevation stand-in of every point into out (2 at the origin, where rho + |z| is 0);
+    returns its (min, max) over the points off the origin."""
     for i in range(out.shape[0]):
         x, y, z = flat[3 * i], flat[3 * i + 1], flat[3 * i + 2]
         den = math.sqrt(x * x + y * y) + abs(z)
-        out[i] = z / den if den > 0.0 else 0.0
+        out[i] = z / den if den > 0.0 else 2.0
     lo, hi = 1.0, -1.0
     for i in range(out.shape[0]):
         lo = min(lo, out[i])
-        hi = max(hi, out[i])
+        hi = max(hi, out[i] if out[i] <= 1.0 else hi)
     return lo, hi
 
 
 @numba.njit(cache=True, nogil=True)
 def _keys(flat: FloatArray, t: FloatArray, t_lo: float, per_t: float, key: IntArray) -> int:
-    """Grid bin of every point into key, -1 at the origin; returns the number at the origin."""
+    """Grid bin of every point into key, -1 at the origin (also points so near that rho + |z|
+    underflows: their exact coordinates are scanned apart); returns the number of those."""
     at_origin = 0
     for i in range(key.shape[0]):
         x, y, z = flat[3 * i], flat[3 * i + 1], flat[3 * i + 2]
@@ -93,7 +95,7 @@ def _keys(flat: FloatArray, t: FloatArray, t_lo: float, per_t: float, key: IntAr
         a = (p if x >= 0.0 else 2.0 - p) if y >= 0.0 else (4.0 - p if x >= 0.0 else 2.0 + p)
         e = min(max(int((t[i] - t_lo) * per_t), 0), ELEVATION_BINS - 1)
         c = min(int(a * (AZIMUTH_BINS // 4)), AZIMUTH_BINS - 1)
-        origin = s + abs(z) == 0.0
+        origin = t[i] > 1.0  # see `_elevations`
         key[i] = -1 if origin else e * AZIMUTH_BINS + c
         at_origin += origin
     return at_origin
