@@ -66,7 +66,7 @@ _MARGIN = 1e-6
 # what a 64-beam scan needs (~110), and about what a tree query costs; dense clusters at the
 # sensor and falling snow need more.
 WORK_PER_QUERY = 300
-WORK_ALLOWANCE = 50_000  # points scanned before the average counts (a few costly queries)
+WORK_ALLOWANCE = 20_000  # points scanned before the average counts (a few costly queries)
 # Points per leaf of the fallback k-d tree (pykdtree's default is 16; 32 was faster here).
 TREE_LEAF_POINTS = 32
 
@@ -232,7 +232,10 @@ def _cap(
 
 
 @numba.njit(cache=True, nogil=True)
-def _knn_grid(xyz: FloatArray, query: IndexArray, k: int, radius: float) -> tuple:  # type: ignore[type-arg]
+def _knn_grid(
+    xyz: FloatArray, query: IndexArray, k: int, radius: float, work_per_query: int,
+    work_allowance: int,
+) -> tuple:  # type: ignore[type-arg]  # fmt: skip
     """The neighbours of the queries the direction grid serves, in the given order.
 
     Consecutive queries of a scan are often neighbours, so each starts from the last one's
@@ -242,7 +245,7 @@ def _knn_grid(xyz: FloatArray, query: IndexArray, k: int, radius: float) -> tupl
     coordinates; (M, k) int64 indices (N where missing) and (M, k) squared distances (inf);
     pending: positions of the queries too near the sensor for directions; stop: the queries
     from this position on were left unsearched, the grid having scanned more than
-    WORK_PER_QUERY points a query (M if it never did).
+    work_per_query points a query, after work_allowance (M if it never did).
     """
     m = query.shape[0]
     idx = np.full((m, k), xyz.shape[0], dtype=np.int64)
@@ -261,7 +264,7 @@ def _knn_grid(xyz: FloatArray, query: IndexArray, k: int, radius: float) -> tupl
     n_pending = 0
     count = 0
     for j in range(m):
-        if work[0] > WORK_PER_QUERY * j + WORK_ALLOWANCE:
+        if work[0] > work_per_query * j + work_allowance:
             return True, idx, d2, pending[:n_pending], j
         qi = query[j]
         qx, qy, qz = xyz[qi, 0], xyz[qi, 1], xyz[qi, 2]
@@ -349,7 +352,7 @@ def knn_within(
     k, radius = int(k), float(radius_m)
     if len(q) == 0:
         return np.zeros((0, k), dtype=np.int64), np.zeros((0, k))
-    usable, idx, d2, pending, stop = _knn_grid(xyz, q, k, radius)
+    usable, idx, d2, pending, stop = _knn_grid(xyz, q, k, radius, WORK_PER_QUERY, WORK_ALLOWANCE)
     if not usable:
         raise InvalidPointsError(
             f"xyz holds NaN, infinite or absurd coordinates (|value| >= {MAX_ABS_M:g} m); "
