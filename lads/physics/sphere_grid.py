@@ -84,11 +84,12 @@ def _elevations(flat: FloatArray, out: FloatArray) -> tuple[float, float]:
 
 @numba.njit(cache=True, nogil=True)
 def _keys(flat: FloatArray, t: FloatArray, t_lo: float, per_t: float, key: IntArray) -> int:
-    """Grid bin of every point into key, -1 at the origin (also points so near that rho + |z|
-    underflows: their exact coordinates are scanned apart); returns the number of those."""
+    """Grid bin of every point into key, -1 at the origin (there rho + |z| is 0; also where
+    x^2 + y^2 underflows and z is 0: such points are scanned apart, exactly); returns the
+    number of points at -1."""
     at_origin = 0
     for i in range(key.shape[0]):
-        x, y, z = flat[3 * i], flat[3 * i + 1], flat[3 * i + 2]
+        x, y = flat[3 * i], flat[3 * i + 1]
         ax, ay = abs(x), abs(y)
         s = ax + ay
         p = ay / s if s > 0.0 else 0.0
