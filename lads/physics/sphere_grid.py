@@ -191,3 +191,21 @@ def build_grid(xyz: FloatArray) -> tuple:  # type: ignore[type-arg]
     e_cos, e_sin, a_x, a_y = _edges(t_lo, per_t)
     grid = (offsets, pts, order, t_lo, per_t, e_cos, e_sin, a_x, a_y)
     return usable, grid, (o_pts, o_order)
+
+
+@numba.njit(cache=True, nogil=True)
+def points_within(xyz: FloatArray, r_max: float) -> tuple[FloatArray, IntArray]:
+    """(P, 3) coordinates and (P,) indices of the points with squared range < r_max^2."""
+    rr_max = r_max * r_max
+    count = 0
+    for i in range(xyz.shape[0]):
+        count += xyz[i, 0] ** 2 + xyz[i, 1] ** 2 + xyz[i, 2] ** 2 < rr_max
+    pts = np.empty((count, 3))
+    order = np.empty(count, dtype=np.int32)
+    s = 0
+    for i in range(xyz.shape[0]):
+        if xyz[i, 0] ** 2 + xyz[i, 1] ** 2 + xyz[i, 2] ** 2 < rr_max:
+            pts[s, 0], pts[s, 1], pts[s, 2] = xyz[i, 0], xyz[i, 1], xyz[i, 2]
+            order[s] = i
+            s += 1
+    return pts, order

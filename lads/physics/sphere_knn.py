@@ -18,11 +18,11 @@ azimuth, is unbounded on that side. Points at the origin have no direction and a
 to every query besides. Each query starts from the last one's k-th distance, and is capped
 by the last one's neighbours (consecutive queries of a scan are often neighbours).
 
-Two kinds of query go to pykdtree instead (exact as well): those within NEAR_RADII radii of
-the sensor whose window would need more than 30 deg (there directions say little), on a tree
-of the points within NEAR_RADII + 1 radii; and, if the grid scans more than WORK_PER_QUERY
-points a query (dense clusters at the sensor, falling snow), the rest of the scan, on a tree
-of all points as before.
+Queries within NEAR_RADII radii of the sensor whose window would need more than 30 deg
+(there directions say little) are compared with every point within NEAR_RADII + 1 radii, or,
+if that is more than NEAR_PAIRS pairs, searched by pykdtree on those points. If the grid scans
+more than WORK_PER_QUERY points a query (dense clusters at the sensor, falling snow), the rest
+of the scan goes to pykdtree on all points, as before. Both are exact as well.
 
 Squared distances are summed as pykdtree sums them (dx^2 + dy^2 + dz^2 in float64), a
 neighbour lies strictly inside the radius (pykdtree and scipy both leave out a point at
@@ -50,6 +50,7 @@ from lads.physics.sphere_grid import (
     IntArray,
     bin_of,
     build_grid,
+    points_within,
     stand_ins,
 )
 
@@ -67,6 +68,9 @@ _MARGIN = 1e-6
 # sensor and falling snow need more.
 WORK_PER_QUERY = 300
 WORK_ALLOWANCE = 20_000  # points scanned before the average counts (a few costly queries)
+# Queries near the sensor times points within NEAR_RADII + 1 radii up to which those queries
+# are compared with all of them (~1 ms); beyond, a k-d tree of those points.
+NEAR_PAIRS = 1_000_000
 # Points per leaf of the fallback k-d tree (pykdtree's default is 16; 32 was faster here).
 TREE_LEAF_POINTS = 32
 
@@ -234,7 +238,7 @@ def _cap(
 @numba.njit(cache=True, nogil=True)
 def _knn_grid(
     xyz: FloatArray, query: IndexArray, k: int, radius: float, work_per_query: int,
-    work_allowance: int,
+    work_allowance: int, near_pairs: int,
 ) -> tuple:  # type: ignore[type-arg]  # fmt: skip
     """The neighbours of the queries the direction grid serves, in the given order.
 
@@ -243,7 +247,8 @@ def _knn_grid(
 
     Returns (usable, idx, d2, pending, stop): usable is False for NaN, infinite or absurd
     coordinates; (M, k) int64 indices (N where missing) and (M, k) squared distances (inf);
-    pending: positions of the queries too near the sensor for directions; stop: the queries
+    pending: positions of the queries too near the sensor for directions and too many to
+    compare with every point within NEAR_RADII + 1 radii (near_pairs); stop: the queries
     from this position on were left unsearched, the grid having scanned more than
     work_per_query points a query, after work_allowance (M if it never did).
     """
@@ -288,7 +293,21 @@ def _knn_grid(
         for t in range(count):
             idx[j, t] = best_i[t]
             d2[j, t] = best_d2[t]
-    return True, idx, d2, pending[:n_pending], m
+    if n_pending == 0:
+        return True, idx, d2, pending[:0], m
+    # Their neighbours lie within NEAR_RADII + 1 radii of the sensor: if few, compare them all.
+    near_pts, near_order = points_within(xyz, (NEAR_RADII + 1.0) * radius * (1.0 + _MARGIN))
+    if n_pending * near_order.shape[0] > near_pairs:
+        return True, idx, d2, pending[:n_pending], m
+    for u in range(n_pending):
+        j = pending[u]
+        qi = query[j]
+        count = _scan(0, near_order.shape[0], near_pts, near_order, xyz[qi, 0], xyz[qi, 1],
+                      xyz[qi, 2], r2, k, 0, best_d2, best_i)  # fmt: skip
+        for t in range(count):
+            idx[j, t] = best_i[t]
+            d2[j, t] = best_d2[t]
+    return True, idx, d2, pending[:0], m
 
 
 def checked_arguments(
@@ -352,7 +371,9 @@ def knn_within(
     k, radius = int(k), float(radius_m)
     if len(q) == 0:
         return np.zeros((0, k), dtype=np.int64), np.zeros((0, k))
-    usable, idx, d2, pending, stop = _knn_grid(xyz, q, k, radius, WORK_PER_QUERY, WORK_ALLOWANCE)
+    usable, idx, d2, pending, stop = _knn_grid(
+        xyz, q, k, radius, WORK_PER_QUERY, WORK_ALLOWANCE, NEAR_PAIRS
+    )
     if not usable:
         raise InvalidPointsError(
             f"xyz holds NaN, infinite or absurd coordinates (|value| >= {MAX_ABS_M:g} m); "

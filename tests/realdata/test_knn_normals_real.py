@@ -71,14 +71,15 @@ def test_the_incidence_of_real_frames_is_the_same_with_either_k_d_tree(
 
 
 def test_the_grid_alone_serves_the_kitti_frames(kitti_frame):
-    """On a 64-beam frame the grid stays well inside its work budget, and only 0-3 isolated
-    points within 2 m of the sensor (a window over 30 deg) go to the small near tree."""
+    """No k-d tree on a 64-beam frame: the grid stays well inside its work budget, and the
+    0-3 isolated points within 2 m of the sensor (a window over 30 deg) that it leaves are
+    compared with the few dozen points within 3 m."""
     profile = load_profile("hdl64e")
     for i in range(3):
         xyz64, _ = checked_xyz(kitti_frame(i)[0])
         query = np.flatnonzero(incidence(xyz64, profile).source != IncidenceSource.IMAGE)
-        out = sphere_knn._knn_grid(
-            xyz64, query, 10, 1.0, sphere_knn.WORK_PER_QUERY, sphere_knn.WORK_ALLOWANCE
-        )
-        usable, _, _, pending, stop = out
-        assert usable and len(pending) <= 3 and stop == len(query)
+        limits = sphere_knn.WORK_PER_QUERY, sphere_knn.WORK_ALLOWANCE
+        pending, stop = sphere_knn._knn_grid(xyz64, query, 10, 1.0, *limits, 0)[3:]
+        assert stop == len(query) and len(pending) <= 3  # near_pairs 0: all near ones listed
+        pending, stop = sphere_knn._knn_grid(xyz64, query, 10, 1.0, *limits, 10**6)[3:]
+        assert stop == len(query) and len(pending) == 0

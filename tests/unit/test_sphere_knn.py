@@ -27,6 +27,22 @@ def grid_only(monkeypatch):
     monkeypatch.setattr(sphere_knn, "WORK_PER_QUERY", 10**15)
 
 
+def _grid_paths(xyz, query, *, work_per_query=None, allowance=None, near_pairs=None):
+    """(pending, stop) of the grid kernel: queries left to a near tree, and the position from
+    which the rest of the scan went to the full tree; the shipped limits unless given."""
+    out = sphere_knn._knn_grid(
+        np.ascontiguousarray(xyz, dtype=np.float64),
+        np.asarray(query, dtype=np.int64),
+        K,
+        RADIUS,
+        sphere_knn.WORK_PER_QUERY if work_per_query is None else work_per_query,
+        sphere_knn.WORK_ALLOWANCE if allowance is None else allowance,
+        sphere_knn.NEAR_PAIRS if near_pairs is None else near_pairs,
+    )
+    assert out[0]
+    return out[3], out[4]
+
+
 def _brute(xyz, query, k=K, radius=RADIUS):
     """Per query: (indices, squared distances) of the k nearest strictly within the radius,
     ascending (ties by index), from every point's distance summed as pykdtree sums it."""
@@ -86,10 +102,8 @@ def test_a_scan_like_cloud_is_served_by_the_grid_alone_and_exactly():
     query = np.concatenate(
         [rng.choice(len(xyz) - 40, 600, replace=False), len(xyz) - 1 - np.arange(40)]
     )
-    usable, _, _, pending, stop = sphere_knn._knn_grid(
-        xyz, query.astype(np.int64), K, RADIUS, sphere_knn.WORK_PER_QUERY, sphere_knn.WORK_ALLOWANCE
-    )
-    assert usable and len(pending) == 0 and stop == len(query)  # no k-d tree anywhere
+    pending, stop = _grid_paths(xyz, query, near_pairs=0)
+    assert len(pending) == 0 and stop == len(query)  # no k-d tree anywhere
     idx, _ = assert_exact(xyz, query)
     isolated = (idx < len(xyz)).sum(1) < K
     assert isolated.any() and not isolated.all()
@@ -194,21 +208,22 @@ def test_a_point_at_exactly_the_radius_is_left_out_as_by_both_trees():
     np.testing.assert_array_equal(np.sqrt(d2[0]), dist[0])  # (1.0 and 1.0 - 1 ulp)
 
 
-def test_both_k_d_tree_fallbacks_are_exact_too():
+def test_the_fallbacks_are_exact_too(monkeypatch):
     """A dense cluster at the sensor (nuScenes' ego returns) costs the grid too much: the rest
-    of the scan goes to pykdtree, as do queries within 2 radii that need > 30 deg."""
+    of the scan goes to pykdtree. Queries within 2 radii that need > 30 deg are compared with
+    every point within 3 radii, or, past NEAR_PAIRS pairs, searched by pykdtree on them."""
     rng = np.random.default_rng(10)
     blob = np.outer(rng.uniform(0.01, 0.2, 3000), [0.07, -1.0, -0.001])  # along one ray
     xyz = np.concatenate([blob, _scan(rng, rings=24, steps=400)])
     query = np.concatenate([np.arange(0, 3000, 3), rng.choice(len(xyz), 200)])
-    _, _, _, _, stop = sphere_knn._knn_grid(xyz, query, K, RADIUS, sphere_knn.WORK_PER_QUERY,
-                                            sphere_knn.WORK_ALLOWANCE)  # fmt: skip
-    assert stop < len(query)
+    assert _grid_paths(xyz, query)[1] < len(query)
     assert_exact(xyz, query)
     lonely = np.concatenate([[[0.3, 0.0, 0.0], [0.0, -0.5, 0.2]], _scan(rng, rings=24, steps=400)])
-    _, _, _, pending, _ = sphere_knn._knn_grid(lonely, np.arange(2), K, RADIUS, 10**15, 0)
-    assert len(pending) == 2
-    assert_exact(lonely, np.arange(2))
+    assert len(_grid_paths(lonely, [0, 1], work_per_query=10**15, near_pairs=0)[0]) == 2
+    assert len(_grid_paths(lonely, [0, 1], work_per_query=10**15)[0]) == 0  # compared with all
+    assert_exact(lonely, [0, 1])
+    monkeypatch.setattr(sphere_knn, "NEAR_PAIRS", 0)
+    assert_exact(lonely, [0, 1])  # by the near tree
 
 
 def test_empty_and_degenerate_inputs():
@@ -241,7 +256,7 @@ def test_points_at_the_origin_count_for_a_query_the_grid_serves(grid_only):
     """All other points straight above the sensor: the query's window covers the whole grid
     at once, so the grid serves it, and the three points at the origin are its neighbours."""
     xyz = np.array([[0.0, 0, 0], [0, 0, 0], [0, 0, 0], [0, 0, 0.3], [0, 0, 0.5], [0, 0, 0.9]])
-    _, _, _, pending, stop = sphere_knn._knn_grid(xyz, np.array([3]), K, RADIUS, 10**15, 0)
+    pending, stop = _grid_paths(xyz, [3], work_per_query=10**15, near_pairs=0)
     assert len(pending) == 0 and stop == 1
     idx, _ = assert_exact(xyz, [3])
     assert {0, 1, 2} <= set(idx[0].tolist())
