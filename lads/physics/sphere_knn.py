@@ -61,7 +61,7 @@ NEAR_RADII = 1.0 / _NEAR_SIN
 # Relative slack on every certified bound: the stand-ins, edges and cross products round at
 # ~1e-15 relative (both stand-ins have slopes within [1/2, 1] of the true angles).
 _SLACK = 1e-9
-# Relative margin on the rounded ranges that decide which points the near tree holds.
+# Relative margin on the rounded ranges that pick the points near queries are compared with.
 _MARGIN = 1e-6
 # Points a query may scan on average before the rest of the scan goes to a k-d tree: ~3x
 # what a 64-beam scan needs (~110), and about what a tree query costs; dense clusters at the
