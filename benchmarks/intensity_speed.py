@@ -7,7 +7,8 @@ torch.set_num_threads(1):
 - features: projection, incidence, materials and I_P (numpy, `frame_image`);
 - incidence: the part of features spent on incidence (range-image normals, kNN fallback);
 - fallback: of that, the k-nearest-neighbour PCA normals of the points without a usable
-  normal of their own pixel (k-d tree build, queries and plane fits; `fallback_points` of them);
+  normal of their own pixel (direction grid, neighbour search and plane fits,
+  `lads.physics.sphere_knn`; `fallback_points` of them);
 - frame: all of `predict_points` (scan check + features + network + every point's value +
   encoding).
 Budget: <= 35 ms per 64-beam frame on one core for the whole stage (`frame`, median over
@@ -85,8 +86,8 @@ def _fallback_points(xyz: np.ndarray, profile: Any) -> tuple[np.ndarray, np.ndar
 
 
 def main() -> dict[str, Any]:
-    # One core: torch and every OpenMP / BLAS pool (the k-d tree of the incidence fallback
-    # is OpenMP-parallel) limited to one thread.
+    # One core: torch and every OpenMP / BLAS pool (pykdtree, the incidence fallback's tree
+    # for the scans its grid does not suit, is OpenMP-parallel) limited to one thread.
     torch.set_num_threads(1)
     with threadpool_limits(limits=1):
         return _measure()

@@ -1,8 +1,8 @@
 """Per-point modalities for intensity models: range, channel, incidence, reflectance, I_phy.
 
-Pure numpy (plus a scipy k-d tree and compiled loops), no file I/O. Every function returns
-one value per input point: points are never dropped, because labels and output files are
-matched by index (docs/physics.md §10.7 item 4).
+Pure numpy (plus compiled loops and, for some scans, a k-d tree), no file I/O. Every
+function returns one value per input point: points are never dropped, because labels and
+output files are matched by index (docs/physics.md §10.7 item 4).
 
 The range image (rows = channel, columns = azimuth) lives in `lads.physics.projection`;
 range_m, channels, project and RangeImage are re-exported here.
