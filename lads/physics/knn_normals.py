@@ -45,9 +45,16 @@ def _cos_sin(mpp: float, mqq: float, mpq: float) -> Pair:
 
 @numba.njit(cache=True, nogil=True, inline="always")
 def _jacobi_eigen(
-    m00: float, m01: float, m02: float, m10: float, m11: float, m12: float, m20: float,
-    m21: float, m22: float,
-) -> Eigen:  # fmt: skip
+    m00: float,
+    m01: float,
+    m02: float,
+    m10: float,
+    m11: float,
+    m12: float,
+    m20: float,
+    m21: float,
+    m22: float,
+) -> Eigen:
     """Eigen-decomposition of the symmetric 3 x 3 m (row by row) by cyclic Jacobi rotations.
 
     Each rotation turns columns p, q of m (m <- m J), then its rows p, q (m <- J^T m), then
@@ -101,9 +108,12 @@ def _jacobi_eigen(
 
 @numba.njit(cache=True, nogil=True, inline="always")
 def _patch_cos(
-    xyz: npt.NDArray[np.float64], qi: int, nbrs: npt.NDArray[np.int64], count: int,
+    xyz: npt.NDArray[np.float64],
+    qi: int,
+    nbrs: npt.NDArray[np.int64],
+    count: int,
     min_planarity: float,
-) -> tuple[float, bool]:  # fmt: skip
+) -> tuple[float, bool]:
     """|cos| of the PCA normal of point qi's `count` neighbours (nbrs: (k,) in ascending
     distance, entries >= N missing), and whether the patch is planar enough."""
     n = xyz.shape[0]

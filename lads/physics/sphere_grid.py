@@ -19,6 +19,7 @@ Points at the origin (x = y = z = 0) have no direction and are kept apart.
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numba
 import numpy as np
@@ -163,7 +164,7 @@ def _edges(t_lo: float, per_t: float) -> tuple[FloatArray, FloatArray, FloatArra
 
 
 @numba.njit(cache=True, nogil=True)
-def build_grid(xyz: FloatArray) -> tuple:  # type: ignore[type-arg]
+def build_grid(xyz: FloatArray) -> tuple[Any, ...]:
     """The direction grid of every point off the origin, and the points at the origin.
 
     Returns (usable, grid, origin): usable is False if a coordinate is NaN, infinite or

@@ -197,8 +197,16 @@ def test_isolated_points_and_a_lone_point(grid_only):
 
 
 def test_a_point_at_exactly_the_radius_is_left_out_as_by_both_trees():
-    xyz = np.array([[10.0, 0, 0], [11.0, 0, 0], [10.0, 0.5, 0], [9.0, 0, 0],
-                    [10.0, 0, np.nextafter(1.0, 0)], [10.0, np.nextafter(-1.0, 0), 0]])  # fmt: skip
+    xyz = np.array(
+        [
+            [10.0, 0, 0],
+            [11.0, 0, 0],
+            [10.0, 0.5, 0],
+            [9.0, 0, 0],
+            [10.0, 0, np.nextafter(1.0, 0)],
+            [10.0, np.nextafter(-1.0, 0), 0],
+        ]
+    )
     idx, d2 = knn_within(xyz, [0], k=6, radius_m=1.0)
     dist, tree = KDTree(xyz, leafsize=32).query(xyz[:1], k=6, distance_upper_bound=1.0)
     _, scipy_tree = cKDTree(xyz).query(xyz[:1], k=6, distance_upper_bound=1.0)
