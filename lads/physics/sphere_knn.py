@@ -3,7 +3,8 @@
 The points sit in the direction grid of `lads.physics.sphere_grid` (elevation rows by
 azimuth columns). A query scans the bins in a window around its own and widens it in rounds,
 each side until its certified bound reaches a target distance, until no point outside can be
-nearer than its current k-th neighbour (or the radius):
+nearer than its current k-th neighbour (or the radius; the search itself is
+`lads.physics.sphere_window`):
 
 - a point whose ray makes an angle >= psi with the query's ray lies at least
   r_q sin(min(psi, 90 deg)) from it (r_q: the query's range), and an elevation difference
