@@ -252,7 +252,7 @@ def _normals(pts: F64, view: F64, image: RangeImage) -> F64:
         image.index >= 0,
         MAX_COLUMN_GAP,
         DEFAULT_MAX_DEPTH_JUMP,
-        True,
+        rows_by_line=True,
     )
     return _facing(raw, ok, image.index, image.row, image.col, view)
 
