@@ -57,15 +57,16 @@ _NEAR_SIN = 0.5
 NEAR_RADII = 1.0 / _NEAR_SIN
 # Relative margin on the rounded ranges that pick the points near queries are compared with.
 _MARGIN = 1e-6
-# Points a query may scan on average before the rest of the scan goes to a k-d tree: ~3x
-# what a 64-beam scan needs (~110), and about what a tree query costs; dense clusters at the
+# Points a query may scan on average before the rest of the scan goes to a k-d tree: a few
+# times what a 64-beam scan needs, and about what a tree query costs; dense clusters at the
 # sensor and falling snow need more.
 WORK_PER_QUERY = 300
 WORK_ALLOWANCE = 20_000  # points scanned before the average counts (a few costly queries)
 # Queries near the sensor times points within NEAR_RADII + 1 radii up to which those queries
-# are compared with all of them (~1 ms); beyond, a k-d tree of those points.
+# are compared with all of them (cheaper than a tree then); beyond, a k-d tree of those points.
 NEAR_PAIRS = 1_000_000
-# Points per leaf of the fallback k-d tree (pykdtree's default is 16; 32 was faster here).
+# Points per leaf of the fallback k-d tree (pykdtree's default is 16; larger leaves made the
+# build plus queries of a scan faster, with the same neighbours).
 TREE_LEAF_POINTS = 32
 
 
