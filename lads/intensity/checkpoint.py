@@ -88,6 +88,8 @@ class ModelMeta:
         materials: material names whose indices the material channel holds (index i + 1
             is materials[i]), i.e. `material_names()` at training time.
         material_dims: length of the learned per-material vector.
+        law_input: a pointwise generator reads the fitted law's value (files made before
+            the option say nothing: they do).
     """
 
     name: str
@@ -104,6 +106,7 @@ class ModelMeta:
     materials: tuple[str, ...] = ()
     material_dims: int = MATERIAL_DIMS
     architecture: str = "unet"
+    law_input: bool = True
 
     def to_json(self) -> dict[str, Any]:
         out = asdict(self)
@@ -131,6 +134,7 @@ class ModelMeta:
                 materials=tuple(str(m) for m in raw.get("materials", ())),
                 material_dims=int(raw.get("material_dims", MATERIAL_DIMS)),
                 architecture=str(raw.get("architecture", "unet")),
+                law_input=bool(raw.get("law_input", True)),
             )
         except (KeyError, TypeError, ValueError) as exc:
             raise ModelError(
@@ -188,6 +192,7 @@ def build_generator(meta: ModelMeta) -> Generator | PointGenerator:
         depth=meta.blocks,
         materials=len(meta.materials),
         material_dims=meta.material_dims,
+        law_input=meta.law_input,
     )
 
 

@@ -87,6 +87,8 @@ def metrics(
         "class_ratio_mean_abs_log": (
             float(np.mean(np.abs(np.log(finite)))) if finite else math.nan
         ),
+        "class_zero_share_pred": _class_zero_shares(ctx.cls, pred, class_names),
+        "class_zero_share_real": _class_zero_shares(ctx.cls, ctx.real, class_names),
         "cell_w1_reflectivity": cell_w1,
         "cell_ks": cell_ks,
         "cells": cells,
@@ -115,6 +117,21 @@ def _class_ratios(
     real_sum = np.bincount(ctx.cls, weights=ctx.real, minlength=size)
     return {
         class_names[c]: _ratio(float(pred_sum[c]), float(real_sum[c]))
+        for c in np.flatnonzero(counts >= MIN_RATIO_POINTS)
+    }
+
+
+def _class_zero_shares(
+    cls: npt.NDArray[np.int64], values: npt.NDArray[np.float64], class_names: tuple[str, ...]
+) -> dict[str, float]:
+    """{class: share of its points whose value is exactly 0} for the classes of
+    `_class_ratios`. A real sensor may report exact zeros for a large share of a class (KITTI
+    remission does); a median-seeking point prediction then sits far below the class mean."""
+    size = len(class_names)
+    counts = np.bincount(cls, minlength=size)
+    zeros = np.bincount(cls, weights=(values == 0).astype(np.float64), minlength=size)
+    return {
+        class_names[c]: float(zeros[c] / counts[c])
         for c in np.flatnonzero(counts >= MIN_RATIO_POINTS)
     }
 

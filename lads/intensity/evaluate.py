@@ -70,6 +70,8 @@ METRIC_KEYS: dict[str, str] = {
     "class_ratio": "{class: mean pred / mean real} for classes with >= 50 points",
     "class_ratio_count": "number of classes in class_ratio",
     "class_ratio_mean_abs_log": "mean over class_ratio of |ln ratio| (0 is ideal)",
+    "class_zero_share_pred": "{class: share of pred exactly 0} for the class_ratio classes",
+    "class_zero_share_real": "{class: share of real exactly 0} for the same classes",
     "cell_w1_reflectivity": "point-weighted mean Wasserstein-1 over cells, reflectivity",
     "cell_ks": "point-weighted mean two-sample KS statistic over cells",
     "cells": "cells (class x range bin x incidence bin) with >= 30 points",

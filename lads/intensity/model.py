@@ -181,7 +181,8 @@ class PointGenerator(nn.Module):
     places; a per-point function does, and it gives every point of a frame its own value
     (no pixel sharing). `width` hidden units in `layers` hidden layers; the output layer
     starts at zero, so an untrained model outputs 0 (the law alone). Materials as in
-    `Generator` (a learned vector per material, zero at the start).
+    `Generator` (a learned vector per material, zero at the start). With `law_input` False
+    the law's value is not an input: the correction depends on material and geometry only.
     """
 
     picked: torch.Tensor  # buffer: indices of the channels the MLP reads
@@ -195,16 +196,18 @@ class PointGenerator(nn.Module):
         layers: int = 2,
         materials: int = 0,
         material_dims: int = 4,
+        law_input: bool = True,
     ) -> None:
         super().__init__()
         self.channels = tuple(channels)
         self.norm = Normaliser(self.channels, normalised)
+        self.law_input = law_input
         picked = [
             i for i, name in enumerate(self.channels) if name in POINT_INPUTS or name in STYLES
         ]
         self.register_buffer("picked", torch.tensor(picked, dtype=torch.long), persistent=False)
         self.material_channel = self.channels.index("material") if materials else -1
-        c = len(picked) + 1  # the law's z as one more input
+        c = len(picked) + int(law_input)  # the law's z as one more input
         if self.material_channel >= 0:
             self.material_embedding = material_table(materials, material_dims)
             c += material_dims
@@ -251,8 +254,9 @@ class PointGenerator(nn.Module):
         """(B, H, W, C_in) the MLP's inputs, channels last: the picked z-scored channels,
         the law's z and the material vector."""
         x = self.norm(raw, mask, self.picked).clamp(-POINT_INPUT_CLAMP, POINT_INPUT_CLAMP)
-        law = torch.zeros_like(mask) if law is None else law * mask
-        parts = [x, law]
+        parts = [x]
+        if self.law_input:
+            parts.append(torch.zeros_like(mask) if law is None else law * mask)
         if self.material_channel >= 0:
             parts.append(
                 material_vectors(raw, self.material_embedding.weight, self.material_channel)
@@ -320,9 +324,11 @@ def make_generator(
     depth: int,
     materials: int,
     material_dims: int,
+    law_input: bool = True,
 ) -> Generator | PointGenerator:
-    """An untrained generator: "pointwise" (size = hidden width, depth = hidden layers) or
-    "unet" (size = base width, depth = residual blocks). The caller checks the name."""
+    """An untrained generator: "pointwise" (size = hidden width, depth = hidden layers;
+    `law_input` whether it reads the law) or "unet" (size = base width, depth = residual
+    blocks). The caller checks the name."""
     if architecture == "pointwise":
         return PointGenerator(
             channels,
@@ -331,6 +337,7 @@ def make_generator(
             layers=depth,
             materials=materials,
             material_dims=material_dims,
+            law_input=law_input,
         )
     return Generator(
         channels,

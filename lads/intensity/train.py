@@ -301,6 +301,7 @@ def _meta(
         materials=material_names(),
         material_dims=MATERIAL_DIMS,
         architecture=cfg.architecture,
+        law_input=cfg.law_input,
         training={
             "config": cfg.to_dict(),
             "steps": step,

@@ -47,7 +47,7 @@ _TOP = {
     "schema_version", "name", "kind", "description", "pairs", "output", "range_exponent",
     "steps", "batch", "crop_width", "lr", "betas", "base", "blocks", "disc_base", "seed",
     "checkpoint_every", "losses", "workers", "residual", "architecture", "point_width",
-    "point_layers", "identity_points", "lr_decay_from",
+    "point_layers", "identity_points", "lr_decay_from", "law_input",
 }  # fmt: skip
 _DOMAIN = set(DomainSpec.__dataclass_fields__) - {"data_root"}
 _LOSSES = set(LossWeights.__dataclass_fields__)
@@ -202,6 +202,10 @@ def _check_settings(cfg: TrainConfig, where: str) -> None:
         raise ConfigError(
             f"{where}: architecture {cfg.architecture!r}; expected one of {list(ARCHITECTURES)}."
         )
+    if not isinstance(cfg.law_input, bool):
+        raise ConfigError(f"{where}: law_input = {cfg.law_input!r}; expected true or false.")
+    if not cfg.law_input and cfg.architecture != "pointwise":
+        raise ConfigError(f"{where}: law_input: false needs architecture: pointwise.")
     if cfg.architecture == "pointwise" and not cfg.residual:
         raise ConfigError(
             f"{where}: the pointwise generator corrects the fitted law; set residual: true."

@@ -35,6 +35,7 @@ class Nets(torch.nn.Module):
             depth=depth,
             materials=len(material_names()),
             material_dims=MATERIAL_DIMS,
+            law_input=cfg.law_input,
         )
         self.inv_channels = GEOMETRY + ("particle",) + styles + ("z_intensity",)
         self.inv = Generator(

@@ -118,6 +118,10 @@ class TrainConfig:
         base, blocks: U-Net width and residual blocks (the generator's when it is a U-Net,
             always the inverse generator's); disc_base: critic width.
         point_width, point_layers: the pointwise generator's hidden width and layers.
+        law_input: whether the pointwise generator reads the fitted law's value. Without
+            it the correction is a function of material and geometry alone, added to the
+            law, so a class whose law intercept training never showed beside its material
+            (a pooled intercept) is not an input the network extrapolates on.
         lr_decay_from: with a value f in [0, 1), the learning rate falls linearly from `lr`
             at step f x steps to 0 at the last step (CycleGAN's schedule; checkpoints
             late in a run then differ less from one another); None: constant.
@@ -156,6 +160,7 @@ class TrainConfig:
     architecture: str = "unet"
     point_width: int = 32
     point_layers: int = 2
+    law_input: bool = True
     identity_points: int | None = None
     lr_decay_from: float | None = None
 

@@ -9,6 +9,7 @@ right answer of every metric is known in advance.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import warnings
 
@@ -194,6 +195,34 @@ def test_class_ratio_is_mean_prediction_over_mean_real_for_classes_with_50_point
     assert all(v == pytest.approx(2.0) for v in ratios.values())
     assert res.pooled["doubled"]["class_ratio_count"] == 4
     assert res.pooled["doubled"]["class_ratio_mean_abs_log"] == pytest.approx(np.log(2.0))
+
+
+def test_zero_shares_count_exact_zeros_per_class_of_the_prediction_and_the_real(heldout):
+    def road_zeroed(frame):
+        out = frame.intensity.astype(np.float64).copy()
+        out[(frame.labels & 0xFFFF) == 40] = 0.0  # every road point
+        return out
+
+    # Real returns of exactly 0 on every third point, as KITTI reports for many.
+    frames = []
+    for f in heldout:
+        real = f.intensity.copy()
+        real[::3] = 0.0
+        frames.append(dataclasses.replace(f, intensity=real))
+    res = evaluate(frames, {"road_zeroed": road_zeroed})
+    pooled = res.pooled["road_zeroed"]
+    real = np.concatenate([f.intensity for f in frames])
+    labels = np.concatenate([f.labels & 0xFFFF for f in frames])
+    assert set(pooled["class_zero_share_pred"]) == set(pooled["class_ratio"])
+    assert pooled["class_zero_share_pred"]["road"] == 1.0
+    sidewalk = labels == 48
+    assert pooled["class_zero_share_pred"]["sidewalk"] == pytest.approx(
+        float(np.mean(real[sidewalk] == 0))
+    )
+    for name, code in (("road", 40), ("sidewalk", 48)):
+        share = float(np.mean(real[labels == code] == 0))
+        assert 0.3 < share < 0.4
+        assert pooled["class_zero_share_real"][name] == pytest.approx(share)
 
 
 def test_an_unlabelled_frame_is_one_class_called_all():

@@ -507,6 +507,34 @@ def test_a_pointwise_generator_answers_each_pixel_from_its_own_inputs_only():
     torch.testing.assert_close(points.reshape(1, 1, 4, 6), before, rtol=0, atol=1e-6)
 
 
+def test_a_pointwise_generator_without_the_law_input_ignores_the_law_and_says_so(tmp_path):
+    from lads.intensity import fitted_physics
+    from lads.intensity.model import PointGenerator
+
+    names = channel_names(False)
+    torch.manual_seed(0)
+    gen = PointGenerator(
+        names, ("ln_range",), width=8, layers=2, materials=len(material_names()), law_input=False
+    )
+    with torch.no_grad():
+        for p in gen.parameters():
+            p.normal_(0, 0.3)
+    raw = torch.rand(1, len(names), 4, 6)
+    mask = torch.ones(1, 1, 4, 6)
+    law = torch.rand(1, 1, 4, 6)
+    out = gen(raw, mask, law)
+    torch.testing.assert_close(gen(raw, mask, law * 5 - 2), out, rtol=0, atol=0)
+    raw[0, :, 1, 2] += 1.0  # its own inputs still move a point's value
+    assert bool((gen(raw, mask, law) != out)[0, 0, 1, 2])
+    # The weight file records the choice and loads the same network back.
+    fit = fitted_physics.FittedPhysics({0: -1.0}, -1.0, 0.5, -0.3, 0.4, 0.005, 3.0, 80.0)
+    spec = TargetSpec("hdl64e", -1.5, 0.8, 0.005, 1.2, law=fit.to_json())
+    path = tiny_model(tmp_path, architecture="pointwise", law_input=False, targets={"kitti": spec})
+    loaded = load_model(path)
+    assert loaded.meta.law_input is False
+    assert isinstance(loaded.generator, PointGenerator) and not loaded.generator.law_input
+
+
 def test_pointwise_inference_in_chunks_equals_the_training_forward(monkeypatch):
     from lads.intensity import model as model_module
     from lads.intensity.model import PointGenerator

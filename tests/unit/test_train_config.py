@@ -91,3 +91,20 @@ def test_a_change_of_the_weather_physics_changes_the_data_hash_of_weather_models
     monkeypatch.setattr(stage, "WEATHER_STAGE_VERSION", stage.WEATHER_STAGE_VERSION + "x")
     assert weather.data_hash() != before[0]
     assert sensor.data_hash() == before[1]  # no weather stage: nothing to go stale
+
+
+def test_the_law_input_can_be_left_out_of_a_pointwise_generator_only(tmp_path):
+    text = (train_configs_dir() / "synth-to-kitti.yaml").read_text()
+    good = tmp_path / "pointwise.yaml"
+    good.write_text(text + "law_input: false\n")
+    assert load_train_config(good, data_root=tmp_path).law_input is False
+    assert load_train_config("synth-to-kitti", data_root=tmp_path).law_input is True
+    unet = text.replace("architecture: pointwise", "architecture: unet")
+    unet = unet.replace("identity_points: 8192", "")
+    bad = tmp_path / "unet.yaml"
+    bad.write_text(unet + "law_input: false\n")
+    with pytest.raises(ConfigError, match="law_input: false needs architecture: pointwise"):
+        load_train_config(bad, data_root=tmp_path)
+    bad.write_text(text + "law_input: maybe\n")
+    with pytest.raises(ConfigError, match="law_input = 'maybe'"):
+        load_train_config(bad, data_root=tmp_path)
