@@ -1,7 +1,9 @@
 """The range-image cache of a training run: every training frame's model inputs, in zarr.
 
-Layout: `RUN/cache.zarr/<pair>/<role>/<frame>/` with arrays `inputs` (C, H, W) float32 and
-`target` (H, W) float32 reflectivity (when the frame has an intensity), and attributes
+Layout: `RUN/cache.zarr/<pair>/<role>/<frame>/` with arrays `inputs` (C, H, W) float32,
+`target` (H, W) float32 reflectivity (when the frame has an intensity) and `classes` (H, W)
+int32, the class id of each pixel's point (-1: empty or unlabelled; a law keyed by class
+reads it, `lads.intensity.law_reference`), and attributes
 `key` (hash of what decides the content), `labelled`, `extinction_per_m`, `sensor` and
 `done`. A frame is complete once `done` is written, after its arrays; a rerun skips complete
 frames whose key matches and rebuilds the rest, so a killed preparation resumes. Frames are
@@ -44,6 +46,8 @@ from lads.sensors.profile import SensorProfile, load_profile
 
 CACHE_NAME = "cache.zarr"
 ROLES = ("source", "target")
+# Bumped when a cached frame holds other arrays: 2 added the per-pixel class plane.
+CACHE_LAYOUT = "2"
 
 
 @dataclass(frozen=True, slots=True)
@@ -57,10 +61,16 @@ class CacheJob:
     kind: str
     range_exponent: float
     tag: str = ""  # which dataset of the role ("" the domain itself, "also1", ...)
+    # Label set of the pair's target: only frames labelled in it get a class plane.
+    class_label_set: str | None = None
 
     @property
     def key(self) -> str:
-        payload: dict[str, Any] = {"job": asdict(self), "features": FEATURE_VERSION}
+        payload: dict[str, Any] = {
+            "job": asdict(self),
+            "features": FEATURE_VERSION,
+            "layout": CACHE_LAYOUT,
+        }
         if self.domain.weather:
             payload["weather_physics"] = weather_physics_version()
         payload["job"]["domain"] = _hashed_domain(self.domain)
@@ -84,6 +94,7 @@ class CachedFrame:
     labelled: bool
     extinction_per_m: float
     sensor: str
+    classes: npt.NDArray[np.int32] | None = None  # (H, W) class id per pixel, -1 none
 
 
 def _hashed_domain(domain: DomainSpec) -> dict[str, Any]:
@@ -103,11 +114,12 @@ def list_jobs(cfg: TrainConfig) -> list[CacheJob]:
     """
     jobs = []
     for pair in cfg.pairs:
+        classes = label_set_for(pair.target.dataset)
         for role in ROLES:
             domain = pair.source if role == "source" else pair.target
             where = f"pairs.{pair.key}.{role}"
             found = [
-                CacheJob(pair.key, role, d, f, cfg.kind, cfg.range_exponent, tag)
+                CacheJob(pair.key, role, d, f, cfg.kind, cfg.range_exponent, tag, classes)
                 for tag, d in domain.members()
                 for f in _frame_names(d, where)
             ]
@@ -214,9 +226,10 @@ def read_domain_frame(domain: DomainSpec, relpath: str, *, weather_model: bool) 
     return DomainFrame(frame, profile, label_set, ring, particle, extinction)
 
 
-def job_image(job: CacheJob) -> tuple[FrameImage, float, str]:
-    """The FrameImage of one job, the extinction (1/m) it was made with and its sensor
-    profile name (pure computation apart from reading the source frame)."""
+def job_image(job: CacheJob) -> tuple[FrameImage, float, str, npt.NDArray[np.int32]]:
+    """The FrameImage of one job, the extinction (1/m) it was made with, its sensor
+    profile name and its (H, W) class plane (`pixel_classes`): pure computation apart from
+    reading the source frame."""
     domain = job.domain
     styles = job.kind == "weather"
     style = job.pair if styles else None
@@ -244,7 +257,8 @@ def job_image(job: CacheJob) -> tuple[FrameImage, float, str]:
             styles=styles,
             range_exponent=job.range_exponent,
         )
-        return fi, 0.0, profile.name
+        classes = pixel_classes(fi, sf.labels, "semantickitti", job.class_label_set)
+        return fi, 0.0, profile.name, classes
     d = read_domain_frame(domain, job.frame, weather_model=styles)
     fi = frame_image(
         d.frame.xyz,
@@ -260,22 +274,39 @@ def job_image(job: CacheJob) -> tuple[FrameImage, float, str]:
         range_exponent=job.range_exponent,
         extinction_per_m=d.extinction_per_m,
     )
-    return fi, d.extinction_per_m, d.profile.name
+    classes = pixel_classes(fi, d.frame.labels, d.label_set, job.class_label_set)
+    return fi, d.extinction_per_m, d.profile.name, classes
+
+
+def pixel_classes(
+    fi: FrameImage, labels: npt.ArrayLike | None, label_set: str | None, wanted: str | None
+) -> npt.NDArray[np.int32]:
+    """(H, W) int32 class id of the point owning each pixel (instance bits dropped), -1 for
+    empty pixels and for frames without labels or labelled in another set than `wanted`."""
+    index = fi.image.index
+    if labels is None or label_set is None or label_set != wanted:
+        return np.full(index.shape, -1, dtype=np.int32)
+    ids = np.asarray(labels).astype(np.int64)
+    if has_instance_bits(label_set):
+        ids = ids & MAX_CLASS_ID
+    return np.where(index >= 0, ids[np.maximum(index, 0)], -1).astype(np.int32)
 
 
 def _build_one(root: str, job: CacheJob) -> str:
     try:
-        fi, extinction_per_m, sensor = job_image(job)
+        fi, extinction_per_m, sensor, classes = job_image(job)
     except LadsError as exc:
         raise TrainingError(
             f"cache: frame {job.frame} of pair {job.pair} ({job.role}): {exc}"
         ) from None
     group = zarr.open_group(Path(root) / job.node, mode="w", zarr_format=3)
-    arrays = (
-        {"inputs": fi.inputs} if fi.target is None else {"inputs": fi.inputs, "target": fi.target}
-    )
+    arrays: dict[str, npt.NDArray[Any]] = {"inputs": fi.inputs, "classes": classes}
+    if fi.target is not None:
+        arrays["target"] = fi.target
     for name, values in arrays.items():
-        arr = group.create_array(name, shape=values.shape, chunks=values.shape, dtype="float32")
+        arr = group.create_array(
+            name, shape=values.shape, chunks=values.shape, dtype=values.dtype.name
+        )
         arr[:] = values
     group.attrs.put(
         {
@@ -323,6 +354,7 @@ def read_frame(run_dir: Path, job: CacheJob) -> CachedFrame:
     attrs: dict[str, Any] = dict(group.attrs)  # JSON values written by the caching worker
     # "target" and "inputs" are arrays, never subgroups: the caching worker writes them so.
     target = np.asarray(cast(zarr.Array, group["target"])[:]) if "target" in group else None
+    classes = np.asarray(cast(zarr.Array, group["classes"])[:]) if "classes" in group else None
     return CachedFrame(
         pair=job.pair,
         role=job.role,
@@ -332,6 +364,7 @@ def read_frame(run_dir: Path, job: CacheJob) -> CachedFrame:
         labelled=bool(attrs["labelled"]),
         extinction_per_m=float(attrs["extinction_per_m"]),
         sensor=str(attrs["sensor"]),
+        classes=classes,
     )
 
 

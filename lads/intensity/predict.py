@@ -33,8 +33,9 @@ import torch
 from lads.errors import ModelError
 from lads.intensity.checkpoint import IntensityModel, TargetSpec
 from lads.intensity.features import PHYSICS_FLOOR, FrameImage, frame_image
-from lads.intensity.fitted_physics import FittedPhysics
+from lads.intensity.law_groups import GroupedLaw
 from lads.intensity.model import PointGenerator
+from lads.physics.materials import MAX_CLASS_ID, has_instance_bits
 from lads.sensors.conformity import check_scan_of
 from lads.sensors.profile import SensorProfile
 
@@ -116,13 +117,29 @@ def _single_threaded(run: Callable[[], torch.Tensor]) -> torch.Tensor:
 
 
 def law_points(
-    spec: TargetSpec, fi: FrameImage, extinction_per_m: float
+    spec: TargetSpec,
+    fi: FrameImage,
+    extinction_per_m: float,
+    labels: npt.ArrayLike | None = None,
+    label_set: str | None = None,
 ) -> npt.NDArray[np.float64]:
     """(N,) the target's fitted law, ln(I + f), at every point of the frame (its material,
-    range, incidence and beam elevation)."""
-    law = FittedPhysics.from_json(spec.law)  # type: ignore[arg-type]
-    return law.ln_predict(
-        fi.material, fi.range_m, fi.cos_incidence, extinction_per_m, fi.elevation_deg
+    or its class for a law keyed by class and labels of its label set; range, incidence
+    and beam elevation)."""
+    grouped = GroupedLaw.from_json(spec.law)  # type: ignore[arg-type]
+    classes = None
+    if grouped.class_label_set is not None and labels is not None and label_set is not None:
+        classes = np.asarray(labels).astype(np.int64)
+        if has_instance_bits(label_set):
+            classes = classes & MAX_CLASS_ID
+    return grouped.ln_predict(
+        fi.material,
+        fi.range_m,
+        fi.cos_incidence,
+        extinction_per_m,
+        fi.elevation_deg,
+        classes,
+        label_set,
     )
 
 
@@ -150,6 +167,8 @@ class _Prepared:
     out_profile: SensorProfile
     shift: float
     extinction_per_m: float
+    labels: npt.ArrayLike | None = None
+    label_set: str | None = None
 
 
 def predict_points(
@@ -259,16 +278,15 @@ def _prepare(model: IntensityModel, req: PointRequest) -> _Prepared:
         # A pointwise generator reads a few channels: the others are not computed.
         only=model.generator.reads if isinstance(model.generator, PointGenerator) else None,
     )
-    return _Prepared(fi, spec, out_profile, shift, req.extinction_per_m)
+    return _Prepared(fi, spec, out_profile, shift, req.extinction_per_m, req.labels, req.label_set)
 
 
 def _finish_points(model: IntensityModel, p: _Prepared, device: str) -> Prediction:
     """Every point's value from the pointwise generator at its own inputs and law."""
     spec, fi = p.spec, p.fi
     n = len(fi.range_m)
-    law = ((law_points(spec, fi, p.extinction_per_m) - spec.log_mean) / spec.log_std).astype(
-        np.float32
-    )
+    ln_law = law_points(spec, fi, p.extinction_per_m, p.labels, p.label_set)
+    law = ((ln_law - spec.log_mean) / spec.log_std).astype(np.float32)
     raw = torch.from_numpy(fi.point_inputs)[None, :, :, None].to(device)
     law_t = torch.from_numpy(law)[None, None, :, None].to(device)
     mask = torch.ones((1, 1, n, 1), dtype=torch.float32, device=device)
@@ -289,7 +307,7 @@ def _finish(p: _Prepared, z: npt.NDArray[np.float32]) -> Prediction:
     owner_idx = image.index[image.row, image.col]
     owner = owner_idx == np.arange(n)
     if spec.law is not None:  # the generator predicts a correction to the fitted law
-        ln_ref = law_points(spec, fi, p.extinction_per_m)
+        ln_ref = law_points(spec, fi, p.extinction_per_m, p.labels, p.label_set)
         law_map = np.zeros(z.shape, dtype=np.float32)
         law_map[image.row[owner], image.col[owner]] = (ln_ref[owner] - spec.log_mean) / spec.log_std
         z = z + law_map

@@ -26,6 +26,7 @@ class Batch:
     z: torch.Tensor | None  # (B, 1, H, W) target intensity in the pair's z-space
     labelled: bool
     extinction: torch.Tensor  # (B,) 1/m
+    classes: torch.Tensor | None = None  # (B, 1, H, W) int32 class id per pixel, -1 none
 
 
 class Sampler:
@@ -60,7 +61,7 @@ class Sampler:
         self, pair: str, role: str, size: int, width: int, z_stats: tuple[float, float, float]
     ) -> Batch:
         jobs = self.by_domain[(pair, role)]
-        raws, masks, zs, ext = [], [], [], []
+        raws, masks, zs, ext, classes = [], [], [], [], []
         labelled = True
         mean, std, floor = z_stats
         for _ in range(size):
@@ -69,6 +70,7 @@ class Sampler:
             cols = (int(self.rng.integers(w_full)) + np.arange(width)) % w_full
             raw = f.inputs[:, :, cols]
             raws.append(raw)
+            classes.append(_classes_of(f)[None, :, cols])
             masks.append(raw[GEN_MASK_INDEX[raw.shape[0]]][None])
             if f.target is not None and role == "target":
                 zs.append(((np.log(f.target[:, cols] + floor) - mean) / std)[None])
@@ -82,6 +84,7 @@ class Sampler:
             z,
             labelled,
             torch.tensor(ext, dtype=torch.float32),
+            torch.from_numpy(np.stack(classes)),
         )
 
     def points(self, pair: str, count: int, z_stats: tuple[float, float, float]) -> Batch:
@@ -90,7 +93,7 @@ class Sampler:
         jobs = self.by_domain[(pair, "target")]
         mean, std, floor = z_stats
         which = self.rng.integers(len(jobs), size=count)
-        raws, zs, ext = [], [], []
+        raws, zs, ext, classes = [], [], [], []
         labelled = True
         for j in np.unique(which):
             f = self.frame(jobs[int(j)])
@@ -100,6 +103,7 @@ class Sampler:
             occupied = self._occupied(jobs[int(j)].node, flat)
             pick = occupied[self.rng.integers(len(occupied), size=int(np.sum(which == j)))]
             raws.append(flat[:, pick])
+            classes.append(_classes_of(f).reshape(-1)[pick])
             zs.append((np.log(f.target.reshape(-1)[pick] + floor) - mean) / std)
             ext.append(np.full(len(pick), f.extinction_per_m))
             labelled &= f.labelled
@@ -112,13 +116,25 @@ class Sampler:
                 "pointwise identity batch needs one per pair."
             )
         return Batch(
-            raw, torch.ones_like(z), z, labelled, torch.tensor(extinction[:1], dtype=torch.float32)
+            raw,
+            torch.ones_like(z),
+            z,
+            labelled,
+            torch.tensor(extinction[:1], dtype=torch.float32),
+            torch.from_numpy(np.concatenate(classes)[None, None, :, None]),
         )
 
     def _occupied(self, node: str, flat: npt.NDArray[np.float32]) -> npt.NDArray[np.int64]:
         if node not in self._occupied_pixels:
             self._occupied_pixels[node] = np.flatnonzero(flat[GEN_MASK_INDEX[flat.shape[0]]] > 0)
         return self._occupied_pixels[node]
+
+
+def _classes_of(f: CachedFrame) -> npt.NDArray[np.int32]:
+    """(H, W) class plane of a cached frame; all -1 for a frame cached without one."""
+    if f.classes is not None:
+        return f.classes
+    return np.full(f.inputs.shape[1:], -1, dtype=np.int32)
 
 
 GEN_MASK_INDEX = {len(channel_names(s)): channel_names(s).index("mask") for s in (False, True)}

@@ -48,7 +48,7 @@ from lads.intensity.checkpoint import (
     save_model,
 )
 from lads.intensity.features import FEATURE_VERSION, channel_names
-from lads.intensity.fitted_physics import FittedPhysics
+from lads.intensity.law_groups import GroupedLaw
 from lads.intensity.law_reference import TorchLaw, fit_law
 from lads.intensity.run_statistics import run_statistics
 from lads.intensity.sampler import Sampler
@@ -58,6 +58,7 @@ from lads.intensity.train_nets import Nets, set_statistics
 from lads.intensity.train_state import resume, save_checkpoint, write_loss_figure
 from lads.intensity.train_step import train_step
 from lads.physics.materials import material_names
+from lads.readers import label_set_for
 
 CHECKPOINT = "checkpoints/latest.pt"
 
@@ -125,12 +126,15 @@ def train(
 
 def _fit_laws(
     run: Path, cfg: TrainConfig, jobs: list[CacheJob], stats: Statistics
-) -> dict[str, FittedPhysics]:
-    """The physics law fitted per material to each pair's target training frames, by key."""
+) -> dict[str, GroupedLaw]:
+    """The physics law fitted per material (or class, `cfg.law_groups`) to each pair's
+    target training frames, by key."""
     laws = {}
     for p in cfg.pairs:
         target_jobs = [j for j in jobs if j.pair == p.key and j.role == "target"]
-        laws[p.key] = fit_law(iter_frames(run, target_jobs), stats.targets[p.key]["floor"])
+        by_class = label_set_for(p.target.dataset) if cfg.law_groups == "class" else None
+        floor = stats.targets[p.key]["floor"]
+        laws[p.key] = fit_law(iter_frames(run, target_jobs), floor, by_class)
     return laws
 
 
@@ -155,7 +159,7 @@ def _target_scales(
     return targets, log_k
 
 
-def _record(cfg: TrainConfig, laws: dict[str, FittedPhysics], n_jobs: int) -> dict[str, Any]:
+def _record(cfg: TrainConfig, laws: dict[str, GroupedLaw], n_jobs: int) -> dict[str, Any]:
     """What every weight file of the run records of its data: the fitted laws (JSON), the
     number of cached frames and the data hash."""
     return {

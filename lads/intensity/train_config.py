@@ -43,11 +43,13 @@ DATA_ROOT_ENV = "LADS_DATA"
 # The generator architectures (`lads.intensity.model`): a U-Net on the range image, or an MLP
 # on each point's own inputs and its fitted law.
 ARCHITECTURES: tuple[str, ...] = ("unet", "pointwise")
+# What keys the fitted law's intercepts (`lads.intensity.law_groups`).
+LAW_GROUPS: tuple[str, ...] = ("material", "class")
 _TOP = {
     "schema_version", "name", "kind", "description", "pairs", "output", "range_exponent",
     "steps", "batch", "crop_width", "lr", "betas", "base", "blocks", "disc_base", "seed",
     "checkpoint_every", "losses", "workers", "residual", "architecture", "point_width",
-    "point_layers", "identity_points", "lr_decay_from", "law_input",
+    "point_layers", "identity_points", "lr_decay_from", "law_input", "law_groups",
 }  # fmt: skip
 _DOMAIN = set(DomainSpec.__dataclass_fields__) - {"data_root"}
 _LOSSES = set(LossWeights.__dataclass_fields__)
@@ -202,6 +204,12 @@ def _check_settings(cfg: TrainConfig, where: str) -> None:
         raise ConfigError(
             f"{where}: architecture {cfg.architecture!r}; expected one of {list(ARCHITECTURES)}."
         )
+    if cfg.law_groups not in LAW_GROUPS:
+        raise ConfigError(
+            f"{where}: law_groups = {cfg.law_groups!r}; expected one of {list(LAW_GROUPS)}."
+        )
+    if cfg.law_groups == "class" and not cfg.residual:
+        raise ConfigError(f"{where}: law_groups: class keys the fitted law; set residual: true.")
     if not isinstance(cfg.law_input, bool):
         raise ConfigError(f"{where}: law_input = {cfg.law_input!r}; expected true or false.")
     if not cfg.law_input and cfg.architecture != "pointwise":

@@ -65,14 +65,20 @@ class Nets(torch.nn.Module):
         self.laws, self.zstats, self.residual = laws, zstats, residual
 
     def translate(
-        self, raw: torch.Tensor, mask: torch.Tensor, key: str, extinction: torch.Tensor
+        self,
+        raw: torch.Tensor,
+        mask: torch.Tensor,
+        key: str,
+        extinction: torch.Tensor,
+        classes: torch.Tensor | None = None,
     ) -> torch.Tensor:
         """G_S2T in target `key`'s z-space: G's output, plus the target's fitted law when the
-        run is residual (`TrainConfig.residual`); a pointwise G also sees the law."""
+        run is residual (`TrainConfig.residual`); a pointwise G also sees the law. `classes`
+        (B, 1, H, W) class ids per pixel, for a law keyed by class."""
         if not self.residual:
             return self.g(raw, mask)
         mean, std, _ = self.zstats[key]
-        law = (self.laws[key].ln_reference(raw, extinction) - mean) / std
+        law = (self.laws[key].ln_reference(raw, extinction, classes) - mean) / std
         return self.g(raw, mask, law) + law
 
     def pick(

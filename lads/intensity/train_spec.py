@@ -118,6 +118,9 @@ class TrainConfig:
         base, blocks: U-Net width and residual blocks (the generator's when it is a U-Net,
             always the inverse generator's); disc_base: critic width.
         point_width, point_layers: the pointwise generator's hidden width and layers.
+        law_groups: "material" (the law's intercepts per material, for frames of any
+            label set) or "class" (per class of the target's label set where a class has
+            enough training points, the material otherwise; `lads.intensity.law_groups`).
         law_input: whether the pointwise generator reads the fitted law's value. Without
             it the correction is a function of material and geometry alone, added to the
             law, so a class whose law intercept training never showed beside its material
@@ -161,6 +164,7 @@ class TrainConfig:
     point_width: int = 32
     point_layers: int = 2
     law_input: bool = True
+    law_groups: str = "material"
     identity_points: int | None = None
     lr_decay_from: float | None = None
 

@@ -93,9 +93,9 @@ def _generator_terms(
     s = _to(sampler.batch(key, "source", cfg.batch, cfg.crop_width, targets[key]), device)
     t = _to(sampler.batch(key, "target", cfg.batch, cfg.crop_width, targets[key]), device)
     t_z = _intensity(t, key)
-    fake = nets.translate(s.raw, s.mask, key, s.extinction) * s.mask
+    fake = nets.translate(s.raw, s.mask, key, s.extinction, s.classes) * s.mask
     # Physics reference: the law fitted to this target's training frames, in z-space.
-    ref = (laws[key].ln_reference(s.raw, s.extinction) - mean) / std
+    ref = (laws[key].ln_reference(s.raw, s.extinction, s.classes) - mean) / std
     l_phy = masked_l1(fake, ref * s.mask, s.mask)
     l_adv, rho_t = _adversarial_term(nets, key, s, t, t_z, fake)
     l_cyc = _cycle_term(nets, key, s, t, t_z, fake, rho_t)
@@ -157,7 +157,9 @@ def _cycle_term(
     rebuilt[:, ch.index("reflectance")] = rho_t[:, 0]
     rebuilt[:, ch.index("ln_physics")] = torch.log(rho_t * geometry + PHYSICS_FLOOR)[:, 0]
     rebuilt = rebuilt * t.mask
-    return l_cyc + masked_l1(nets.translate(rebuilt, t.mask, key, t.extinction), t_z, t.mask)
+    return l_cyc + masked_l1(
+        nets.translate(rebuilt, t.mask, key, t.extinction, t.classes), t_z, t.mask
+    )
 
 
 def _identity_term(
@@ -176,7 +178,7 @@ def _identity_term(
         ti = _to(sampler.points(key, cfg.identity_points, target), device)
     ti_z = _intensity(ti, key)
     return balanced_l1(
-        nets.translate(ti.raw, ti.mask, key, ti.extinction),
+        nets.translate(ti.raw, ti.mask, key, ti.extinction, ti.classes),
         ti_z,
         ti.mask,
         ti.raw[:, nets.channels.index("material")][:, None],
@@ -230,7 +232,7 @@ def _style_term(
     for name in ("ln_physics", "ln_geometry"):
         swapped[:, ch.index(name)] = s.raw[:, ch.index(name)] + shift[:, 0]
     swapped = swapped * s.mask
-    fake_b = nets.translate(swapped, s.mask, other, alpha_b.view(-1))
+    fake_b = nets.translate(swapped, s.mask, other, alpha_b.view(-1), s.classes)
     (ma, sa, _), (mb, sb, _) = targets[key], targets[other]
     lnq_a = fake * sa + ma - log_k[key]
     lnq_b = fake_b * sb + mb - log_k[other]
@@ -247,4 +249,5 @@ def _to(batch: Batch, device: str) -> Batch:
         None if batch.z is None else batch.z.to(device),
         batch.labelled,
         batch.extinction.to(device),
+        batch.classes,  # read on the CPU by the fitted law
     )
