@@ -31,7 +31,9 @@ from lads.transfer.surfels import Surfels
 from lads.transfer.window import DEFAULT_NEIGHBOURS
 
 # Bump when the stage's output bytes change for the same input.
-SENSOR_STAGE_VERSION = "4"  # 4: normals along the line of far ground, its surfels stretched further
+# 4: normals along the line of far ground, its surfels stretched further; 5: hits in the
+# centre scan's free space carved
+SENSOR_STAGE_VERSION = "5"
 # Point columns the stage knows how to fill; any other column of a source format is refused.
 _KNOWN_COLUMNS = ("x", "y", "z", "intensity", RING_COLUMN)
 

@@ -17,6 +17,7 @@ MIN_TOL_COS = 0.1
 def blend_hits(
     best: F64,
     best_cos: F64,
+    floor: F64,
     hit_pix: npt.NDArray[np.int64],
     hit_t: F64,
     hit_cos: F64,
@@ -30,7 +31,9 @@ def blend_hits(
     """Pass 2: (H, W) blended distance (inf: none), owner (-1: none), reflectivity (0: none)
     and the |cos| of incidence on the owner (0: none).
 
-    Every hit within max(depth_tol_m, depth_tol_share t0) / max(cos, MIN_TOL_COS) behind the
+    Hits nearer than the beam's `floor` (free space of the centre scan, `lads.transfer.carve`;
+    0: none) take no part. Every hit within max(depth_tol_m, depth_tol_share t0) /
+    max(cos, MIN_TOL_COS) behind the
     beam's nearest (cos: the incidence there) votes with its weight: the surfels of one
     surface then vote for its depth instead of the nearest of them winning (the nearest of
     many noisy surfels lies in front of the surface). The owner is the hit nearest its
@@ -48,7 +51,7 @@ def blend_hits(
         j = hit_pix[h] - k * columns
         t = hit_t[h]
         tol = max(depth_tol_m, depth_tol_share * best[k, j])
-        if t > best[k, j] + tol / max(best_cos[k, j], MIN_TOL_COS):
+        if t < floor[k, j] or t > best[k, j] + tol / max(best_cos[k, j], MIN_TOL_COS):
             continue
         i = hit_i[h]
         wt = hit_w[h]

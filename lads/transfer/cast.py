@@ -27,6 +27,7 @@ from lads.transfer.bounds import (
     coarse_atan2,
     in_plane,
 )
+from lads.transfer.carve import FreeSpace, carve_floor, nearest_hits
 from lads.transfer.surfels import Surfels
 
 F64 = npt.NDArray[np.float64]
@@ -79,6 +80,7 @@ def cast_parts(
     depth_tol_m: float = 0.1,
     depth_tol_share: float = 0.01,
     view_sigma_rad: float = math.inf,
+    free: FreeSpace | None = None,
 ) -> BeamHits:
     """The nearest surfel hit of each beam of a (len(elevation_rad), columns) grid, against
     the `kept` surfels of several parts (the scans of a window).
@@ -100,6 +102,8 @@ def cast_parts(
             where the beam looks at it from another direction than its own scan did (its
             albedo carries its normal's error, which cancels only along its own view);
             inf: every view counts the same.
+        free: what the centre scan saw; hits in its free space are dropped before the
+            blend (`lads.transfer.carve`). None: every hit counts.
 
     Returns:
         BeamHits; a beam's surfel (owner) is its index among the kept surfels of all parts,
@@ -122,8 +126,14 @@ def cast_parts(
         best_cos,
         view_sigma_rad,
     )
+    hits = buffers.trimmed()
+    floor = np.zeros_like(best)
+    if free is not None:
+        floor = carve_floor(free, best, el, az)
+        if floor.any():
+            best, best_cos = nearest_hits(hits[0], hits[1], hits[2], floor)
     t, owner, refl, cos = blend_hits(  # type: ignore[call-arg]
-        best, best_cos, *buffers.trimmed(), depth_tol_m, depth_tol_share
+        best, best_cos, floor, *hits, depth_tol_m, depth_tol_share
     )
     return BeamHits(t, owner, cos, refl, el, az)
 

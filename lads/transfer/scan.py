@@ -19,6 +19,7 @@ import numpy.typing as npt
 from lads.errors import InputDataError
 from lads.physics.materials import class_ids, class_roles, has_instance_bits
 from lads.sensors.profile import SensorProfile
+from lads.transfer.carve import free_space
 from lads.transfer.cast import BeamHits, cast_parts
 from lads.transfer.fov import covered_rings, hidden_beyond_view
 from lads.transfer.surfels import (
@@ -187,8 +188,10 @@ def transfer_surfels(
     target_from_source: F64 | None = None,
     detector: Detector | None = None,
     view_sigma_rad: float = math.radians(VIEW_SIGMA_DEG),
+    carve: bool = True,
 ) -> TransferredScan:
-    """`transfer_scan` from each window scan's surfels (`window_surfels`) and poses."""
+    """`transfer_scan` from each window scan's surfels (`window_surfels`) and poses; `carve`:
+    drop hits in the centre scan's free space (`lads.transfer.carve`)."""
     if not 0 <= centre < len(parts) or len(poses) != len(parts):
         raise InputDataError(
             f"transfer: centre {centre} of a window of {len(parts)} scans and {len(poses)} "
@@ -211,6 +214,7 @@ def transfer_surfels(
         azimuth_offset_rad=azimuth_offset_rad,
         max_range_m=target.max_range_m,
         view_sigma_rad=view_sigma_rad,
+        free=free_space(parts[centre].centre, source, mount) if carve else None,
     )
     return _returns(
         hits,
