@@ -82,6 +82,27 @@ def _binned(points: F64, table: F64, columns: int) -> F64:
     return image
 
 
+def carved(
+    space: FreeSpace | None,
+    best: F64,
+    best_cos: F64,
+    hits: tuple[npt.NDArray[np.int64], F64, F64],
+    elevation_rad: F64,
+    azimuth_rad: F64,
+) -> tuple[F64, F64, F64]:
+    """The cast's (H, W) nearest hit distance and |cos| once the hits (beam, distance, |cos|)
+    in the centre scan's free space are left out, and the (H, W) floor below which they lie
+    (`carve_floor`; all 0 without `space`, and then `best`, `best_cos` come back as given)."""
+    floor = np.zeros_like(best)
+    if space is None:
+        return best, best_cos, floor
+    floor = carve_floor(space, best, elevation_rad, azimuth_rad)
+    if not floor.any():
+        return best, best_cos, floor
+    near, near_cos = nearest_hits(hits[0], hits[1], hits[2], floor)
+    return near, near_cos, floor
+
+
 def carve_floor(space: FreeSpace, best: F64, elevation_rad: F64, azimuth_rad: F64) -> F64:
     """(H, W) distance below which a target beam's hits lie in the centre scan's free space
     (0: none carved), from each beam's nearest hit `best` (inf: none).

@@ -27,7 +27,7 @@ from lads.transfer.bounds import (
     coarse_atan2,
     in_plane,
 )
-from lads.transfer.carve import FreeSpace, carve_floor, nearest_hits
+from lads.transfer.carve import FreeSpace, carved
 from lads.transfer.surfels import Surfels
 
 F64 = npt.NDArray[np.float64]
@@ -114,24 +114,9 @@ def cast_parts(
     az = azimuth_offset_rad + (np.arange(int(columns)) + 0.5) * step
     best = np.full((len(el), int(columns)), np.inf)
     best_cos = np.ones((len(el), int(columns)))
-    buffers = _record_parts(
-        parts,
-        kept,
-        to_target,
-        el,
-        azimuth_offset_rad,
-        columns,
-        max_range_m,
-        best,
-        best_cos,
-        view_sigma_rad,
-    )
-    hits = buffers.trimmed()
-    floor = np.zeros_like(best)
-    if free is not None:
-        floor = carve_floor(free, best, el, az)
-        if floor.any():
-            best, best_cos = nearest_hits(hits[0], hits[1], hits[2], floor)
+    record = (el, azimuth_offset_rad, columns, max_range_m, best, best_cos, view_sigma_rad)
+    hits = _record_parts(parts, kept, to_target, *record).trimmed()
+    best, best_cos, floor = carved(free, best, best_cos, hits[:3], el, az)
     t, owner, refl, cos = blend_hits(  # type: ignore[call-arg]
         best, best_cos, floor, *hits, depth_tol_m, depth_tol_share
     )
