@@ -39,7 +39,7 @@ from lads.frame import Frame, Item
 from lads.intensity.features import FEATURE_VERSION, FrameImage, frame_image
 from lads.intensity.splits import split_frames
 from lads.intensity.train_config import DomainSpec, TrainConfig, weather_physics_version
-from lads.physics.materials import MAX_CLASS_ID, has_instance_bits
+from lads.physics.materials import MAX_CLASS_ID, class_ids, has_instance_bits
 from lads.physics.projection import MIN_RANGE_M
 from lads.readers import label_set_for
 from lads.sensors.profile import SensorProfile, load_profile
@@ -286,9 +286,7 @@ def pixel_classes(
     index = fi.image.index
     if labels is None or label_set is None or label_set != wanted:
         return np.full(index.shape, -1, dtype=np.int32)
-    ids = np.asarray(labels).astype(np.int64)
-    if has_instance_bits(label_set):
-        ids = ids & MAX_CLASS_ID
+    ids = class_ids(labels, label_set)
     return np.where(index >= 0, ids[np.maximum(index, 0)], -1).astype(np.int32)
 
 

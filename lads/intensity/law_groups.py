@@ -52,7 +52,8 @@ class GroupedLaw:
         """(N,) ln(I + f): the material law (`FittedPhysics.ln_predict`) plus each point's
         class offset when `classes` ((N,) ids, -1 none) are of this law's label set."""
         ln = self.law.ln_predict(material, range_m, cos_theta, extinction_per_m, elevation_deg)
-        return ln + self.offsets(classes, label_set) if self._applies(classes, label_set) else ln
+        # No offsets: the material law's own array, not a copy plus zero.
+        return ln + self.offsets(classes, label_set) if self.class_offsets else ln
 
     def offsets(
         self, classes: npt.ArrayLike | None, label_set: str | None

@@ -35,7 +35,7 @@ from lads.intensity.checkpoint import IntensityModel, TargetSpec
 from lads.intensity.features import PHYSICS_FLOOR, FrameImage, frame_image
 from lads.intensity.law_groups import GroupedLaw
 from lads.intensity.model import PointGenerator
-from lads.physics.materials import MAX_CLASS_ID, has_instance_bits
+from lads.physics.materials import class_ids
 from lads.sensors.conformity import check_scan_of
 from lads.sensors.profile import SensorProfile
 
@@ -129,9 +129,7 @@ def law_points(
     grouped = GroupedLaw.from_json(spec.law)  # type: ignore[arg-type]
     classes = None
     if grouped.class_label_set is not None and labels is not None and label_set is not None:
-        classes = np.asarray(labels).astype(np.int64)
-        if has_instance_bits(label_set):
-            classes = classes & MAX_CLASS_ID
+        classes = class_ids(labels, label_set)
     return grouped.ln_predict(
         fi.material,
         fi.range_m,
