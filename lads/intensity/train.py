@@ -90,6 +90,7 @@ def train(
     laws = _fit_laws(run, cfg, jobs, stats)
     torch_laws = {k: TorchLaw.of(law, channels) for k, law in laws.items()}
     nets, opt_g, opt_d = _networks(cfg, facts.labelled, stats, device)
+    held = nets.hold_rare_materials(_material_points(laws), cfg.material_min_points)
     rng = np.random.default_rng(cfg.seed)
     sampler = Sampler(run, jobs, rng)
     ckpt_path = run / CHECKPOINT
@@ -97,7 +98,7 @@ def train(
     start, history = _resumed(ckpt_path, config_id, nets, opt_g, opt_d, rng)
     targets, log_k = _target_scales(stats)
     nets.use_laws(torch_laws, targets, cfg.residual)
-    record = _record(cfg, laws, len(jobs))
+    record = _record(cfg, laws, len(jobs)) | {"materials_held": list(held)}
     meta_at = functools.partial(_meta, cfg, stats, channels, record, history)
     validation = validation_frames(cfg)
     selector = Selector(run, config_id, resumed=start > 0)
@@ -136,6 +137,16 @@ def _fit_laws(
         floor = stats.targets[p.key]["floor"]
         laws[p.key] = fit_law(iter_frames(run, target_jobs), floor, by_class)
     return laws
+
+
+def _material_points(laws: dict[str, GroupedLaw]) -> dict[int, int]:
+    """Training points per material index that the targets' laws were fitted to, summed
+    over the pairs (the generator's material vectors are shared by every pair)."""
+    total: dict[int, int] = {}
+    for law in laws.values():
+        for material, n in law.law.counts.items():
+            total[material] = total.get(material, 0) + n
+    return total
 
 
 def _resumed(
@@ -315,6 +326,7 @@ def _meta(
             "physics_reference": record["laws"],
             "cache_frames": record["jobs"],
             "data_hash": record["data_hash"],
+            "materials_held": record["materials_held"],
         },
     )
 

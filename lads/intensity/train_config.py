@@ -50,6 +50,7 @@ _TOP = {
     "steps", "batch", "crop_width", "lr", "betas", "base", "blocks", "disc_base", "seed",
     "checkpoint_every", "losses", "workers", "residual", "architecture", "point_width",
     "point_layers", "identity_points", "lr_decay_from", "law_input", "law_groups",
+    "material_min_points",
 }  # fmt: skip
 _DOMAIN = set(DomainSpec.__dataclass_fields__) - {"data_root"}
 _LOSSES = set(LossWeights.__dataclass_fields__)
@@ -214,6 +215,11 @@ def _check_settings(cfg: TrainConfig, where: str) -> None:
         raise ConfigError(f"{where}: law_input = {cfg.law_input!r}; expected true or false.")
     if not cfg.law_input and cfg.architecture != "pointwise":
         raise ConfigError(f"{where}: law_input: false needs architecture: pointwise.")
+    least = cfg.material_min_points
+    if not isinstance(least, int) or isinstance(least, bool) or least < 0:
+        raise ConfigError(
+            f"{where}: material_min_points = {least!r}; expected a non-negative integer."
+        )
     if cfg.architecture == "pointwise" and not cfg.residual:
         raise ConfigError(
             f"{where}: the pointwise generator corrects the fitted law; set residual: true."

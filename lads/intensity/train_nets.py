@@ -81,6 +81,20 @@ class Nets(torch.nn.Module):
         law = (self.laws[key].ln_reference(raw, extinction, classes) - mean) / std
         return self.g(raw, mask, law) + law
 
+    def hold_rare_materials(self, counts: dict[int, int], min_points: int) -> tuple[str, ...]:
+        """Keep at zero, for the whole run, the learned vector of every material with fewer
+        than `min_points` training points (`counts`: material index -> points); returns the
+        names of the materials held. Zero gradients leave Adam's update at exactly 0."""
+        table = getattr(self.g, "material_embedding", None)
+        if table is None or min_points <= 0:
+            return ()
+        names = material_names()
+        held = [i for i in range(len(names)) if counts.get(i, 0) < min_points]
+        keep = torch.ones(table.weight.shape[0], 1, device=table.weight.device)
+        keep[[i + 1 for i in held]] = 0.0  # row 0 is the empty pixel's
+        table.weight.register_hook(lambda grad: grad * keep)
+        return tuple(names[i] for i in held)
+
     def pick(
         self, raw: torch.Tensor, names: tuple[str, ...], **extra: torch.Tensor
     ) -> torch.Tensor:

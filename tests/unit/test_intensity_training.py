@@ -278,3 +278,48 @@ def test_a_pointwise_run_trains_scores_its_law_alone_first_and_loads(target_tree
     model = load_model(summary["weights"])
     assert model.meta.architecture == "pointwise" and model.meta.base == 8
     assert type(model.generator).__name__ == "PointGenerator"
+
+
+def test_materials_with_too_few_training_points_keep_the_zero_vector(target_tree, tmp_path):
+    import torch
+
+    from lads.intensity.train_nets import Nets
+    from lads.physics.materials import material_names
+
+    pointwise = {"residual": True, "architecture": "pointwise", "identity_points": 300}
+    cfg = parse_train_config(_config(target_tree, tmp_path / "w.pt", **pointwise), "t")
+    nets = Nets(cfg, {"kitti": True})
+    held = nets.hold_rare_materials({0: 5000, 1: 10}, 100)
+    names = material_names()
+    assert names[1] in held and names[0] not in held and names[2] in held  # 2: never seen
+    table = nets.g.material_embedding.weight
+    opt = torch.optim.Adam(nets.g.parameters(), lr=0.1)
+    raw = torch.rand(1, len(nets.channels), 6, 1)
+    raw[0, nets.channels.index("material"), :, 0] = torch.tensor([1.0, 2.0, 3.0, 1.0, 2.0, 3.0])
+    for _ in range(3):
+        opt.zero_grad()
+        nets.g(raw, torch.ones(1, 1, 6, 1), torch.rand(1, 1, 6, 1)).sub(1).square().sum().backward()
+        opt.step()
+    assert bool(table[1].abs().sum() > 0)  # material 0, well supported, learns
+    assert bool((table[2:] == 0).all()) and bool((table[0] == 0).all())
+    assert nets.hold_rare_materials({0: 5000}, 0) == ()
+
+
+def test_a_run_records_the_materials_it_held_and_rejects_a_negative_minimum(target_tree, tmp_path):
+    changes = {
+        "residual": True,
+        "architecture": "pointwise",
+        "identity_points": 300,
+        "point_width": 8,
+        "point_layers": 1,
+        "material_min_points": 10**9,
+    }
+    cfg = parse_train_config(_config(target_tree, tmp_path / "w.pt", **changes), "t")
+    model = load_model(train(cfg, run_dir=tmp_path / "run", progress=False)["weights"])
+    assert len(model.meta.training["materials_held"]) == len(model.meta.materials)
+    assert bool((model.generator.material_embedding.weight == 0).all())
+    assert model.meta.training["config"]["material_min_points"] == 10**9
+    for bad in (-1, 2.5, True):
+        changes["material_min_points"] = bad
+        with pytest.raises(ConfigError, match="material_min_points"):
+            parse_train_config(_config(target_tree, tmp_path / "w.pt", **changes), "t")
