@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Callable, Collection
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import numpy.typing as npt
@@ -82,7 +82,8 @@ class FrameImage:
             full scale), 0 where empty; None when the frame has no measured intensity.
         labelled: reflectance came from labels (False: every point has UNKNOWN_REFLECTANCE).
         image: the projection (owner index per pixel, row and column of every point).
-        physics: (N,) float32 I_P of every point, in m^-n.
+        physics: (N,) float32 I_P of every point, in m^-n; computed on first use (a
+            pointwise generator that does not read it never needs it).
         reflectance: (N,) float32 material reflectance of every point.
         cos_incidence: (N,) float32 cosine of every point.
         range_m: (N,) float32 range of every point.
@@ -97,13 +98,18 @@ class FrameImage:
     target: FloatArray | None
     labelled: bool
     image: RangeImage
-    physics: FloatArray
     reflectance: FloatArray
     cos_incidence: FloatArray
     range_m: FloatArray
     elevation_deg: FloatArray
     material: npt.NDArray[np.int64]
     point_inputs: FloatArray
+    physics_of: Callable[[], FloatArray] = field(repr=False, compare=False)
+
+    @functools.cached_property
+    def physics(self) -> FloatArray:
+        """(N,) float32 I_P of every point, in m^-n (see the class docstring)."""
+        return self.physics_of()
 
     @property
     def mask(self) -> npt.NDArray[np.bool_]:
@@ -220,8 +226,10 @@ def _frame_of(
     """The FrameImage of an `_organised` frame: point modalities, channels and target."""
     n = len(r)
     rho, material = _reflectance_and_material(n, labels, label_set)
-    phys = physics_intensity(
-        rho, cos, r, range_exponent=range_exponent, extinction_per_m=extinction_per_m
+    phys = functools.cache(
+        lambda: physics_intensity(
+            rho, cos, r, range_exponent=range_exponent, extinction_per_m=extinction_per_m
+        )
     )
     is_particle = _particle_flags(n, outcome, particle)
 
@@ -246,7 +254,7 @@ def _frame_of(
         target=None if intensity is None else _target(intensity, n, profile, image.index),
         labelled=labels is not None,
         image=image,
-        physics=phys,
+        physics_of=phys,
         reflectance=rho.astype(np.float32),
         cos_incidence=cos.astype(np.float32),
         range_m=r.astype(np.float32),
@@ -261,7 +269,7 @@ def _point_columns(
     r: npt.NDArray[np.float64],
     cos: npt.NDArray[np.float32],
     rho: npt.NDArray[np.float32],
-    phys: npt.NDArray[np.float32],
+    phys: Callable[[], npt.NDArray[np.float32]],
     is_particle: npt.NDArray[np.bool_],
     material: npt.NDArray[np.int64],
     elevation_deg: npt.NDArray[np.float64],
@@ -280,7 +288,7 @@ def _point_columns(
         "ln_range": lambda: np.log(r),
         "cos_incidence": lambda: cos,
         "reflectance": lambda: rho,
-        "ln_physics": lambda: np.log(phys.astype(np.float64) + PHYSICS_FLOOR),
+        "ln_physics": lambda: np.log(phys().astype(np.float64) + PHYSICS_FLOOR),
         "particle": lambda: is_particle.astype(np.float32),
         "material": lambda: (material + 1).astype(np.float32),
         "ln_geometry": lambda: np.log(

@@ -46,6 +46,7 @@ import numpy as np
 import numpy.typing as npt
 from scipy import sparse
 
+from lads.intensity.law_kernel import law_with_lasers, oren_nayar_factor
 from lads.sensors.conformity import NEAR_FIELD_M
 
 SIGMA_GRID_RAD: tuple[float, ...] = tuple(np.round(np.linspace(0.0, 1.2, 13), 3))
@@ -66,8 +67,11 @@ MIN_LASER_POINTS = 50  # a laser with fewer fitting points gets no curve of its 
 
 def oren_nayar(cos_theta: npt.ArrayLike, sigma_rad: float) -> npt.NDArray[np.float64]:
     """Backscatter Oren-Nayar factor g(theta) = A cos + B sin^2, (N,) float64 in [0, 1]."""
-    c = np.clip(np.asarray(cos_theta, dtype=np.float64), COS_FLOOR, 1.0)
     a, b = oren_nayar_coefficients(sigma_rad)
+    c = np.asarray(cos_theta)
+    if c.dtype in (np.float32, np.float64):  # one compiled pass, the same bits
+        return oren_nayar_factor(c.reshape(-1), a, b, COS_FLOOR).reshape(c.shape)
+    c = np.clip(c.astype(np.float64), COS_FLOOR, 1.0)
     return a * c + b * (1.0 - c**2)
 
 
@@ -113,8 +117,30 @@ class FittedPhysics:
         a = self.intercept_of(g)
         incidence = np.log(oren_nayar(cos_theta, self.sigma_rad))
         ln_r = np.log(r)
+        if np.ndim(extinction_per_m) == 0 and self._compiled_sums(elevation_deg, a, incidence, r):
+            # The same sums as below in one compiled pass (`law_kernel`), the same bits.
+            return law_with_lasers(
+                np.ravel(a),
+                np.ravel(ln_r),
+                np.ravel(r),
+                np.ravel(incidence),
+                self.b1,
+                self.b2,
+                np.ravel(nearest_laser(self.laser_elevation_deg, elevation_deg)),
+                np.asarray(self.laser_knots_ln, dtype=np.float64),
+                np.asarray(self.laser_curves, dtype=np.float64).ravel(),
+                2.0 * float(extinction_per_m),
+            ).reshape(r.shape)
         shared = a + self.b1 * ln_r + self.b2 * r / 10.0 + incidence
         return shared + self.laser_term(r, elevation_deg, ln_r) - 2.0 * extinction_per_m * r
+
+    def _compiled_sums(self, elevation_deg: npt.ArrayLike | None, *parts: np.ndarray) -> bool:
+        """Whether `law_kernel` can evaluate the sums: per-laser curves of two or more knots,
+        elevations given, and every part of the shape of the ranges (no broadcasting)."""
+        if elevation_deg is None or len(self.laser_knots_ln) < 2 or not self.laser_curves:
+            return False
+        shape = parts[-1].shape
+        return np.shape(elevation_deg) == shape and all(p.shape == shape for p in parts)
 
     def laser_term(
         self,
@@ -223,11 +249,15 @@ def _nearest_entries(table: npt.NDArray[np.float64], e: npt.NDArray[Any]) -> npt
     comparisons in float64 as its numpy form: ties go to the lower entry)."""
     out = np.empty(e.shape[0], dtype=np.int64)
     last = table.shape[0] - 1
+    previous, answer = np.nan, 0  # a frame's points come ring by ring: reuse the last answer
     for i in range(e.shape[0]):
         v = np.float64(e[i])
-        right: int = min(max(int(np.searchsorted(table, v)), 1), last)
-        left = right - 1
-        out[i] = left if abs(v - table[left]) <= abs(table[right] - v) else right
+        if v != previous:
+            right: int = min(max(int(np.searchsorted(table, v)), 1), last)
+            left = right - 1
+            answer = left if abs(v - table[left]) <= abs(table[right] - v) else right
+            previous = v
+        out[i] = answer
     return out
 
 

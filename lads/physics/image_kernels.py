@@ -41,6 +41,42 @@ def pixel_owners(
 
 
 @numba.njit(cache=True, nogil=True)
+def organised_pixels(
+    azimuth_rad: npt.NDArray[np.float64],
+    chan: npt.NDArray[np.int64],
+    range_m: npt.NDArray[np.float64],
+    xyz: npt.NDArray[np.float64],
+    height: int,
+    width: int,
+) -> tuple[npt.NDArray[np.int64], ...]:
+    """The range image of `projection.organise` from each point's atan2(y, x), channel,
+    range and coordinates, in one pass after the arctangent: (N,) row and column, (H*W,)
+    owner index (`pixel_owners`), (H*W,) float32 owner range and (H*W, 3) float32 owner
+    coordinates (0 where empty). The column is floor(0.5 (1 - a / pi) W) mod W, the
+    operations of the numpy form in its order."""
+    n = azimuth_rad.shape[0]
+    row = np.empty(n, dtype=np.int64)
+    col = np.empty(n, dtype=np.int64)
+    pixel = np.empty(n, dtype=np.int64)
+    for i in range(n):
+        u = 0.5 * (-azimuth_rad[i] / np.pi + 1.0) * width
+        row[i] = height - 1 - chan[i]
+        col[i] = int(math.floor(u)) % width  # u == W is azimuth -pi, i.e. column 0
+        pixel[i] = row[i] * width + col[i]
+    index = pixel_owners(pixel, range_m, height * width)
+    range_img = np.zeros(height * width, dtype=np.float32)
+    xyz_img = np.zeros((height * width, 3), dtype=np.float32)
+    for p in range(height * width):
+        j = index[p]
+        if j >= 0:
+            range_img[p] = range_m[j]
+            xyz_img[p, 0] = xyz[j, 0]
+            xyz_img[p, 1] = xyz[j, 1]
+            xyz_img[p, 2] = xyz[j, 2]
+    return row, col, index, range_img, xyz_img
+
+
+@numba.njit(cache=True, nogil=True)
 def point_ranges(xyz: npt.NDArray[np.float64]) -> tuple[npt.NDArray[np.float64], int]:
     """(N,) range in m of each (N, 3) point and how many points have a NaN or infinite
     coordinate, in one pass. The squares are summed x, z, then y: numpy's einsum order, so
@@ -150,6 +186,25 @@ def image_normals(
             scale = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2) * math.sqrt(b0 * b0 + b1 * b1 + b2 * b2)
             ok[v, u] = good and math.sqrt(n0 * n0 + n1 * n1 + n2 * n2) > 1e-6 * scale
     return normal, ok
+
+
+@numba.njit(cache=True, nogil=True)
+def on_pixel_surface(
+    ok: npt.NDArray[np.bool_],
+    range_img: npt.NDArray[np.float64],
+    row: npt.NDArray[np.int64],
+    col: npt.NDArray[np.int64],
+    range_m: npt.NDArray[np.float64],
+    max_depth_jump: float,
+) -> npt.NDArray[np.bool_]:
+    """(N,) whether each point may take its pixel's normal: the pixel's normal is usable
+    (`ok`, (H, W)) and the point's range is within max_depth_jump x the owner's range of
+    it (the same surface), |r - r_owner| <= jump r_owner as in `modalities`."""
+    out = np.empty(row.shape[0], dtype=np.bool_)
+    for i in range(row.shape[0]):
+        owner = range_img[row[i], col[i]]
+        out[i] = ok[row[i], col[i]] and abs(range_m[i] - owner) <= max_depth_jump * owner
+    return out
 
 
 @numba.njit(cache=True, nogil=True)

@@ -41,7 +41,7 @@ import numpy as np
 import numpy.typing as npt
 
 from lads.errors import ConfigError, InvalidPointsError
-from lads.physics.image_kernels import image_normals, pixel_normal_cos
+from lads.physics.image_kernels import image_normals, on_pixel_surface, pixel_normal_cos
 from lads.physics.knn_normals import neighbour_cos
 from lads.physics.materials import reflectance_for_labels
 from lads.physics.projection import (
@@ -279,8 +279,9 @@ def _incidence(
         MAX_COLUMN_GAP,
         float(max_depth_jump),
     )
-    owner_range = range_img[image.row, image.col]
-    use = ok[image.row, image.col] & (np.abs(r - owner_range) <= max_depth_jump * owner_range)
+    use = on_pixel_surface(
+        ok, range_img, image.row, image.col, np.ascontiguousarray(r), float(max_depth_jump)
+    )
     cos = pixel_normal_cos(normal, image.row, image.col, np.ascontiguousarray(xyz64), use)
     source[use] = IncidenceSource.IMAGE
 

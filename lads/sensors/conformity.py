@@ -20,6 +20,10 @@ Frames with fewer than `MIN_JUDGED_POINTS` returns beyond it (a tiny sample) pas
 
 from __future__ import annotations
 
+import math
+from typing import Any
+
+import numba
 import numpy as np
 import numpy.typing as npt
 
@@ -65,26 +69,58 @@ def check_scan_of(
     # the cost of a 64-beam scan.
     points = np.asarray(xyz)
     step = max(1, -(-len(points) // MAX_SAMPLED_POINTS))
-    p = points[::step].astype(np.float64)
-    far = np.linalg.norm(p, axis=1) > NEAR_FIELD_M
-    if int(far.sum()) < MIN_JUDGED_POINTS:
-        return
-    elevation = elevation_deg(p[far])
     if ring is not None:
-        rings = np.asarray(ring, dtype=np.float64)[::step]
-        _check_rings(rings, far, elevation, profile, where)
+        p = points[::step].astype(np.float64)
+        far = np.linalg.norm(p, axis=1) > NEAR_FIELD_M
+        if int(far.sum()) >= MIN_JUDGED_POINTS:
+            rings = np.asarray(ring, dtype=np.float64)[::step]
+            _check_rings(rings, far, elevation_deg(p[far]), profile, where)
         return
     low, high = profile.vertical_fov_deg
-    outside = (elevation < low - FOV_MARGIN_DEG) | (elevation > high + FOV_MARGIN_DEG)
-    share = float(outside.mean())
+    if points.ndim != 2 or points.shape[1] != 3 or not np.issubdtype(points.dtype, np.number):
+        return  # not points at all: the caller's own checks name what is wrong
+    judged, outside = _fov_counts(
+        points, step, NEAR_FIELD_M, _tan_deg(low - FOV_MARGIN_DEG), _tan_deg(high + FOV_MARGIN_DEG)
+    )
+    if judged < MIN_JUDGED_POINTS:
+        return
+    share = outside / judged
     if share > MAX_OUTSIDE_FOV:
         raise InvalidPointsError(
-            f"{where}: {share:.0%} of the {elevation.size} returns beyond {NEAR_FIELD_M:g} m lie "
+            f"{where}: {share:.0%} of the {judged} returns beyond {NEAR_FIELD_M:g} m lie "
             f"outside the vertical field of view {low:g}..{high:g} deg (+-{FOV_MARGIN_DEG:g}) of "
             f"sensor profile '{profile.name}' (nearer returns, such as the vehicle's body, are "
             "not counted); the frame is not a scan of that sensor. Read it with the reader of "
             "its own dataset, or pass a sensor profile of its LiDAR (lads profiles)."
         )
+
+
+def _tan_deg(angle_deg: float) -> float:
+    """tan of an elevation in degrees, +-inf at or beyond +-90."""
+    if abs(angle_deg) >= 90.0:
+        return math.copysign(math.inf, angle_deg)
+    return math.tan(math.radians(angle_deg))
+
+
+@numba.njit(cache=True, nogil=True)
+def _fov_counts(
+    points: npt.NDArray[Any], step: int, near_m: float, tan_low: float, tan_high: float
+) -> tuple[int, int]:
+    """(judged, outside) of every step-th (N, 3) point: those farther than near_m, and of
+    them those below the elevation of tan_low or above that of tan_high (z against rho tan,
+    no arctangent: one pass, no copies)."""
+    judged = outside = 0
+    near2 = near_m * near_m
+    for i in range(0, points.shape[0], step):
+        x, y, z = float(points[i, 0]), float(points[i, 1]), float(points[i, 2])
+        rho2 = x * x + y * y
+        if not rho2 + z * z > near2:  # near, or NaN: not judged
+            continue
+        judged += 1
+        rho = math.sqrt(rho2)
+        if z < rho * tan_low or z > rho * tan_high:
+            outside += 1
+    return judged, outside
 
 
 def _check_rings(

@@ -20,6 +20,7 @@ import yaml
 
 from lads.errors import IntensityEncodingError, SensorProfileError
 from lads.resources import sensors_dir
+from lads.sensors.lookup import left_positions
 
 
 @functools.lru_cache(maxsize=16)
@@ -197,7 +198,7 @@ class SensorProfile:
         elevation = np.degrees(np.arctan2(xyz[:, 2], horizontal_m))
         table = np.asarray(self.elevation_deg)
         midpoints = 0.5 * (table[1:] + table[:-1])
-        return np.searchsorted(midpoints, elevation).astype(np.int64)
+        return left_positions(midpoints, elevation)
 
 
 def available_profiles() -> list[str]:

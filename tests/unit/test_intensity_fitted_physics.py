@@ -250,3 +250,40 @@ def test_the_hat_basis_interpolates_linearly_and_clamps():
     values = np.array([1.0, 2.0, 4.0])
     got = (values[cols] * basis).sum(axis=1)
     assert np.allclose(got, [1.0, 1.0, 1.0 + np.log(np.sqrt(30) / 3) / np.log(10 / 3), 4.0, 4.0])
+
+
+def test_the_compiled_law_sums_are_the_numpy_expression_bit_for_bit():
+    group, r, cos, refl, elevation, _ = laser_data(20000, 7)
+    law = fitted_physics.fit(group, r, cos, refl, floor=0.005, elevation_deg=elevation)
+    r = np.r_[r, 0.01, 1e4, law.range_min_m, law.range_max_m]  # outside and at the support
+    group, cos = np.r_[group, 0, 1, 2, 99], np.r_[cos, 0.0, 1.0, 0.5, 0.3]
+    elevation = np.r_[elevation, -40.0, 40.0, LASERS_DEG[1], -9.5]
+    for alpha in (0.0, 0.013):
+        fast = law.ln_predict(group, r, cos, alpha, elevation)
+        # An extinction per point takes the numpy expression (no compiled sums).
+        slow = law.ln_predict(group, r, cos, np.full(r.shape, alpha), elevation)
+        assert np.array_equal(fast.view(np.int64), slow.view(np.int64))
+        clamped = np.clip(r, law.range_min_m, law.range_max_m)
+        by_hand = (
+            law.intercept_of(group)
+            + law.b1 * np.log(clamped)
+            + law.b2 * clamped / 10.0
+            + np.log(fitted_physics.oren_nayar(cos, law.sigma_rad))
+            + law.laser_term(clamped, elevation)
+            - 2.0 * alpha * clamped
+        )
+        assert np.array_equal(fast.view(np.int64), by_hand.view(np.int64))
+
+
+def test_the_compiled_oren_nayar_factor_is_the_numpy_expression_bit_for_bit():
+    rng = np.random.default_rng(8)
+    for dtype in (np.float32, np.float64):
+        c = np.r_[rng.uniform(-0.5, 1.5, 5000), np.nan, 0.0, 1.0, 1e-3, np.inf].astype(dtype)
+        for sigma in (0.0, 0.3, 1.2):
+            a, b = fitted_physics.oren_nayar_coefficients(sigma)
+            clipped = np.clip(c.astype(np.float64), fitted_physics.COS_FLOOR, 1.0)
+            want = a * clipped + b * (1.0 - clipped**2)
+            got = fitted_physics.oren_nayar(c, sigma)
+            assert np.array_equal(got.view(np.int64), want.view(np.int64))
+    assert fitted_physics.oren_nayar(np.full((4, 5), 0.5), 0.3).shape == (4, 5)
+    assert fitted_physics.oren_nayar([1, 0], 0.0).tolist() == [1.0, fitted_physics.COS_FLOOR]

@@ -285,3 +285,43 @@ def test_labels_must_match_the_points():
         compute_modalities(np.ones((1, 3)), np.array([-3]), "semantickitti", HDL64)
     with pytest.raises(ConfigError):
         compute_modalities(np.ones((1, 3)), np.array([3]), "kitti", HDL64)
+
+
+def test_the_compiled_organise_is_the_numpy_form_bit_for_bit():
+    from lads.physics.image_kernels import pixel_owners
+    from lads.physics.projection import organise
+
+    rng = np.random.default_rng(3)
+    xyz = rng.normal(size=(5000, 3)) * [20.0, 20.0, 2.0]
+    xyz[:50] = xyz[50:100] * 1.5  # the same directions farther: pixels with two points
+    xyz[100] = [-5.0, -0.0, 1.0]  # azimuth -pi: u == W, column 0
+    xyz[101] = [-5.0, 0.0, 1.0]  # azimuth +pi
+    r = np.sqrt((xyz**2).sum(1))
+    chan = rng.integers(0, 8, len(xyz))
+    for width in (16, 2048):
+        got = organise(xyz, r, chan, 8, width)
+        row = 7 - chan
+        u = 0.5 * (-np.arctan2(xyz[:, 1], xyz[:, 0]) / np.pi + 1.0) * width
+        col = np.floor(u).astype(np.int64) % width
+        pixel = row * width + col
+        index = pixel_owners(pixel, r, 8 * width)
+        owners = index[index >= 0]
+        range_img = np.zeros(8 * width, dtype=np.float32)
+        range_img[pixel[owners]] = r[owners]
+        xyz_img = np.zeros((8 * width, 3), dtype=np.float32)
+        xyz_img[pixel[owners]] = xyz[owners]
+        assert np.array_equal(got.row, row) and np.array_equal(got.col, col)
+        assert np.array_equal(got.index.ravel(), index)
+        assert np.array_equal(got.range_m.ravel().view(np.int32), range_img.view(np.int32))
+        assert np.array_equal(got.xyz.reshape(-1, 3).view(np.int32), xyz_img.view(np.int32))
+        assert got.col[100] == 0 and got.col[101] == 0
+
+
+def test_nearest_channels_are_numpys_searchsorted_positions():
+    from lads.sensors.lookup import left_positions
+
+    rng = np.random.default_rng(4)
+    table = np.sort(rng.normal(size=63))
+    values = np.r_[rng.normal(size=10000) * 2, table, np.nextafter(table, 9), np.nan, np.inf]
+    assert np.array_equal(left_positions(table, values), np.searchsorted(table, values))
+    assert left_positions(table, values[:7000].reshape(-1, 7)).shape == (1000, 7)

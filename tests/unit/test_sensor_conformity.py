@@ -55,3 +55,23 @@ def test_too_few_far_returns_are_not_judged():
     tiny = rng.normal(0, 30, (MIN_JUDGED_POINTS - 1, 3))
     tiny[:, 2] = 50.0  # all far above any field of view
     check_scan_of(tiny, HDL64)
+
+
+def test_the_compiled_field_of_view_count_is_the_arctangent_rule():
+    from lads.sensors.conformity import FOV_MARGIN_DEG, _fov_counts, _tan_deg
+
+    rng = np.random.default_rng(2)
+    xyz = rng.normal(0, 20, (20000, 3)).astype(np.float32)
+    xyz[:10] = np.nan  # never judged
+    low, high = HDL64.vertical_fov_deg
+    for step in (1, 3):
+        p = xyz[::step].astype(np.float64)
+        with np.errstate(invalid="ignore"):
+            far = np.linalg.norm(p, axis=1) > NEAR_FIELD_M
+        elevation = np.degrees(np.arctan2(p[far, 2], np.hypot(p[far, 0], p[far, 1])))
+        outside = (elevation < low - FOV_MARGIN_DEG) | (elevation > high + FOV_MARGIN_DEG)
+        got = _fov_counts(
+            xyz, step, NEAR_FIELD_M, _tan_deg(low - FOV_MARGIN_DEG), _tan_deg(high + FOV_MARGIN_DEG)
+        )
+        assert got == (int(far.sum()), int(outside.sum()))
+    assert _tan_deg(95.0) == np.inf and _tan_deg(-90.0) == -np.inf
