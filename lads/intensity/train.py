@@ -90,7 +90,7 @@ def train(
     laws = _fit_laws(run, cfg, jobs, stats)
     torch_laws = {k: TorchLaw.of(law, channels) for k, law in laws.items()}
     nets, opt_g, opt_d = _networks(cfg, facts.labelled, stats, device)
-    held = nets.hold_rare_materials(_material_points(laws), cfg.material_min_points)
+    held = nets.hold_rare_materials(_material_points(run, jobs), cfg.material_min_points)
     rng = np.random.default_rng(cfg.seed)
     sampler = Sampler(run, jobs, rng)
     ckpt_path = run / CHECKPOINT
@@ -139,14 +139,19 @@ def _fit_laws(
     return laws
 
 
-def _material_points(laws: dict[str, GroupedLaw]) -> dict[int, int]:
-    """Training points per material index that the targets' laws were fitted to, summed
-    over the pairs (the generator's material vectors are shared by every pair)."""
-    total: dict[int, int] = {}
-    for law in laws.values():
-        for material, n in law.law.counts.items():
-            total[material] = total.get(material, 0) + n
-    return total
+def _material_points(run: Path, jobs: list[CacheJob]) -> dict[int, int]:
+    """Occupied pixels per material index of the labelled target training frames, summed
+    over the pairs: the points the identity term learns each material's vector from."""
+    total = np.zeros(len(material_names()) + 1, dtype=np.int64)
+    for f in iter_frames(run, [j for j in jobs if j.role == "target"]):
+        if not f.labelled:
+            continue
+        names = channel_names(f.inputs.shape[0] != len(channel_names(False)))
+        occupied = f.inputs[names.index("mask")] > 0
+        code = np.rint(f.inputs[names.index("material")][occupied]).astype(np.int64)
+        total += np.bincount(code, minlength=total.size)[: total.size]
+    # Channel code 1 + material index (0: no material).
+    return {i - 1: int(n) for i, n in enumerate(total) if i > 0 and n}
 
 
 def _resumed(

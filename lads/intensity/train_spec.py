@@ -125,10 +125,10 @@ class TrainConfig:
             it the correction is a function of material and geometry alone, added to the
             law, so a class whose law intercept training never showed beside its material
             (a pooled intercept) is not an input the network extrapolates on.
-        material_min_points: a material seen on fewer training points of the targets (those
-            their fitted laws were fitted to, summed over pairs) keeps the zero vector of
-            an unseen material: its learned vector would rest on too few points to carry
-            to another place. 0: every material present learns its vector.
+        material_min_points: a material seen on fewer points of the labelled target
+            training frames (summed over pairs) keeps the zero vector of an unseen
+            material: its learned vector would rest on too few points to carry to another
+            place. 0: every material present learns its vector.
         lr_decay_from: with a value f in [0, 1), the learning rate falls linearly from `lr`
             at step f x steps to 0 at the last step (CycleGAN's schedule; checkpoints
             late in a run then differ less from one another); None: constant.
