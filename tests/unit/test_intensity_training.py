@@ -319,6 +319,21 @@ def test_a_run_records_the_materials_it_held_and_rejects_a_negative_minimum(targ
     assert len(model.meta.training["materials_held"]) == len(model.meta.materials)
     assert bool((model.generator.material_embedding.weight == 0).all())
     assert model.meta.training["config"]["material_min_points"] == 10**9
+    # The support counted is every occupied pixel of the labelled target training frames.
+    from lads.intensity.cache import iter_frames
+    from lads.intensity.features import channel_names
+    from lads.intensity.train import _material_points
+
+    jobs = list_jobs(cfg)
+    counts = _material_points(tmp_path / "run", jobs)
+    names = channel_names(False)
+    occupied = [
+        f.inputs[names.index("material")][f.inputs[names.index("mask")] > 0]
+        for f in iter_frames(tmp_path / "run", jobs)
+        if f.role == "target"
+    ]
+    assert sum(counts.values()) == sum(o.size for o in occupied) > 0
+    assert set(counts) == {int(m) - 1 for o in occupied for m in set(o.tolist()) if m > 0}
     for bad in (-1, 2.5, True):
         changes["material_min_points"] = bad
         with pytest.raises(ConfigError, match="material_min_points"):
