@@ -39,7 +39,7 @@ from lads.frame import Frame, Item
 from lads.intensity.features import FEATURE_VERSION, FrameImage, frame_image
 from lads.intensity.splits import split_frames
 from lads.intensity.train_config import DomainSpec, TrainConfig, weather_physics_version
-from lads.physics.materials import MAX_CLASS_ID, class_ids, has_instance_bits
+from lads.physics.materials import class_ids
 from lads.physics.projection import MIN_RANGE_M
 from lads.readers import label_set_for
 from lads.sensors.profile import SensorProfile, load_profile
@@ -216,9 +216,8 @@ def read_domain_frame(domain: DomainSpec, relpath: str, *, weather_model: bool) 
     particle = None
     if weather_model and frame.labels is not None and not domain.weather:
         # Real weather recordings label their particles (WADS 110 = falling snow).
-        ids = frame.labels.astype(np.int64)
-        if reader.label_set is not None and has_instance_bits(reader.label_set):
-            ids = ids & MAX_CLASS_ID
+        lset = reader.label_set
+        ids = frame.labels.astype(np.int64) if lset is None else class_ids(frame.labels, lset)
         particle = ids == reader.particle_label
     ring = frame.points[:, frame.columns.index("ring")] if "ring" in frame.columns else None
     label_set = label_set_for(domain.dataset) if frame.labels is not None else None
