@@ -38,6 +38,7 @@ law in R extrapolated to a 0.1 m ego return would be several e-folds off. Pure n
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -117,7 +118,10 @@ class FittedPhysics:
         a = self.intercept_of(g)
         incidence = np.log(oren_nayar(cos_theta, self.sigma_rad))
         ln_r = np.log(r)
-        if np.ndim(extinction_per_m) == 0 and self._compiled_sums(elevation_deg, a, incidence, r):
+        compiled = np.ndim(extinction_per_m) == 0 and self._compiled_sums(
+            elevation_deg, a, incidence, r
+        )
+        if compiled and elevation_deg is not None:
             # The same sums as below in one compiled pass (`law_kernel`), the same bits.
             return law_with_lasers(
                 np.ravel(a),
@@ -249,9 +253,9 @@ def _nearest_entries(table: npt.NDArray[np.float64], e: npt.NDArray[Any]) -> npt
     comparisons in float64 as its numpy form: ties go to the lower entry)."""
     out = np.empty(e.shape[0], dtype=np.int64)
     last = table.shape[0] - 1
-    previous, answer = np.nan, 0  # a frame's points come ring by ring: reuse the last answer
+    previous, answer = math.nan, 0  # a frame's points come ring by ring: reuse the last answer
     for i in range(e.shape[0]):
-        v = np.float64(e[i])
+        v = float(e[i])
         if v != previous:
             right: int = min(max(int(np.searchsorted(table, v)), 1), last)
             left = right - 1

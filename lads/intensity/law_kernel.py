@@ -56,7 +56,7 @@ def oren_nayar_factor(cos_theta: npt.NDArray[Any], a: float, b: float, floor: fl
     NaN, as np.clip leaves it): `fitted_physics.oren_nayar`'s expression, the same bits."""
     out = np.empty(cos_theta.shape[0])
     for i in range(cos_theta.shape[0]):
-        c = np.float64(cos_theta[i])
+        c = float(cos_theta[i])
         if c < floor:
             c = floor
         elif c > 1.0:

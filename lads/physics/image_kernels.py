@@ -48,7 +48,13 @@ def organised_pixels(
     xyz: npt.NDArray[np.float64],
     height: int,
     width: int,
-) -> tuple[npt.NDArray[np.int64], ...]:
+) -> tuple[
+    npt.NDArray[np.int64],
+    npt.NDArray[np.int64],
+    npt.NDArray[np.int64],
+    npt.NDArray[np.float32],
+    npt.NDArray[np.float32],
+]:
     """The range image of `projection.organise` from each point's atan2(y, x), channel,
     range and coordinates, in one pass after the arctangent: (N,) row and column, (H*W,)
     owner index (`pixel_owners`), (H*W,) float32 owner range and (H*W, 3) float32 owner
