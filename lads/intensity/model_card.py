@@ -60,7 +60,8 @@ def _domain_line(role: str, spec: Any) -> str:
 
 def _metrics_table(results: dict[str, Any]) -> list[str]:
     lines = []
-    for key, res in results.items():
+    # Sorted everywhere: a card reads the same whether scored now or from eval.json.
+    for key, res in sorted(results.items()):
         pooled = res.get("pooled", {})
         frames = res["context"]["frames"]
         shown = ", ".join(frames[:6]) + (f" and {len(frames) - 6} more" if len(frames) > 6 else "")
@@ -71,7 +72,7 @@ def _metrics_table(results: dict[str, Any]) -> list[str]:
             "cell W1 (refl.) | cell KS | retro contrast pred / real |",
             "|---|---|---|---|---|---|---|---|",
         ]
-        for method, m in pooled.items():
+        for method, m in sorted(pooled.items()):
             lines.append(
                 f"| {method} | {_f(m.get('mae_encoded'))} | {_f(m.get('mae_reflectivity'))} | "
                 f"{_f(m.get('pearson_r'))} | {_f(m.get('spearman_rho'))} | "
@@ -81,9 +82,9 @@ def _metrics_table(results: dict[str, Any]) -> list[str]:
         beats = res.get("summary", {}).get("beats", {})
         if beats:
             lines.append("")
-            for metric, table in beats.items():
-                won = [b for b, ok in table.items() if ok]
-                lost = [b for b, ok in table.items() if not ok]
+            for metric, table in sorted(beats.items()):
+                won = sorted(b for b, ok in table.items() if ok)
+                lost = sorted(b for b, ok in table.items() if not ok)
                 if not lost:
                     lines.append(
                         f"- {metric}: the generator beats every baseline ({', '.join(won)})."
@@ -117,6 +118,16 @@ def _f(value: Any) -> str:
     return "n/a" if value is None else f"{value:.4g}"
 
 
+def _held_line(cfg: TrainConfig, held: list[str]) -> list[str]:
+    """The card line naming the materials whose vector was held at zero (none: no line)."""
+    if not held:
+        return []
+    return [
+        f"- materials with fewer than {cfg.material_min_points} labelled training points, "
+        f"answered as never seen (`material_min_points`): {', '.join(held)}"
+    ]
+
+
 def render_card(cfg: TrainConfig, weights: Path, results: dict[str, Any]) -> str:
     model = load_model(weights)
     training = model.meta.training
@@ -137,6 +148,7 @@ def render_card(cfg: TrainConfig, weights: Path, results: dict[str, Any]) -> str
         "(paired MAE + cell W1) and is this file",
         f"- generator: {ARCHITECTURE[cfg.architecture]}, {GENERATOR_FORM[cfg.residual]}; "
         f"range exponent n = {cfg.range_exponent}; data hash {training.get('data_hash')}",
+        *_held_line(cfg, training.get("materials_held", [])),
         f"- loss composition (share of the generator loss, last 100 steps before that "
         f"checkpoint): {_shares(training.get('loss_shares', {}))}; supervised = identity "
         "(labelled real targets), the rest unpaired",
