@@ -36,7 +36,7 @@ from tqdm.auto import tqdm
 
 from lads.errors import ConfigError, LadsError, TrainingError
 from lads.frame import Frame, Item
-from lads.intensity.features import FEATURE_VERSION, FrameImage, frame_image
+from lads.intensity.features import FEATURE_VERSION, FrameImage, channel_names, frame_image
 from lads.intensity.splits import split_frames
 from lads.intensity.train_config import DomainSpec, TrainConfig, weather_physics_version
 from lads.physics.materials import class_ids
@@ -95,6 +95,19 @@ class CachedFrame:
     extinction_per_m: float
     sensor: str
     classes: npt.NDArray[np.int32] | None = None  # (H, W) class id per pixel, -1 none
+
+    def plane(self, name: str) -> npt.NDArray[np.float32]:
+        """(H, W) the raw input channel `name` (the channel set follows from the count)."""
+        return self.inputs[
+            channel_names(self.inputs.shape[0] != len(channel_names(False))).index(name)
+        ]
+
+    @property
+    def class_plane(self) -> npt.NDArray[np.int32]:
+        """(H, W) class id per pixel; all -1 for a frame cached without a class plane."""
+        if self.classes is not None:
+            return self.classes
+        return np.full(self.inputs.shape[1:], -1, dtype=np.int32)
 
 
 def _hashed_domain(domain: DomainSpec) -> dict[str, Any]:

@@ -49,6 +49,7 @@ from scipy import sparse
 
 from lads.intensity.law_kernel import law_with_lasers, oren_nayar_factor
 from lads.sensors.conformity import NEAR_FIELD_M
+from lads.sensors.lookup import nearest_entry
 
 SIGMA_GRID_RAD: tuple[float, ...] = tuple(np.round(np.linspace(0.0, 1.2, 13), 3))
 MIN_GROUP_POINTS = 50
@@ -70,10 +71,9 @@ def oren_nayar(cos_theta: npt.ArrayLike, sigma_rad: float) -> npt.NDArray[np.flo
     """Backscatter Oren-Nayar factor g(theta) = A cos + B sin^2, (N,) float64 in [0, 1]."""
     a, b = oren_nayar_coefficients(sigma_rad)
     c = np.asarray(cos_theta)
-    if c.dtype in (np.float32, np.float64):  # one compiled pass, the same bits
-        return oren_nayar_factor(c.reshape(-1), a, b, COS_FLOOR).reshape(c.shape)
-    c = np.clip(c.astype(np.float64), COS_FLOOR, 1.0)
-    return a * c + b * (1.0 - c**2)
+    if c.dtype not in (np.float32, np.float64):
+        c = c.astype(np.float64)
+    return oren_nayar_factor(c.reshape(-1), a, b, COS_FLOOR).reshape(c.shape)
 
 
 def oren_nayar_coefficients(sigma_rad: float) -> tuple[float, float]:
@@ -252,14 +252,11 @@ def _nearest_entries(table: npt.NDArray[np.float64], e: npt.NDArray[Any]) -> npt
     """`nearest_laser` for a table of two or more entries, one compiled pass (the same
     comparisons in float64 as its numpy form: ties go to the lower entry)."""
     out = np.empty(e.shape[0], dtype=np.int64)
-    last = table.shape[0] - 1
     previous, answer = math.nan, 0  # a frame's points come ring by ring: reuse the last answer
     for i in range(e.shape[0]):
         v = float(e[i])
         if v != previous:
-            right: int = min(max(int(np.searchsorted(table, v)), 1), last)
-            left = right - 1
-            answer = left if abs(v - table[left]) <= abs(table[right] - v) else right
+            answer = nearest_entry(table, v)
             previous = v
         out[i] = answer
     return out

@@ -28,7 +28,7 @@ import torch
 
 from lads.intensity import fitted_physics
 from lads.intensity.cache import CachedFrame
-from lads.intensity.features import ELEVATION_SCALE_DEG, channel_names
+from lads.intensity.features import ELEVATION_SCALE_DEG
 from lads.intensity.law_groups import GroupedLaw, class_offsets
 
 
@@ -44,15 +44,10 @@ def fit_law(
     for f in frames:
         if f.target is None:
             continue
-        names = channel_names(f.inputs.shape[0] != len(channel_names(False)))
-        x = {
-            n: f.inputs[names.index(n)]
-            for n in ("mask", "ln_range", "cos_incidence", "material", "elevation")
-        }
+        x = {n: f.plane(n) for n in ("mask", "ln_range", "cos_incidence", "material", "elevation")}
         occ = x["mask"] > 0
         parts["mat"].append(np.rint(x["material"][occ]).astype(np.int64) - 1)
-        classes = f.classes if f.classes is not None else np.full(occ.shape, -1, np.int32)
-        parts["cls"].append(classes[occ].astype(np.int64))
+        parts["cls"].append(f.class_plane[occ].astype(np.int64))
         parts["r"].append(np.exp(x["ln_range"][occ].astype(np.float64)))
         parts["cos"].append(x["cos_incidence"][occ].astype(np.float64))
         parts["refl"].append(f.target[occ].astype(np.float64))

@@ -70,7 +70,7 @@ class Sampler:
             cols = (int(self.rng.integers(w_full)) + np.arange(width)) % w_full
             raw = f.inputs[:, :, cols]
             raws.append(raw)
-            classes.append(_classes_of(f)[None, :, cols])
+            classes.append(f.class_plane[None, :, cols])
             masks.append(raw[GEN_MASK_INDEX[raw.shape[0]]][None])
             if f.target is not None and role == "target":
                 zs.append(((np.log(f.target[:, cols] + floor) - mean) / std)[None])
@@ -103,7 +103,7 @@ class Sampler:
             occupied = self._occupied(jobs[int(j)].node, flat)
             pick = occupied[self.rng.integers(len(occupied), size=int(np.sum(which == j)))]
             raws.append(flat[:, pick])
-            classes.append(_classes_of(f).reshape(-1)[pick])
+            classes.append(f.class_plane.reshape(-1)[pick])
             zs.append((np.log(f.target.reshape(-1)[pick] + floor) - mean) / std)
             ext.append(np.full(len(pick), f.extinction_per_m))
             labelled &= f.labelled
@@ -128,13 +128,6 @@ class Sampler:
         if node not in self._occupied_pixels:
             self._occupied_pixels[node] = np.flatnonzero(flat[GEN_MASK_INDEX[flat.shape[0]]] > 0)
         return self._occupied_pixels[node]
-
-
-def _classes_of(f: CachedFrame) -> npt.NDArray[np.int32]:
-    """(H, W) class plane of a cached frame; all -1 for a frame cached without one."""
-    if f.classes is not None:
-        return f.classes
-    return np.full(f.inputs.shape[1:], -1, dtype=np.int32)
 
 
 GEN_MASK_INDEX = {len(channel_names(s)): channel_names(s).index("mask") for s in (False, True)}

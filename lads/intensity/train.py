@@ -146,9 +146,7 @@ def _material_points(run: Path, jobs: list[CacheJob]) -> dict[int, int]:
     for f in iter_frames(run, [j for j in jobs if j.role == "target"]):
         if not f.labelled:
             continue
-        names = channel_names(f.inputs.shape[0] != len(channel_names(False)))
-        occupied = f.inputs[names.index("mask")] > 0
-        code = np.rint(f.inputs[names.index("material")][occupied]).astype(np.int64)
+        code = np.rint(f.plane("material")[f.plane("mask") > 0]).astype(np.int64)
         total += np.bincount(code, minlength=total.size)[: total.size]
     # Channel code 1 + material index (0: no material).
     return {i - 1: int(n) for i, n in enumerate(total) if i > 0 and n}

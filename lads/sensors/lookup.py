@@ -34,6 +34,18 @@ def _left_positions(
     return out
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def nearest_entry(table: npt.NDArray[np.float64], value: float) -> int:
+    """Index of the entry of an increasing float64 table nearest to `value`, ties to the
+    lower entry (the same comparisons in float64 wherever a nearest beam is looked up)."""
+    last = table.shape[0] - 1
+    if last <= 0:
+        return 0
+    right: int = min(max(int(np.searchsorted(table, value)), 1), last)
+    left = right - 1
+    return left if abs(value - table[left]) <= abs(table[right] - value) else right
+
+
 def left_positions(table: npt.ArrayLike, values: npt.ArrayLike) -> npt.NDArray[np.int64]:
     """`np.searchsorted(table, values)` (side "left": the number of entries below each
     value) for an increasing float64 table without NaN and any float values; int64 of

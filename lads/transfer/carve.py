@@ -20,6 +20,7 @@ import numba
 import numpy as np
 import numpy.typing as npt
 
+from lads.sensors.lookup import nearest_entry
 from lads.sensors.profile import SensorProfile
 from lads.transfer.bounds import coarse_atan2
 
@@ -72,10 +73,7 @@ def _binned(points: F64, table: F64, columns: int) -> F64:
         if not (r > 0.0 and r < math.inf):
             continue
         # A cell only bins the scan: the coarse angles (error 1e-5 rad) do.
-        e = coarse_atan2(z, math.sqrt(x * x + y * y))
-        k = min(max(int(np.searchsorted(table, e)), 1), rows - 1) if rows > 1 else 0
-        if rows > 1 and abs(e - table[k - 1]) <= abs(table[k] - e):
-            k -= 1
+        k = nearest_entry(table, coarse_atan2(z, math.sqrt(x * x + y * y)))
         j = int(math.floor((coarse_atan2(y, x) + math.pi) / step)) % columns
         if r < image[k, j]:
             image[k, j] = r
