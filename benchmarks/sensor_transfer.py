@@ -79,6 +79,12 @@ def _synth_detector(target: SensorProfile) -> Any:
     return lambda albedo, cos, r: albedo / (r * r) >= limit
 
 
+def _synth_floor(source: SensorProfile) -> Any:
+    """The least albedo the synthetic source's detection implies (it has no cos term)."""
+    limit = detection_limit(source)
+    return lambda cos, r: np.full(np.shape(r), limit) * r * r
+
+
 def _grid(frame: Any, target: SensorProfile, offset: float, ring: Any = None) -> GridScan:
     column = getattr(frame, "column", None)
     if column is None:
@@ -122,7 +128,9 @@ def run_case(
     }
     transferred = {}
     for shape in shapes:
-        parts = [window_surfels(w, source, "semantickitti", shape) for w in window]
+        parts = [
+            window_surfels(w, source, "semantickitti", shape, _synth_floor(source)) for w in window
+        ]
         for sigma in view_sigmas_deg:
             moved = transfer_surfels(
                 parts,
@@ -206,6 +214,7 @@ def speed(shape: SurfelShape, view_sigma_deg: float) -> dict[str, Any]:
                     source,
                     "semantickitti",
                     shape,
+                    _synth_floor(source),
                 )
         ks = list(range(centre - half, centre + half + 1))
         transfer_surfels(

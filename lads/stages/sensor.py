@@ -32,8 +32,9 @@ from lads.transfer.window import DEFAULT_NEIGHBOURS
 
 # Bump when the stage's output bytes change for the same input.
 # 4: normals along the line of far ground, its surfels stretched further; 5: hits in the
-# centre scan's free space carved
-SENSOR_STAGE_VERSION = "5"
+# centre scan's free space carved; 6: the target detects what the source detected (the
+# least albedo its detection implies)
+SENSOR_STAGE_VERSION = "6"
 # Point columns the stage knows how to fill; any other column of a source format is refused.
 _KNOWN_COLUMNS = ("x", "y", "z", "intensity", RING_COLUMN)
 

@@ -25,6 +25,7 @@ from lads.transfer.fov import covered_rings, hidden_beyond_view
 from lads.transfer.surfels import (
     ALBEDO_MIN_COS,
     DEFAULT_SHAPE,
+    DetectionFloor,
     Instances,
     Surfels,
     SurfelShape,
@@ -111,6 +112,7 @@ def transfer_scan(
     target_from_source: F64 | None = None,
     detector: Detector | None = None,
     shape: SurfelShape = DEFAULT_SHAPE,
+    floor: DetectionFloor | None = None,
 ) -> TransferredScan:
     """Scan `window[centre]` again with the `target` sensor.
 
@@ -125,11 +127,13 @@ def transfer_scan(
             (identity: mounted at the same place).
         detector: which returns the target detects; default `profile_detector(target)`.
         shape: how large the surfels are (`surfels.SurfelShape`).
+        floor: the least albedo the source's detection of a return implies; default its
+            profile's (`surfels.profile_floor`).
 
     Raises:
         InputDataError: `centre` outside the window, or a pose that is not (4, 4) and finite.
     """
-    parts = [window_surfels(scan, source, label_set, shape) for scan in window]
+    parts = [window_surfels(scan, source, label_set, shape, floor) for scan in window]
     return transfer_surfels(
         parts,
         [s.pose for s in window],
@@ -149,10 +153,12 @@ def window_surfels(
     source: SensorProfile,
     label_set: str | None,
     shape: SurfelShape = DEFAULT_SHAPE,
+    floor: DetectionFloor | None = None,
 ) -> Surfels:
     """The surfels of one window scan in its sensor frame (compute once per scan: every
     window that holds the scan reuses them). Returns of the recording vehicle's own body
-    (classes marked `ego` in materials.yaml) give none: the target sits on another vehicle."""
+    (classes marked `ego` in materials.yaml) give none: the target sits on another vehicle.
+    `floor`: the source's detection floor (default: its profile's, `profile_floor`)."""
     classes = None
     if label_set is not None and scan.labels is not None:
         classes = class_ids(scan.labels, label_set)
@@ -169,6 +175,7 @@ def window_surfels(
         moving=moving,
         ring=scan.ring,
         shape=shape,
+        floor=floor,
     )
     if classes is not None and roles.ego:
         s = s.take(~np.isin(classes[s.point], sorted(roles.ego)))
@@ -295,8 +302,8 @@ def _world_instances(part: Surfels, pose: F64) -> tuple[npt.NDArray[np.int64], F
 def _owner_facts(owner: npt.NDArray[np.int64], lookup: _Lookup) -> dict[str, npt.NDArray]:
     """Per beam of the (H, W) `owner` image, flattened: the window scan of its surfel
     ("part", -1 without one: the source_frame of its return) and the surfel's moving, retro,
-    label and point."""
-    names = ("moving", "retro", "label", "point")
+    label, point and least albedo."""
+    names = ("moving", "retro", "label", "point", "least_albedo")
     beam = np.flatnonzero(owner.reshape(-1) >= 0)
     part, values = lookup(owner.reshape(-1)[beam], *names)
     facts = {"part": np.full(owner.size, -1, np.int64)}
@@ -331,6 +338,9 @@ def _returns(
     ring = (t.shape[0] - 1 - rows).astype(np.int64)
     cos = np.where(facts["retro"][ring * t.shape[1] + cols], 1.0, hits.cos_incidence[ring, cols])
     albedo = hits.reflectivity[ring, cols] / np.maximum(cos, ALBEDO_MIN_COS)
+    # A surface the source detected was at least as bright as its detection implies, however
+    # low its stored intensity (docs/transfer.md §2, "Returns").
+    albedo = np.maximum(albedo, facts["least_albedo"][ring * t.shape[1] + cols])
     rng_m = t[ring, cols]
     seen = detector(albedo, cos, rng_m)
     ring, cols, rng_m = ring[seen], cols[seen], rng_m[seen]

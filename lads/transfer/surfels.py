@@ -15,6 +15,7 @@ ray-cast against (`lads.transfer.cast`).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 import numba
@@ -42,6 +43,20 @@ EDGE_SHARE = 0.5
 # Floor of the cos an albedo is divided by (against division by zero only).
 ALBEDO_MIN_COS = 0.02
 F64 = npt.NDArray[np.float64]
+# (cos of incidence, range m) -> the least albedo a return the source detected can have:
+# the source's detection limit says more than a stored intensity below its encoding's step.
+DetectionFloor = Callable[[F64, F64], F64]
+
+
+def profile_floor(profile: SensorProfile) -> DetectionFloor:
+    """The least albedo the sensor's median detection implies: albedo cos / R^2 reaches its
+    detection limit P_lim (`detection` of the profile, docs/physics.md §9.7)."""
+    limit = profile.detection.power
+
+    def least(cos: F64, range_m: F64) -> F64:
+        return limit * range_m * range_m / np.maximum(cos, ALBEDO_MIN_COS)
+
+    return least
 
 
 @dataclass(frozen=True, slots=True)
@@ -70,6 +85,9 @@ class Surfels:
         radius_m: (M,) float64 a radius that bounds the ellipse (|axis_a| + |axis_b|), m.
         label: (M,) uint32 stored label of the source return (0 when unlabelled).
         albedo: (M,) float64 reflectivity / cos(incidence) of the surface, unitless.
+        least_albedo: (M,) float64 the least albedo the source's detection of the return
+            implies (`DetectionFloor`): far, grazing returns store an intensity at or below
+            the encoding's step, but were strong enough to be detected.
         weight: (M,) float64 how much the albedo is to be trusted: the source's cos^2 of
             incidence (1 for retro-reflectors), the weight of a least-squares albedo.
         retro: (M,) bool, a retro-reflector (returns as much at any incidence).
@@ -87,6 +105,7 @@ class Surfels:
     radius_m: F64
     label: npt.NDArray[np.uint32]
     albedo: F64
+    least_albedo: F64
     weight: F64
     retro: npt.NDArray[np.bool_]
     point: npt.NDArray[np.int64]
@@ -143,6 +162,7 @@ def scan_surfels(
     moving: npt.ArrayLike | None = None,
     ring: npt.ArrayLike | None = None,
     shape: SurfelShape = DEFAULT_SHAPE,
+    floor: DetectionFloor | None = None,
 ) -> Surfels:
     """The surfels of one scan, in its sensor frame.
 
@@ -157,6 +177,7 @@ def scan_surfels(
             cos) and of things that move (only their own scan shows them), or None.
         ring: (N,) channel per point, or None to take the nearest elevation.
         shape: `SurfelShape`.
+        floor: the source's detection floor; default `profile_floor(profile)`.
 
     Returns:
         Surfels, one per return beyond MIN_RANGE_M, in file order.
@@ -175,6 +196,7 @@ def scan_surfels(
     refl = np.asarray(reflectivity, dtype=np.float64)[valid]
     is_retro = _flags(retro, len(r))[valid]
     albedo, weight = _albedo(refl, cos_raw, is_retro)
+    least = (floor or profile_floor(profile))(np.where(is_retro, 1.0, cos_raw), rng_m)
     lab = np.zeros(len(pts), np.uint32) if labels is None else np.asarray(labels)[valid]
     return Surfels(
         pts,
@@ -184,6 +206,7 @@ def scan_surfels(
         radius,
         lab.astype(np.uint32),
         albedo,
+        least,
         weight,
         is_retro,
         valid.astype(np.int64),

@@ -322,3 +322,32 @@ def test_nuscenes_kitti_poses_are_read_line_by_keyframe(synthetic_tree):
     (root / "train/0001/poses.txt").write_text("1 2 3\n")
     with pytest.raises(CorruptItemError, match="line 1 has 3 numbers"):
         reader.sensor_poses(reader.items())
+
+
+def test_a_surface_the_source_detected_is_as_bright_as_its_detection_implies():
+    """A wall whose returns store intensity 0 (below the encoding's step) was still detected:
+    its surfels keep the least albedo the source's detection limit implies, and a target as
+    sensitive sees the wall; without that floor the stored 0 hides it."""
+    xyz, _, labels, ring = wall_scan(HDL64, 20.0)
+    dark = HDL64.intensity.from_reflectivity(np.zeros(len(xyz)))
+    s = scan_surfels(xyz, HDL64.intensity.to_reflectivity(dark), HDL64, labels=labels, ring=ring)
+    assert np.all(s.albedo == 0.0)
+    r = np.linalg.norm(s.centre, axis=1)
+    want = HDL64.detection.power * r**3 / 20.0  # P_lim R^2 / cos, cos = x / R on the wall
+    assert np.allclose(s.least_albedo, want, rtol=0.01)
+    scan = WindowScan(xyz, dark, labels, ring, np.eye(4))
+    half_limit = 0.5 * HDL64.detection.power
+
+    def as_sensitive(albedo, cos, range_m):
+        return albedo * cos / (range_m * range_m) >= half_limit
+
+    def run(floor):
+        return transfer_scan(
+            [scan], 0, HDL64, HDL32, np.random.default_rng(0),
+            label_set="semantickitti", detector=as_sensitive, floor=floor,
+        )  # fmt: skip
+
+    seen = run(None)
+    assert len(seen.ring) > 0.9 * len(run(lambda cos, r: np.full(np.shape(r), np.inf)).ring)
+    assert len(run(lambda cos, r: np.zeros(np.shape(r))).ring) == 0
+    assert np.all(seen.intensity == 0.0)  # the floor decides detection, not the intensity
