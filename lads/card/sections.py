@@ -34,7 +34,8 @@ PHYSICS = {
     "poses, become surfels (ellipses in the surface plane carrying label and albedo); the "
     "target's beams (its elevations, azimuth step, range limits) are ray-cast against them "
     "from the frame's pose, depths blended over the beam's footprint, returns kept where the "
-    "target's detector sees them, its range noise added, intensity in its encoding. Moving "
+    "target's detector sees them (a surface is never taken as fainter than the source's own "
+    "detection of it implies), its range noise added, intensity in its encoding. Moving "
     "classes and moved instances come from the frame's own scan only.",
     "intensity": "intensity: a learned generator predicts every point's intensity from range, "
     "incidence and material (docs/intensity.md of lads).",
