@@ -104,6 +104,7 @@ def run_case(
     shapes: tuple[SurfelShape, ...],
     motion: str,
     view_sigmas_deg: tuple[float, ...] = (VIEW_SIGMA_DEG,),
+    footprint: bool = True,
 ) -> dict[str, Any]:
     """Every method (and every shape and view weighting of the transfer) on one street and
     direction. `motion` "driving": the window is the street's neighbouring scans; "stopped":
@@ -143,6 +144,7 @@ def run_case(
                 azimuth_offset_rad=offset,
                 detector=_synth_detector(target),
                 view_sigma_rad=math.radians(sigma),
+                footprint=footprint,
             )
             transferred[_key(shape, sigma)] = _grid(moved, target, offset)
     c = src[CENTRE]
@@ -327,7 +329,7 @@ def main(argv: list[str] | None = None) -> None:
     cases = [(s, pair, m) for s in val_seeds for pair in DIRECTIONS for m in MOTIONS]
     if args.quick:
         shape, sigma, validation, weighted = DEFAULT_SHAPE, VIEW_SIGMA_DEG, [], []
-        scores = {}
+        scores, footprint_scores = {}, {}
     else:
         validation = [run_case(s, pair, SHAPES, m, (UNIFORM,)) for s, pair, m in cases]
         shape = choose_shape(validation)
@@ -336,6 +338,12 @@ def main(argv: list[str] | None = None) -> None:
         ]
         scores = view_sigma_scores(weighted, shape)
         sigma = min(scores, key=lambda v: scores[v])
+        # The carving's footprint rule (lads.transfer.carve), on and off, with that shape.
+        without = [run_case(s, pair, (shape,), m, (sigma,), False) for s, pair, m in cases]
+        footprint_scores = {
+            "on": _mean([c[_key(shape, sigma)]["chamfer_m"] for c in weighted]),
+            "off": _mean([c[_key(shape, sigma)]["chamfer_m"] for c in without]),
+        }
     test = [
         run_case(s, pair, (shape,), m, (sigma,))
         for s in test_seeds
@@ -358,6 +366,7 @@ def main(argv: list[str] | None = None) -> None:
             for s in (SHAPES if validation else ())
         },
         "validation_relative_intensity_error_by_view_sigma": {str(v): x for v, x in scores.items()},
+        "validation_chamfer_by_footprint_rule": footprint_scores,
         "test": summarise(test, _key(shape, sigma)),
         "test_cases": test,
         "speed": speed(shape, sigma),

@@ -33,8 +33,9 @@ from lads.transfer.window import DEFAULT_NEIGHBOURS
 # Bump when the stage's output bytes change for the same input.
 # 4: normals along the line of far ground, its surfels stretched further; 5: hits in the
 # centre scan's free space carved; 6: the target detects what the source detected (the
-# least albedo its detection implies)
-SENSOR_STAGE_VERSION = "6"
+# least albedo its detection implies); 7: hits in front of the surface a centre beam saw in
+# its own footprint carved
+SENSOR_STAGE_VERSION = "7"
 # Point columns the stage knows how to fill; any other column of a source format is refused.
 _KNOWN_COLUMNS = ("x", "y", "z", "intensity", RING_COLUMN)
 

@@ -9,6 +9,11 @@ target beam takes the surface behind. Where any of the four beams returned nothi
 space is unknown there and nothing is carved; a hit on a surface a centre beam did see lies
 at that beam's range, not in front of it. One compiled pass over the target's beams gives
 each beam the distance below which its hits are carved (`carve_floor`).
+
+A target ray that runs within one beam divergence of a centre beam shares that beam's
+footprint: the centre return says the footprint was free up to the surface it hit. A hit
+clearly in front of that surface's plane along the ray is carved too, although a neighbouring
+centre beam may have met something nearer (an object's silhouette between the two beams).
 """
 
 from __future__ import annotations
@@ -32,6 +37,11 @@ F64 = npt.NDArray[np.float64]
 # stopped vehicle's transfer starts to lose real surfaces.
 CARVE_SHARE = 0.005
 CARVE_NOISE_SIGMAS = 3.0
+# A centre return's plane bounds a target ray's free space only where the ray meets the plane
+# at |cos| >= this (a grazing plane's crossing moves far with a small normal error). Chosen on
+# the validation streets between this and the surfels' own MIN_COS (0.05) by Chamfer
+# distance, with the footprint of one whole divergence (benchmarks/sensor_transfer.py).
+FOOTPRINT_MIN_COS = 0.2
 
 
 @dataclass(frozen=True, slots=True)
@@ -43,29 +53,51 @@ class FreeSpace:
         elevation_rad: (Hs,) ascending source beam elevations, radians.
         to_source: (4, 4) float64 target frame -> centre scan frame.
         margin_m: CARVE_NOISE_SIGMAS x the source's range accuracy, m.
+        point_m, normal: (Hs, Ws, 3) float64 the nearest return of each beam and its unit
+            normal (NaN: none), or None: no footprint rule.
+        footprint_rad: a target ray within this angle of a centre return's direction shares
+            its beam's footprint (the source's full beam divergence).
     """
 
     range_m: F64
     elevation_rad: F64
     to_source: F64
     margin_m: float
+    point_m: F64 | None = None
+    normal: F64 | None = None
+    footprint_rad: float = 0.0
 
 
-def free_space(xyz: npt.ArrayLike, source: SensorProfile, to_source: npt.ArrayLike) -> FreeSpace:
+def free_space(
+    xyz: npt.ArrayLike,
+    source: SensorProfile,
+    to_source: npt.ArrayLike,
+    normal: npt.ArrayLike | None = None,
+) -> FreeSpace:
     """The centre scan's (N, 3) points (its own frame, m) on a grid of its sensor's beams:
-    rows by the nearest table elevation, `range_image_width` equal azimuth bins from -pi."""
+    rows by the nearest table elevation, `range_image_width` equal azimuth bins from -pi;
+    with their (N, 3) unit `normal`, the footprint rule as well (module doc)."""
     table = np.sort(np.radians(np.asarray(source.elevation_deg, dtype=np.float64)))
     points = np.ascontiguousarray(np.asarray(xyz, dtype=np.float64).reshape(-1, 3))
-    image = _binned(points, table, int(source.range_image_width))
+    normals = np.full_like(points, np.nan) if normal is None else np.asarray(normal, np.float64)
+    image, point_m, normal_img = _binned(
+        points, np.ascontiguousarray(normals.reshape(-1, 3)), table, int(source.range_image_width)
+    )
     margin = CARVE_NOISE_SIGMAS * source.range_accuracy_m
-    return FreeSpace(image, table, np.asarray(to_source, dtype=np.float64), margin)
+    to = np.asarray(to_source, dtype=np.float64)
+    if normal is None:
+        return FreeSpace(image, table, to, margin)
+    return FreeSpace(image, table, to, margin, point_m, normal_img, source.beam_divergence_rad)
 
 
 @numba.njit(cache=True, nogil=True)
-def _binned(points: F64, table: F64, columns: int) -> F64:
-    """(H, W) nearest range of the points in each (nearest elevation, azimuth bin) cell."""
+def _binned(points: F64, normal: F64, table: F64, columns: int) -> tuple[F64, F64, F64]:
+    """(H, W) nearest range of the points in each (nearest elevation, azimuth bin) cell, and
+    (H, W, 3) that point and its normal (NaN where the cell is empty)."""
     rows = table.shape[0]
     image = np.full((rows, columns), np.inf)
+    point_m = np.full((rows, columns, 3), np.nan)
+    normal_img = np.full((rows, columns, 3), np.nan)
     step = 2.0 * math.pi / columns
     for i in range(points.shape[0]):
         x, y, z = points[i, 0], points[i, 1], points[i, 2]
@@ -77,7 +109,10 @@ def _binned(points: F64, table: F64, columns: int) -> F64:
         j = int(math.floor((coarse_atan2(y, x) + math.pi) / step)) % columns
         if r < image[k, j]:
             image[k, j] = r
-    return image
+            for a in range(3):
+                point_m[k, j, a] = points[i, a]
+                normal_img[k, j, a] = normal[i, a]
+    return image, point_m, normal_img
 
 
 def carved(
@@ -110,20 +145,31 @@ def carve_floor(space: FreeSpace, best: F64, elevation_rad: F64, azimuth_rad: F6
     and a nearer point clears their ranges by more. So one test per beam, at its nearest
     hit, gives the bound for all of its hits. (A target mounted off the source's origin sees
     the four beams shift slightly along its beam; the bound is taken where the nearest hit
-    lies.)"""
+    lies.) The footprint rule's bound, the plane's crossing, is one distance per beam too."""
     m = np.ascontiguousarray(space.to_source)
-    return _floor(
-        best,
+    directions = (
         np.cos(elevation_rad),
         np.sin(elevation_rad),
         np.cos(azimuth_rad),
         np.sin(azimuth_rad),
         np.ascontiguousarray(m[:3, :3]),
         np.ascontiguousarray(m[:3, 3]),
-        space.range_m,
+    )
+    floor = _floor(
+        best, *directions, space.range_m, space.elevation_rad, space.margin_m, CARVE_SHARE
+    )
+    if space.point_m is None or space.normal is None:
+        return floor
+    return _footprint_floor(
+        best,
+        *directions,
+        space.point_m,
+        space.normal,
         space.elevation_rad,
+        space.footprint_rad,
         space.margin_m,
         CARVE_SHARE,
+        floor,
     )
 
 
@@ -171,6 +217,57 @@ def _floor(
             r = math.sqrt(horizontal * horizontal + qz * qz)
             if r < bound:
                 floor[k, j] = t + (bound - r)
+    return floor
+
+
+@numba.njit(cache=True, nogil=True)
+def _footprint_floor(
+    best: F64,
+    cos_el: F64,
+    sin_el: F64,
+    cos_az: F64,
+    sin_az: F64,
+    turn: F64,
+    shift: F64,
+    point_m: F64,
+    normal: F64,
+    table: F64,
+    footprint_rad: float,
+    margin_m: float,
+    share: float,
+    floor: F64,
+) -> F64:
+    """`floor` raised, in place, where a beam's nearest hit lies in front of the plane of the
+    centre return whose footprint the beam shares (module doc); scalars inside the loop."""
+    rows, columns = best.shape
+    cols_s = point_m.shape[1]
+    step_s = 2.0 * math.pi / cols_s
+    for k in range(rows):
+        for j in range(columns):
+            t = best[k, j]
+            if not t < math.inf:
+                continue
+            ux, uy, uz = cos_el[k] * cos_az[j], cos_el[k] * sin_az[j], sin_el[k]
+            dx = turn[0, 0] * ux + turn[0, 1] * uy + turn[0, 2] * uz
+            dy = turn[1, 0] * ux + turn[1, 1] * uy + turn[1, 2] * uz
+            dz = turn[2, 0] * ux + turn[2, 1] * uy + turn[2, 2] * uz
+            px, py, pz = shift[0] + t * dx, shift[1] + t * dy, shift[2] + t * dz
+            ks = nearest_entry(table, coarse_atan2(pz, math.sqrt(px * px + py * py)))
+            js = int(math.floor((coarse_atan2(py, px) + math.pi) / step_s)) % cols_s
+            if math.isnan(point_m[ks, js, 0]) or math.isnan(normal[ks, js, 0]):
+                continue
+            qx, qy, qz = point_m[ks, js, 0], point_m[ks, js, 1], point_m[ks, js, 2]
+            q = math.sqrt(qx * qx + qy * qy + qz * qz)  # its direction from the centre scan
+            if math.acos(min(1.0, (qx * dx + qy * dy + qz * dz) / q)) > footprint_rad:
+                continue
+            nx, ny, nz = normal[ks, js, 0], normal[ks, js, 1], normal[ks, js, 2]
+            across = nx * dx + ny * dy + nz * dz
+            if abs(across) < FOOTPRINT_MIN_COS:
+                continue
+            crossing = (nx * (qx - shift[0]) + ny * (qy - shift[1]) + nz * (qz - shift[2])) / across
+            bound = crossing * (1.0 - share) - margin_m
+            if t < bound and bound > floor[k, j]:
+                floor[k, j] = bound
     return floor
 
 

@@ -196,9 +196,11 @@ def transfer_surfels(
     detector: Detector | None = None,
     view_sigma_rad: float = math.radians(VIEW_SIGMA_DEG),
     carve: bool = True,
+    footprint: bool = True,
 ) -> TransferredScan:
     """`transfer_scan` from each window scan's surfels (`window_surfels`) and poses; `carve`:
-    drop hits in the centre scan's free space (`lads.transfer.carve`)."""
+    drop hits in the centre scan's free space (`lads.transfer.carve`), with its footprint
+    rule unless `footprint` is False."""
     if not 0 <= centre < len(parts) or len(poses) != len(parts):
         raise InputDataError(
             f"transfer: centre {centre} of a window of {len(parts)} scans and {len(poses)} "
@@ -221,7 +223,11 @@ def transfer_surfels(
         azimuth_offset_rad=azimuth_offset_rad,
         max_range_m=target.max_range_m,
         view_sigma_rad=view_sigma_rad,
-        free=free_space(parts[centre].centre, source, mount) if carve else None,
+        free=free_space(
+            parts[centre].centre, source, mount, parts[centre].normal if footprint else None
+        )
+        if carve
+        else None,
     )
     return _returns(
         hits,

@@ -89,6 +89,47 @@ def test_the_centre_scans_own_surfaces_are_not_carved():
         assert np.array_equal(getattr(plain, name), getattr(carved, name))
 
 
+def test_a_hit_in_front_of_the_surface_in_its_own_beams_footprint_is_carved():
+    # The centre scan saw a wall 10 m ahead, and poles 3 m ahead on the columns either side
+    # of the test beam: the four beams around the test beam do not all lie behind a disk 5 m
+    # ahead, but the centre beam the test beam coincides with saw the wall through that spot.
+    cols = slice(W // 2 - 40, W // 2 + 40)
+    wall = _beam_points(10.0, slice(20, 45), cols)
+    k, j = 30, W // 2
+    pole = np.vstack([_beam_points(3.0, slice(k, k + 1), slice(c, c + 1)) for c in (j - 1, j + 1)])
+    keep = ~np.any(np.all(np.isclose(wall[:, None] / 10.0, pole[None] / 3.0), axis=2), axis=1)
+    centre = np.vstack([wall[keep], pole])
+    lent = _beam_points(5.0, slice(k, k + 1), slice(j, j + 1))
+    wall_disks, pole_disks = _disks(wall[keep], 0.2), _disks(pole, 0.004)  # a pole is thin
+    parts = [{f: np.concatenate([wall_disks[f], pole_disks[f]]) for f in wall_disks}]
+    parts.append(_disks(lent, 0.05))
+    args = (parts, [np.arange(len(centre)), np.arange(1)], [np.eye(4)] * 2, EL, W)
+    facing = parts[0]["normal"]
+    four_only = cast_parts(
+        *args, azimuth_offset_rad=-math.pi, free=free_space(centre, HDL64, np.eye(4))
+    )
+    both = cast_parts(
+        *args, azimuth_offset_rad=-math.pi, free=free_space(centre, HDL64, np.eye(4), facing)
+    )
+    assert four_only.range_m[k, j] == pytest.approx(5.0, rel=1e-2)
+    assert both.range_m[k, j] == pytest.approx(10.0, rel=1e-2)
+    # The poles' own beams keep the poles: their footprints hold the poles themselves.
+    assert both.range_m[k, j - 1] == pytest.approx(3.0, rel=1e-2)
+    assert both.range_m[k, j + 1] == pytest.approx(3.0, rel=1e-2)
+
+
+def test_the_footprint_rule_leaves_the_centre_scans_own_surfaces():
+    cols = slice(W // 2 - 40, W // 2 + 40)
+    wall = _beam_points(10.0, slice(20, 45), cols)
+    parts = [_disks(wall, 0.2)]
+    args = ([*parts, *parts], [np.arange(len(wall))] * 2, [np.eye(4)] * 2, EL, W)
+    plain = cast_parts(*args, azimuth_offset_rad=-math.pi)
+    free = free_space(wall, HDL64, np.eye(4), parts[0]["normal"])
+    carved = cast_parts(*args, azimuth_offset_rad=-math.pi, free=free)
+    for name in ("range_m", "owner", "reflectivity", "cos_incidence"):
+        assert np.array_equal(getattr(plain, name), getattr(carved, name))
+
+
 def test_the_bound_per_beam_equals_testing_every_hit_on_its_own():
     rng = np.random.default_rng(3)
     image = rng.uniform(2.0, 60.0, (len(EL), W))
