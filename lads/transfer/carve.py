@@ -257,8 +257,10 @@ def _footprint_floor(
             if math.isnan(point_m[ks, js, 0]) or math.isnan(normal[ks, js, 0]):
                 continue
             qx, qy, qz = point_m[ks, js, 0], point_m[ks, js, 1], point_m[ks, js, 2]
-            q = math.sqrt(qx * qx + qy * qy + qz * qz)  # its direction from the centre scan
-            if math.acos(min(1.0, (qx * dx + qy * dy + qz * dz) / q)) > footprint_rad:
+            # Inside that beam's footprint: the hit's and the return's directions from the
+            # centre scan's origin (a target mounted elsewhere looks along other lines).
+            pq = math.sqrt((qx * qx + qy * qy + qz * qz) * (px * px + py * py + pz * pz))
+            if math.acos(min(1.0, (qx * px + qy * py + qz * pz) / pq)) > footprint_rad:
                 continue
             nx, ny, nz = normal[ks, js, 0], normal[ks, js, 1], normal[ks, js, 2]
             across = nx * dx + ny * dy + nz * dz
