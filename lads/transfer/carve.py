@@ -90,6 +90,15 @@ def free_space(
     return FreeSpace(image, table, to, margin, point_m, normal_img, source.beam_divergence_rad)
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def _cell(x: float, y: float, z: float, table: F64, columns: int) -> tuple[int, int]:
+    """The (nearest elevation row, azimuth bin from -pi) cell of direction (x, y, z) on the
+    centre scan's grid. A cell only bins the scan: the coarse angles (error 1e-5 rad) do."""
+    k = nearest_entry(table, coarse_atan2(z, math.sqrt(x * x + y * y)))
+    j = int(math.floor((coarse_atan2(y, x) + math.pi) / (2.0 * math.pi / columns))) % columns
+    return k, j
+
+
 @numba.njit(cache=True, nogil=True)
 def _binned(points: F64, normal: F64, table: F64, columns: int) -> tuple[F64, F64, F64]:
     """(H, W) nearest range of the points in each (nearest elevation, azimuth bin) cell, and
@@ -98,15 +107,12 @@ def _binned(points: F64, normal: F64, table: F64, columns: int) -> tuple[F64, F6
     image = np.full((rows, columns), np.inf)
     point_m = np.full((rows, columns, 3), np.nan)
     normal_img = np.full((rows, columns, 3), np.nan)
-    step = 2.0 * math.pi / columns
     for i in range(points.shape[0]):
         x, y, z = points[i, 0], points[i, 1], points[i, 2]
         r = math.sqrt(x * x + y * y + z * z)
         if not (r > 0.0 and r < math.inf):
             continue
-        # A cell only bins the scan: the coarse angles (error 1e-5 rad) do.
-        k = nearest_entry(table, coarse_atan2(z, math.sqrt(x * x + y * y)))
-        j = int(math.floor((coarse_atan2(y, x) + math.pi) / step)) % columns
+        k, j = _cell(x, y, z, table, columns)
         if r < image[k, j]:
             image[k, j] = r
             for a in range(3):
@@ -241,7 +247,6 @@ def _footprint_floor(
     centre return whose footprint the beam shares (module doc); scalars inside the loop."""
     rows, columns = best.shape
     cols_s = point_m.shape[1]
-    step_s = 2.0 * math.pi / cols_s
     for k in range(rows):
         for j in range(columns):
             t = best[k, j]
@@ -252,8 +257,7 @@ def _footprint_floor(
             dy = turn[1, 0] * ux + turn[1, 1] * uy + turn[1, 2] * uz
             dz = turn[2, 0] * ux + turn[2, 1] * uy + turn[2, 2] * uz
             px, py, pz = shift[0] + t * dx, shift[1] + t * dy, shift[2] + t * dz
-            ks = nearest_entry(table, coarse_atan2(pz, math.sqrt(px * px + py * py)))
-            js = int(math.floor((coarse_atan2(py, px) + math.pi) / step_s)) % cols_s
+            ks, js = _cell(px, py, pz, table, cols_s)
             if math.isnan(point_m[ks, js, 0]) or math.isnan(normal[ks, js, 0]):
                 continue
             qx, qy, qz = point_m[ks, js, 0], point_m[ks, js, 1], point_m[ks, js, 2]

@@ -342,21 +342,21 @@ def _returns(
     flat = np.flatnonzero(owner[::-1].reshape(-1) >= 0)  # top channel first, then azimuth
     rows, cols = np.divmod(flat, t.shape[1])
     ring = (t.shape[0] - 1 - rows).astype(np.int64)
-    cos = np.where(facts["retro"][ring * t.shape[1] + cols], 1.0, hits.cos_incidence[ring, cols])
+    beam = ring * t.shape[1] + cols
+    cos = np.where(facts["retro"][beam], 1.0, hits.cos_incidence[ring, cols])
     albedo = hits.reflectivity[ring, cols] / np.maximum(cos, ALBEDO_MIN_COS)
     # A surface the source detected was at least as bright as its detection implies, however
     # low its stored intensity (docs/transfer.md §2, "Returns").
-    albedo = np.maximum(albedo, facts["least_albedo"][ring * t.shape[1] + cols])
+    albedo = np.maximum(albedo, facts["least_albedo"][beam])
     rng_m = t[ring, cols]
     seen = detector(albedo, cos, rng_m)
-    ring, cols, rng_m = ring[seen], cols[seen], rng_m[seen]
+    ring, cols, rng_m, beam = ring[seen], cols[seen], rng_m[seen], beam[seen]
     refl = hits.reflectivity[ring, cols]
     # The source's range noise is already in its returns: only the excess is added.
     extra = np.sqrt(max(target.range_accuracy_m**2 - source.range_accuracy_m**2, 0.0))
     if extra > 0:
         rng_m = rng_m + rng.normal(0.0, extra, rng_m.size)
     d = hits.directions()[ring, cols]
-    beam = ring * t.shape[1] + cols
     image = np.zeros_like(t)
     image[ring, cols] = rng_m
     return TransferredScan(
