@@ -20,7 +20,7 @@ import yaml
 
 from lads.errors import IntensityEncodingError, SensorProfileError
 from lads.resources import sensors_dir
-from lads.sensors.lookup import left_positions
+from lads.sensors.lookup import elevation_positions
 
 
 @functools.lru_cache(maxsize=16)
@@ -193,12 +193,9 @@ class SensorProfile:
 
     def channel_of(self, xyz: npt.NDArray[np.floating[Any]]) -> npt.NDArray[np.int64]:
         """Nearest channel for each point by elevation: (N, 3) m -> (N,) int64 in [0, channels)."""
-        xyz = np.asarray(xyz, dtype=np.float64)
-        horizontal_m = np.hypot(xyz[:, 0], xyz[:, 1])
-        elevation = np.degrees(np.arctan2(xyz[:, 2], horizontal_m))
-        table = np.asarray(self.elevation_deg)
+        table = np.asarray(self.elevation_deg, dtype=np.float64)
         midpoints = 0.5 * (table[1:] + table[:-1])
-        return left_positions(midpoints, elevation)
+        return elevation_positions(np.asarray(xyz, dtype=np.float64), midpoints)
 
 
 def available_profiles() -> list[str]:

@@ -136,26 +136,33 @@ class IntensityStage:
                 )
             target = str(style)
         profile = load_profile(frame.sensor)
-        xyz = frame.xyz
         try:  # the same range, and zero-range rule, as every stage's coordinate check
-            valid = checked_xyz(xyz, allow_zero=True)[1] > MIN_RANGE_M
+            xyz64, range_m = checked_xyz(frame.xyz, allow_zero=True)
         except LadsError as exc:
             raise StageError(f"{where}: intensity stage ({self.model}): {exc}") from None
-        labels = None if frame.labels is None else frame.labels[valid]
+        valid = range_m > MIN_RANGE_M
+        # Most frames have no zero-range point: then every array goes in as it is, uncopied
+        # (the float64 coordinates too, which the generator's own check would make again).
+        every = bool(valid.all())
+
+        def kept(values: np.ndarray) -> np.ndarray:
+            return values if every else values[valid]
+
+        labels = None if frame.labels is None else kept(frame.labels)
         label_set = label_set_for(frame.item.dataset) if labels is not None else None
         ring = None
         if "ring" in frame.columns:
-            ring = frame.points[valid, frame.columns.index("ring")]
+            ring = kept(frame.points[:, frame.columns.index("ring")])
         extinction = float(frame.condition("extinction_per_m", 0.0) or 0.0)  # type: ignore[arg-type]
         request = PointRequest(
-            xyz[valid],
+            kept(xyz64),
             profile,
             output_profile=profile if weather else None,
             target=target,
             labels=labels,
             label_set=label_set,
             ring=ring,
-            outcome=frame.outcome[valid],
+            outcome=kept(frame.outcome),
             extinction_per_m=extinction,
             where=where,
         )

@@ -325,3 +325,37 @@ def test_nearest_channels_are_numpys_searchsorted_positions():
     values = np.r_[rng.normal(size=10000) * 2, table, np.nextafter(table, 9), np.nan, np.inf]
     assert np.array_equal(left_positions(table, values), np.searchsorted(table, values))
     assert left_positions(table, values[:7000].reshape(-1, 7)).shape == (1000, 7)
+
+
+@pytest.mark.parametrize("name", ["hdl64e", "hdl32e"])
+def test_nearest_channel_by_slope_is_numpys_angle(name):
+    """The compiled slope test gives the channel numpy's degrees(arctan2) gives, also a
+    hair off a midpoint's direction (where the guard hands the point to numpy), at the
+    origin and straight up or down. Exactly on a midpoint numpy's own angle is not one
+    value (np.degrees of a point can differ in the last bit with the array's length), so
+    there either neighbouring channel is right."""
+    from lads.sensors.lookup import _slope_positions, elevation_positions, left_positions
+
+    def numpy_channels(xyz):
+        elevation = np.degrees(np.arctan2(xyz[:, 2], np.hypot(xyz[:, 0], xyz[:, 1])))
+        return left_positions(mids, elevation)
+
+    table = np.asarray(load_profile(name).elevation_deg, dtype=np.float64)
+    mids = 0.5 * (table[1:] + table[:-1])
+    rng = np.random.default_rng(5)
+    az = rng.uniform(0.0, 2.0 * np.pi, mids.size * 40)
+    el = np.radians(np.repeat(mids, 40))
+    r = rng.uniform(0.5, 100.0, az.size)
+    on = np.stack([r * np.cos(el) * np.cos(az), r * np.cos(el) * np.sin(az), r * np.sin(el)], 1)
+    near = on.copy()
+    near[:, 2] *= 1.0 + rng.choice([-1e-11, 1e-11], r.size)
+    special = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, 0.0, -2.0], [5.0, 0.0, 0.0]])
+    scan = rng.normal(size=(20000, 3)) * [30.0, 30.0, 4.0]
+    xyz = np.concatenate([scan, near, special])
+    assert np.array_equal(elevation_positions(xyz, mids), numpy_channels(xyz))
+    assert np.array_equal(load_profile(name).channel_of(xyz), numpy_channels(xyz))
+    unsure = _slope_positions(xyz, np.tan(np.radians(mids))) < 0  # decided by numpy
+    assert unsure[len(scan) : len(scan) + len(near)].all() and unsure[-4]
+    assert unsure[: len(scan)].mean() < 1e-3
+    below = np.repeat(np.arange(mids.size), 40)  # the midpoints below each point's own
+    assert np.isin(elevation_positions(on, mids) - below, [0, 1]).all()
