@@ -8,11 +8,13 @@ import pytest
 from lads.calibration.radiate_share import (
     NEAR_GROUND_ELEVATION_DEG,
     ReturnProfile,
+    band_channels,
+    band_profile,
     fit_visibility,
     near_ground_share,
     profile_distance,
     returns_profile,
-    simulated_curve,
+    simulated_curves,
 )
 from lads.errors import ConfigError
 from lads.sensors.profile import load_profile
@@ -59,10 +61,14 @@ def test_dense_fog_removes_far_returns_and_curves_repeat() -> None:
     xyz = np.stack([50 * np.cos(az), 50 * np.sin(az), np.zeros_like(az)], axis=1)
     frame = (xyz.astype(np.float32), np.full(az.size, 40.0, dtype=np.float32))
     sensor = load_profile("hdl32e")
-    curve = simulated_curve([frame], 400, sensor, (6.0, 600.0))
+    curves = simulated_curves([frame], 400, sensor, ("all", "upper"), (6.0, 600.0))
+    curve = curves["all"]
     assert curve[600.0].per_bin[-1] > 0.5  # light haze: the wall is still seen
     assert curve[6.0].per_bin[-1] == 0.0  # dense fog: nothing beyond 40 m
-    assert simulated_curve([frame], 400, sensor, (6.0, 600.0)) == curve
+    # the fan lies at 0 deg, in the upper band: the same returns out of fewer firings
+    upper = curves["upper"][600.0]
+    assert upper.per_bin == curve[600.0].per_bin and upper.share > curve[600.0].share
+    assert simulated_curves([frame], 400, sensor, ("all", "upper"), (6.0, 600.0)) == curves
 
 
 def test_near_ground_share_counts_only_the_near_ground_channels():
@@ -70,6 +76,7 @@ def test_near_ground_share_counts_only_the_near_ground_channels():
     elevation = np.radians(np.asarray(sensor.elevation_deg))
     lo, hi = NEAR_GROUND_ELEVATION_DEG
     channels = np.flatnonzero((np.degrees(elevation) > lo) & (np.degrees(elevation) < hi))
+    assert np.array_equal(band_channels(sensor, "near_ground"), channels)
     az = np.radians(np.arange(100) * 3.6)
 
     def ring(k: int, range_m: float, count: int) -> np.ndarray:
@@ -87,3 +94,19 @@ def test_near_ground_share_counts_only_the_near_ground_channels():
     # the horizon channel do not count.
     parts = [ring(k, 7.0, 50) for k in channels] + [ring(channels[0], 1.0, 50), ring(23, 30.0, 100)]
     assert near_ground_share(np.vstack(parts), 100, sensor) == pytest.approx(0.5)
+
+
+def test_channel_bands_split_the_channels_and_count_their_own_firings():
+    sensor = load_profile("hdl32e")
+    bands = [band_channels(sensor, b) for b in ("steep", "near_ground", "upper")]
+    assert np.array_equal(np.sort(np.concatenate(bands)), band_channels(sensor, "all"))
+    elevation = np.radians(np.asarray(sensor.elevation_deg))
+    # one return 20 m out on every upper channel, one on the steepest channel
+    ks = list(band_channels(sensor, "upper")) + [0]
+    xyz = np.array([[20 * np.cos(elevation[k]), 0.0, 20 * np.sin(elevation[k])] for k in ks])
+    upper = band_profile(xyz, 10, sensor, "upper")
+    assert upper.share == pytest.approx(1 / 10)
+    assert band_profile(xyz, 10, sensor, "steep").share == pytest.approx(1 / (10 * bands[0].size))
+    assert band_profile(xyz, 10, sensor, "all").share == pytest.approx(len(ks) / (10 * 32))
+    with pytest.raises(ConfigError, match="channel band"):
+        band_channels(sensor, "sky")
