@@ -62,9 +62,8 @@ def _network(model: Any, fi: Any) -> Any:
     n = fi.point_inputs.shape[1]
     raw = torch.from_numpy(fi.point_inputs)[None, :, :, None]
     law = torch.zeros((1, 1, n, 1), dtype=torch.float32)
-    mask = torch.ones((1, 1, n, 1), dtype=torch.float32)
-    with torch.inference_mode():
-        return model.generator.infer(raw, mask, law)
+    with torch.inference_mode():  # every point occupied: no mask, as the stage runs it
+        return model.generator.infer(raw, None, law)
 
 
 def _incidence_only(xyz: np.ndarray, profile: Any) -> None:

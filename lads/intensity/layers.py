@@ -86,16 +86,17 @@ class Normaliser(nn.Module):
                 self.std[i] = max(float(std[name]), 1e-6)
 
     def forward(
-        self, raw: torch.Tensor, mask: torch.Tensor, picked: torch.Tensor | None = None
+        self, raw: torch.Tensor, mask: torch.Tensor | None, picked: torch.Tensor | None = None
     ) -> torch.Tensor:
-        """raw (B, C, H, W) -> z-scored where active, kept 0 on empty pixels; with `picked`
-        (channel indices) only those channels, (B, len(picked), H, W)."""
+        """raw (B, C, H, W) -> z-scored where active, kept 0 on empty pixels (mask (B, 1, H,
+        W); None: every pixel occupied); with `picked` (channel indices) only those
+        channels, (B, len(picked), H, W)."""
         mean = torch.where(self.active, self.mean, torch.zeros_like(self.mean))
         std = torch.where(self.active, self.std, torch.ones_like(self.std))
         if picked is not None:
             raw, mean, std = raw.index_select(1, picked), mean[picked], std[picked]
         z = (raw - mean.view(1, -1, 1, 1)) / std.view(1, -1, 1, 1)
-        return z * mask
+        return z if mask is None else z * mask
 
 
 def with_materials(
@@ -113,8 +114,13 @@ def material_table(materials: int, dims: int) -> nn.Embedding:
     return table
 
 
-def material_vectors(raw: torch.Tensor, table: torch.Tensor, channel: int) -> torch.Tensor:
-    """(B, D, H, W) the table's vector of each pixel's material, raw channel `channel`."""
+def material_rows(raw: torch.Tensor, table: torch.Tensor, channel: int) -> torch.Tensor:
+    """(B, H, W, D) the table's vector of each pixel's material, raw channel `channel`."""
     index = raw[:, channel].round().long().clamp_(0, table.shape[0] - 1)
     # Row 0 (empty pixel) starts at zero and padding_idx keeps it out of every update.
-    return F.embedding(index, table, padding_idx=0).permute(0, 3, 1, 2)
+    return F.embedding(index, table, padding_idx=0)
+
+
+def material_vectors(raw: torch.Tensor, table: torch.Tensor, channel: int) -> torch.Tensor:
+    """(B, D, H, W) the table's vector of each pixel's material, raw channel `channel`."""
+    return material_rows(raw, table, channel).permute(0, 3, 1, 2)

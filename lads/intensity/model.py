@@ -32,8 +32,8 @@ from lads.intensity.layers import (
     Normaliser,
     ResidualBlock,
     WrapConv,
+    material_rows,
     material_table,
-    material_vectors,
     with_materials,
 )
 
@@ -226,13 +226,14 @@ class PointGenerator(nn.Module):
         return tuple(picked + (["material"] if self.material_channel >= 0 else []))
 
     def forward(
-        self, raw: torch.Tensor, mask: torch.Tensor, law: torch.Tensor | None = None
+        self, raw: torch.Tensor, mask: torch.Tensor | None, law: torch.Tensor | None = None
     ) -> torch.Tensor:
-        """raw (B, C, H, W), mask (B, 1, H, W), law (B, 1, H, W) z-space (None: 0)."""
+        """raw (B, C, H, W), mask (B, 1, H, W) (None: every pixel occupied), law (B, 1, H, W)
+        z-space (None: 0)."""
         return self._mlp(self._inputs(raw, mask, law)).permute(0, 3, 1, 2)
 
     def infer(
-        self, raw: torch.Tensor, mask: torch.Tensor, law: torch.Tensor | None = None
+        self, raw: torch.Tensor, mask: torch.Tensor | None, law: torch.Tensor | None = None
     ) -> torch.Tensor:
         """`forward` for inference: the points go through the MLP INFER_CHUNK at a time.
 
@@ -249,21 +250,21 @@ class PointGenerator(nn.Module):
         return out.reshape(*x.shape[:-1], 1).permute(0, 3, 1, 2)
 
     def _inputs(
-        self, raw: torch.Tensor, mask: torch.Tensor, law: torch.Tensor | None
+        self, raw: torch.Tensor, mask: torch.Tensor | None, law: torch.Tensor | None
     ) -> torch.Tensor:
-        """(B, H, W, C_in) the MLP's inputs, channels last: the picked z-scored channels,
-        the law's z and the material vector."""
+        """(B, H, W, C_in) contiguous, the MLP's inputs channels last: the picked z-scored
+        channels, the law's z and the material vector."""
         x = self.norm(raw, mask, self.picked).clamp(-POINT_INPUT_CLAMP, POINT_INPUT_CLAMP)
-        parts = [x]
+        parts = [x.permute(0, 2, 3, 1)]
         if self.law_input:
-            parts.append(torch.zeros_like(mask) if law is None else law * mask)
+            if law is None:
+                law = raw.new_zeros((raw.shape[0], 1, *raw.shape[2:]))
+            parts.append((law if mask is None else law * mask).permute(0, 2, 3, 1))
         if self.material_channel >= 0:
-            parts.append(
-                material_vectors(raw, self.material_embedding.weight, self.material_channel)
-            )
-        # Channels last: each 1 x 1 convolution is then one matrix product over all points,
-        # several times faster on a CPU than conv2d on a (1, C, N, 1) image.
-        return torch.cat(parts, 1).permute(0, 2, 3, 1)
+            parts.append(material_rows(raw, self.material_embedding.weight, self.material_channel))
+        # Channels last, written once: each 1 x 1 convolution is then one matrix product over
+        # all points, several times faster on a CPU than conv2d on a (1, C, N, 1) image.
+        return torch.cat(parts, 3)
 
     def _mlp(self, x: torch.Tensor) -> torch.Tensor:
         """(..., C_in) -> (..., 1)."""
