@@ -15,80 +15,74 @@ import numpy as np
 import numpy.typing as npt
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def _bisect_left(table: npt.NDArray[np.float64], v: float) -> int:
+    """The number of entries of the increasing table below v (v not NaN)."""
+    lo, hi = 0, table.shape[0]
+    while lo < hi:
+        mid = (lo + hi) >> 1
+        if table[mid] < v:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
+
+
 @numba.njit(cache=True, nogil=True)
 def _left_positions(
     table: npt.NDArray[np.float64], values: npt.NDArray[np.float64]
 ) -> npt.NDArray[np.int64]:
     out = np.empty(values.shape[0], dtype=np.int64)
-    n = table.shape[0]
     for i in range(values.shape[0]):
         v = values[i]
-        if v != v:  # NaN sorts after everything, as in numpy
-            out[i] = n
-            continue
-        lo, hi = 0, n
-        while lo < hi:
-            mid = (lo + hi) >> 1
-            if table[mid] < v:
-                lo = mid + 1
-            else:
-                hi = mid
-        out[i] = lo
+        # NaN sorts after everything, as in numpy
+        out[i] = table.shape[0] if v != v else _bisect_left(table, v)
     return out
 
 
 # A point whose slope z / rho lies within this relative distance of a midpoint's tangent is
-# decided by numpy's degrees(arctan2) instead: both roundings are ~1e-15 relative, so
-# everywhere else the slope and the angle fall on the same side of every midpoint.
+# decided by its angle instead: both roundings are ~1e-15 relative, so everywhere else the
+# slope and the angle fall on the same side of every midpoint.
 _SLOPE_GUARD = 1e-9
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")  # z / 0 gives inf or NaN
-def _slope_positions(
-    xyz: npt.NDArray[np.float64], tan_mid: npt.NDArray[np.float64]
+def _elevation_positions(
+    xyz: npt.NDArray[np.float64],
+    mid_deg: npt.NDArray[np.float64],
+    tan_mid: npt.NDArray[np.float64],
 ) -> npt.NDArray[np.int64]:
-    """Midpoints below each point's elevation, counted on the slope z / rho against the
-    midpoints' (increasing) tangents; -1 where the slope is NaN or within the guard."""
+    """Midpoints below each point's elevation: counted on the slope z / rho against the
+    midpoints' (increasing) tangents, or on the angle in degrees where the slope is NaN or
+    within the guard of a tangent."""
     out = np.empty(xyz.shape[0], dtype=np.int64)
     n = tan_mid.shape[0]
     for i in range(xyz.shape[0]):
         x, y, z = xyz[i, 0], xyz[i, 1], xyz[i, 2]
         t = z / math.sqrt(x * x + y * y)  # +-inf straight up or down, NaN at the origin
-        if t != t:
-            out[i] = -1
-            continue
-        lo, hi = 0, n
-        while lo < hi:
-            mid = (lo + hi) >> 1
-            if tan_mid[mid] < t:
-                lo = mid + 1
-            else:
-                hi = mid
-        unsure = False
+        lo = _bisect_left(tan_mid, t) if t == t else 0
+        unsure = t != t
         for j in (lo - 1, lo):
             if 0 <= j < n and abs(t - tan_mid[j]) <= _SLOPE_GUARD * (abs(t) + abs(tan_mid[j])):
                 unsure = True
-        out[i] = -1 if unsure else lo
+        if unsure:  # atan2(0, 0) = 0 at the origin
+            lo = _bisect_left(mid_deg, math.degrees(math.atan2(z, math.hypot(x, y))))
+        out[i] = lo
     return out
 
 
 def elevation_positions(
     xyz64: npt.NDArray[np.float64], midpoints_deg: npt.NDArray[np.float64]
 ) -> npt.NDArray[np.int64]:
-    """`left_positions(midpoints_deg, degrees(arctan2(z, hypot(x, y))))` of (N, 3) float64
-    points against increasing midpoints within (-90, 90) deg, the same (N,) int64 values:
-    a compiled slope test decides all but the points within a rounding of a midpoint (or at
-    the origin), which take numpy's angle. (Exactly on a midpoint numpy's angle itself may
-    fall either side: np.degrees can differ in the last bit with the array's length.)"""
+    """(N,) int64: the midpoints below each point's elevation, atan2(z, hypot(x, y)) in
+    degrees, for (N, 3) float64 points and increasing midpoints within (-90, 90) deg (a
+    point's nearest channel). A compiled slope test decides all but the points within a
+    rounding of a midpoint (or at the origin), which take the angle itself; the same as
+    numpy's degrees(arctan2) counted by searchsorted, but at a tie within the last bit, where
+    numpy's vectorised arctangent itself varies with the arrays' memory layout."""
     xyz = np.ascontiguousarray(xyz64, dtype=np.float64)
-    mids = np.asarray(midpoints_deg, dtype=np.float64)
-    out = _slope_positions(xyz, np.tan(np.radians(mids)))
-    unsure = np.flatnonzero(out < 0)
-    if unsure.size:
-        p = xyz[unsure]
-        angle = np.degrees(np.arctan2(p[:, 2], np.hypot(p[:, 0], p[:, 1])))
-        out[unsure] = left_positions(mids, angle)
-    return out
+    mids = np.ascontiguousarray(midpoints_deg, dtype=np.float64)
+    return _elevation_positions(xyz, mids, np.tan(np.radians(mids)))
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
