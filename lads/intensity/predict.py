@@ -25,6 +25,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 import numpy.typing as npt
@@ -287,7 +288,8 @@ def _finish_points(model: IntensityModel, p: _Prepared, device: str) -> Predicti
     law = ((ln_law - spec.log_mean) / spec.log_std).astype(np.float32)
     raw = torch.from_numpy(fi.point_inputs)[None, :, :, None].to(device)
     law_t = torch.from_numpy(law)[None, None, :, None].to(device)
-    out = _single_threaded(lambda: model.generator.infer(raw, None, law_t) + law_t)
+    generator = cast(PointGenerator, model.generator)  # only pointwise models come here
+    out = _single_threaded(lambda: generator.infer(raw, None, law_t) + law_t)
     z = out[0, 0, :, 0].float().cpu().numpy().astype(np.float64)
     refl = np.maximum(np.exp(z * spec.log_std + spec.log_mean) - spec.floor, 0.0) * np.exp(p.shift)
     refl32 = refl.astype(np.float32)
