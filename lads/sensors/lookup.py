@@ -65,8 +65,9 @@ def _elevation_positions(
         for j in (lo - 1, lo):
             if 0 <= j < n and abs(t - tan_mid[j]) <= _SLOPE_GUARD * (abs(t) + abs(tan_mid[j])):
                 unsure = True
-        if unsure:  # atan2(0, 0) = 0 at the origin
-            lo = _bisect_left(mid_deg, math.degrees(math.atan2(z, math.hypot(x, y))))
+        if unsure:  # atan2(0, 0) = 0 at the origin; a NaN angle sorts last, as in numpy
+            angle = math.degrees(math.atan2(z, math.hypot(x, y)))
+            lo = _bisect_left(mid_deg, angle) if angle == angle else n
         out[i] = lo
     return out
 

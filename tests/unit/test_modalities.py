@@ -349,7 +349,9 @@ def test_nearest_channel_by_slope_is_numpys_angle(name):
     on = np.stack([r * np.cos(el) * np.cos(az), r * np.cos(el) * np.sin(az), r * np.sin(el)], 1)
     near = on.copy()
     near[:, 2] *= 1.0 + rng.choice([-1e-11, 1e-11], r.size)
-    special = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, 0.0, -2.0], [5.0, 0.0, 0.0]])
+    special = np.array(
+        [[0.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, 0.0, -2.0], [5.0, 0.0, 0.0], [np.nan, 1.0, 1.0]]
+    )
     scan = rng.normal(size=(20000, 3)) * [30.0, 30.0, 4.0]
     xyz = np.concatenate([scan, near, special])
     assert np.array_equal(elevation_positions(xyz, mids), numpy_channels(xyz))
