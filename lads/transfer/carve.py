@@ -30,6 +30,9 @@ from lads.sensors.profile import SensorProfile
 from lads.transfer.bounds import coarse_atan2
 
 F64 = npt.NDArray[np.float64]
+# The target's beams for the compiled passes: cos and sin of its elevations and azimuths,
+# then the (3, 3) turn and (3,) shift from the target frame to the centre scan's.
+Beams = tuple[F64, F64, F64, F64, F64, F64]
 # A hit is carved when every centre beam around it measured farther than its range times
 # (1 + CARVE_SHARE) plus CARVE_NOISE_SIGMAS times the source's range accuracy: a return may lie
 # a few sigma beyond the surface it hit. The share was chosen on the validation streets by
@@ -153,7 +156,7 @@ def carve_floor(space: FreeSpace, best: F64, elevation_rad: F64, azimuth_rad: F6
     the four beams shift slightly along its beam; the bound is taken where the nearest hit
     lies.) The footprint rule's bound, the plane's crossing, is one distance per beam too."""
     m = np.ascontiguousarray(space.to_source)
-    directions = (
+    beams = (
         np.cos(elevation_rad),
         np.sin(elevation_rad),
         np.cos(azimuth_rad),
@@ -161,14 +164,12 @@ def carve_floor(space: FreeSpace, best: F64, elevation_rad: F64, azimuth_rad: F6
         np.ascontiguousarray(m[:3, :3]),
         np.ascontiguousarray(m[:3, 3]),
     )
-    floor = _floor(
-        best, *directions, space.range_m, space.elevation_rad, space.margin_m, CARVE_SHARE
-    )
+    floor = _floor(best, beams, space.range_m, space.elevation_rad, space.margin_m, CARVE_SHARE)
     if space.point_m is None or space.normal is None:
         return floor
     return _footprint_floor(
         best,
-        *directions,
+        beams,
         space.point_m,
         space.normal,
         space.elevation_rad,
@@ -182,18 +183,14 @@ def carve_floor(space: FreeSpace, best: F64, elevation_rad: F64, azimuth_rad: F6
 @numba.njit(cache=True, nogil=True)
 def _floor(
     best: F64,
-    cos_el: F64,
-    sin_el: F64,
-    cos_az: F64,
-    sin_az: F64,
-    turn: F64,
-    shift: F64,
+    beams: Beams,
     image: F64,
     table: F64,
     margin_m: float,
     share: float,
 ) -> F64:
     """`carve_floor` in one pass over the beams; scalars inside the loop."""
+    cos_el, sin_el, cos_az, sin_az, turn, shift = beams
     rows, columns = best.shape
     rows_s, cols_s = image.shape
     step_s = 2.0 * math.pi / cols_s
@@ -229,12 +226,7 @@ def _floor(
 @numba.njit(cache=True, nogil=True)
 def _footprint_floor(
     best: F64,
-    cos_el: F64,
-    sin_el: F64,
-    cos_az: F64,
-    sin_az: F64,
-    turn: F64,
-    shift: F64,
+    beams: Beams,
     point_m: F64,
     normal: F64,
     table: F64,
@@ -245,6 +237,7 @@ def _footprint_floor(
 ) -> F64:
     """`floor` raised, in place, where a beam's nearest hit lies in front of the plane of the
     centre return whose footprint the beam shares (module doc); scalars inside the loop."""
+    cos_el, sin_el, cos_az, sin_az, turn, shift = beams
     rows, columns = best.shape
     cols_s = point_m.shape[1]
     for k in range(rows):

@@ -78,13 +78,15 @@ def test_a_disk_in_space_the_centre_scan_saw_through_is_carved_and_the_wall_wins
     assert np.array_equal(plain.reflectivity[untouched], carved.reflectivity[untouched])
 
 
-def test_the_centre_scans_own_surfaces_are_not_carved():
+@pytest.mark.parametrize("footprint", [False, True], ids=["four beams", "footprint rule"])
+def test_the_centre_scans_own_surfaces_are_not_carved(footprint):
     cols = slice(W // 2 - 40, W // 2 + 40)
     wall = _beam_points(10.0, slice(20, 45), cols)
     parts = [_disks(wall, 0.2)]
     args = ([*parts, *parts], [np.arange(len(wall))] * 2, [np.eye(4)] * 2, EL, W)
     plain = cast_parts(*args, azimuth_offset_rad=-math.pi)
-    carved = cast_parts(*args, azimuth_offset_rad=-math.pi, free=free_space(wall, HDL64, np.eye(4)))
+    free = free_space(wall, HDL64, np.eye(4), parts[0]["normal"] if footprint else None)
+    carved = cast_parts(*args, azimuth_offset_rad=-math.pi, free=free)
     for name in ("range_m", "owner", "reflectivity", "cos_incidence"):
         assert np.array_equal(getattr(plain, name), getattr(carved, name))
 
@@ -116,18 +118,6 @@ def test_a_hit_in_front_of_the_surface_in_its_own_beams_footprint_is_carved():
     # The poles' own beams keep the poles: their footprints hold the poles themselves.
     assert both.range_m[k, j - 1] == pytest.approx(3.0, rel=1e-2)
     assert both.range_m[k, j + 1] == pytest.approx(3.0, rel=1e-2)
-
-
-def test_the_footprint_rule_leaves_the_centre_scans_own_surfaces():
-    cols = slice(W // 2 - 40, W // 2 + 40)
-    wall = _beam_points(10.0, slice(20, 45), cols)
-    parts = [_disks(wall, 0.2)]
-    args = ([*parts, *parts], [np.arange(len(wall))] * 2, [np.eye(4)] * 2, EL, W)
-    plain = cast_parts(*args, azimuth_offset_rad=-math.pi)
-    free = free_space(wall, HDL64, np.eye(4), parts[0]["normal"])
-    carved = cast_parts(*args, azimuth_offset_rad=-math.pi, free=free)
-    for name in ("range_m", "owner", "reflectivity", "cos_incidence"):
-        assert np.array_equal(getattr(plain, name), getattr(carved, name))
 
 
 def test_the_bound_per_beam_equals_testing_every_hit_on_its_own():
