@@ -8,7 +8,8 @@ torch.set_num_threads(1):
 - incidence: the part of features spent on incidence (range-image normals, kNN fallback);
 - fallback: of that, the k-nearest-neighbour PCA normals of the points without a usable
   normal of their own pixel (direction grid, neighbour search and plane fits,
-  `lads.physics.sphere_knn`; `fallback_points` of them);
+  `lads.physics.sphere_knn`; `fallback_points` of them); plane_fit: of that, the plane fits
+  alone (`lads.physics.knn_normals`, closed-form eigenproblem);
 - frame: all of `predict_points` (scan check + features + network + every point's value +
   encoding);
 - snow_stage: the default snow variant's learned stage (the weather model, width 32) as a
@@ -34,13 +35,19 @@ from lads.config import pipeline_for
 from lads.intensity.checkpoint import resolve_model
 from lads.intensity.features import frame_image
 from lads.intensity.predict import predict_image, predict_points
+from lads.physics.knn_normals import _plane_cos
 from lads.physics.modalities import (
     DEFAULT_MAX_DEPTH_JUMP,
+    KNN_MIN_NEIGHBOURS,
+    KNN_MIN_PLANARITY,
+    KNN_NEIGHBOURS,
+    KNN_RADIUS_M,
     IncidenceSource,
     _incidence,
     _neighbour_cos,
 )
 from lads.physics.projection import channels_of, checked_xyz, organise
+from lads.physics.sphere_knn import knn_within
 from lads.readers import get_reader
 from lads.seeding import rng_for
 from lads.sensors.profile import load_profile
@@ -90,6 +97,13 @@ def _fallback_points(xyz: np.ndarray, profile: Any) -> tuple[np.ndarray, np.ndar
     return xyz64, np.flatnonzero(source != IncidenceSource.IMAGE)
 
 
+def _plane_fits(xyz64: np.ndarray, rest: np.ndarray) -> Any:
+    """The fallback's plane fits alone, on neighbours found once."""
+    query = rest.astype(np.int64)
+    idx, _ = knn_within(xyz64, query, k=KNN_NEIGHBOURS, radius_m=KNN_RADIUS_M)
+    return lambda: _plane_cos(xyz64, query, idx, KNN_MIN_NEIGHBOURS, KNN_MIN_PLANARITY)
+
+
 def main() -> dict[str, Any]:
     # One core: torch and every OpenMP / BLAS pool (pykdtree, the incidence fallback's tree
     # for the scans its grid does not suit, is OpenMP-parallel) limited to one thread.
@@ -127,6 +141,7 @@ def _measure() -> dict[str, Any]:
                 "incidence_ms": _median_ms(lambda f=frame: _incidence_only(f.xyz, profile)),
                 "fallback_points": int(rest.size),
                 "fallback_ms": _median_ms(lambda x=xyz64, q=rest: _neighbour_cos(x, q)),
+                "plane_fit_ms": _median_ms(_plane_fits(xyz64, rest)),
                 "frame_ms": _median_ms(
                     lambda f=frame: predict_points(
                         model, f.xyz, profile, labels=f.labels, label_set="semantickitti"
@@ -144,6 +159,7 @@ def _measure() -> dict[str, Any]:
         "features_ms_median": float(np.median([r["features_ms"] for r in rows])),
         "incidence_ms_median": float(np.median([r["incidence_ms"] for r in rows])),
         "fallback_ms_median": float(np.median([r["fallback_ms"] for r in rows])),
+        "plane_fit_ms_median": float(np.median([r["plane_fit_ms"] for r in rows])),
         "frame_ms_median": float(np.median([r["frame_ms"] for r in rows])),
         "target_frame_ms": TARGET_MS,
         "meets_target": float(np.median([r["frame_ms"] for r in rows])) <= TARGET_MS,

@@ -22,6 +22,7 @@ from __future__ import annotations
 from collections.abc import Iterable, Sequence
 from typing import cast
 
+import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import nn
@@ -242,12 +243,42 @@ class PointGenerator(nn.Module):
         depends only on its own inputs and the fixed chunking of its own frame, never on
         other frames.
         """
-        x = self._inputs(raw, mask, law)
-        flat = x.reshape(-1, x.shape[-1])
+        flat = self._point_rows(raw, mask, law)
+        if flat is None:
+            x = self._inputs(raw, mask, law)
+            flat = x.reshape(-1, x.shape[-1])
         out = torch.cat(
             [self._mlp(flat[i : i + INFER_CHUNK]) for i in range(0, flat.shape[0], INFER_CHUNK)]
         )
-        return out.reshape(*x.shape[:-1], 1).permute(0, 3, 1, 2)
+        b, _, h, w = raw.shape
+        return out.reshape(b, h, w, 1).permute(0, 3, 1, 2)
+
+    def _point_rows(
+        self, raw: torch.Tensor, mask: torch.Tensor | None, law: torch.Tensor | None
+    ) -> torch.Tensor | None:
+        """`_inputs` as (N, C_in) rows from one compiled pass (`lads.intensity.point_inputs`,
+        the same bits) for one CPU frame without a mask; None otherwise."""
+        if raw.device.type != "cpu" or raw.shape[0] != 1 or mask is not None:
+            return None
+        from lads.intensity.point_inputs import input_rows
+
+        norm = self.norm
+        mean = torch.where(norm.active, norm.mean, torch.zeros_like(norm.mean))[self.picked]
+        std = torch.where(norm.active, norm.std, torch.ones_like(norm.std))[self.picked]
+        has_table = self.material_channel >= 0
+        table = self.material_embedding.weight if has_table else raw.new_zeros((1, 1))
+        rows = input_rows(
+            np.ascontiguousarray(raw[0].reshape(raw.shape[1], -1).float().numpy()),
+            self.picked.numpy(),
+            mean.float().numpy(),
+            std.float().numpy(),
+            POINT_INPUT_CLAMP,
+            None if law is None else np.ascontiguousarray(law.reshape(-1).float().numpy()),
+            self.law_input,
+            self.material_channel,
+            np.ascontiguousarray(table.detach().float().numpy()),
+        )
+        return torch.from_numpy(rows)
 
     def _inputs(
         self, raw: torch.Tensor, mask: torch.Tensor | None, law: torch.Tensor | None

@@ -4,9 +4,15 @@ The incidence of a point without a usable range-image normal comes from the plan
 its neighbourhood (rules in `lads.physics.modalities`). `lads.physics.sphere_knn` finds the
 neighbours: the same exact k nearest as pykdtree's and scipy's k-d trees, from a grid of the
 scan's directions (it hands scans it does not suit to pykdtree). The covariance and its
-3 x 3 eigenproblem (cyclic Jacobi rotations) run in one compiled loop, because numpy's
-batched matmul and eigh over ~10k tiny matrices took as long as the neighbour search.
-Eigenvalues and vectors agree with LAPACK to ~1e-12 relative.
+3 x 3 eigenproblem run in one compiled loop, because numpy's batched matmul and eigh over
+~10k tiny matrices took as long as the neighbour search.
+
+The eigenproblem is solved in closed form (docs/physics.md §10.3): the eigenvalues from the
+trigonometric solution of the characteristic cubic, the normal as the longest cross product
+of two rows of C - lambda_min I (each row is orthogonal to the normal). On the planar patches
+the rule keeps, the smallest eigenvalue lies far below the other two, where this is as
+accurate as LAPACK: |cos| agrees with numpy's eigh to ~1e-12 (tests), and it costs a third
+of the cyclic Jacobi rotations it replaced.
 """
 
 from __future__ import annotations
@@ -19,91 +25,50 @@ import numpy.typing as npt
 
 from lads.physics.sphere_knn import knn_within
 
-_JACOBI_SWEEPS = 12
-
-
-Pair = tuple[float, float]
-# Eigenvalues, then the eigenvectors' components v[row][column] row by row (column i belongs
-# to eigenvalue i): 3 + 9 floats.
-Eigen = tuple[float, float, float, float, float, float, float, float, float, float, float, float]
+Triple = tuple[float, float, float]
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _rot(c: float, s: float, a: float, b: float) -> Pair:
-    """One plane rotation of the pair (a, b) by cos c, sin s: (c a - s b, s a + c b)."""
-    return c * a - s * b, s * a + c * b
+def _eigenvalues(
+    c00: float, c01: float, c02: float, c11: float, c12: float, c22: float
+) -> tuple[float, float, float, bool]:
+    """(low, middle, high) eigenvalues of the symmetric 3 x 3 matrix C (upper triangle),
+    and False when C is a multiple of the identity (every direction an eigenvector).
 
-
-@numba.njit(cache=True, nogil=True, inline="always")
-def _cos_sin(mpp: float, mqq: float, mpq: float) -> Pair:
-    """cos and sin of the Jacobi rotation that zeroes m[p, q] (non-zero) of a symmetric m."""
-    theta = (mqq - mpp) / (2.0 * mpq)
-    t = (1.0 if theta >= 0 else -1.0) / (abs(theta) + math.sqrt(theta * theta + 1))
-    c = 1.0 / math.sqrt(t * t + 1.0)
-    return c, t * c
-
-
-@numba.njit(cache=True, nogil=True, inline="always")
-def _jacobi_eigen(
-    m00: float,
-    m01: float,
-    m02: float,
-    m10: float,
-    m11: float,
-    m12: float,
-    m20: float,
-    m21: float,
-    m22: float,
-) -> Eigen:
-    """Eigen-decomposition of the symmetric 3 x 3 m (row by row) by cyclic Jacobi rotations.
-
-    Each rotation turns columns p, q of m (m <- m J), then its rows p, q (m <- J^T m), then
-    the columns p, q of the eigenvectors, all nine entries kept; scalars, not arrays, so the
-    matrix stays in registers.
-
-    Returns:
-        The eigenvalues m00, m11, m22 (unsorted), then the eigenvectors v00 .. v22 row by row
-        (column i belongs to eigenvalue i).
+    Trigonometric solution of det(C - lambda I) = 0 with C = q I + p B, det(B) = 2 r:
+    lambda = q + 2 p cos(acos(r) / 3 + 2 pi j / 3), j = 0 (high), 1 (low); the middle one
+    from the trace.
     """
-    v00, v01, v02, v10, v11, v12, v20, v21, v22 = 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0
-    for _ in range(_JACOBI_SWEEPS):
-        off = m01**2 + m02**2 + m12**2
-        if off <= 1e-30 * (m00**2 + m11**2 + m22**2) or off == 0.0:
-            break
-        if m01 != 0.0:  # p, q = 0, 1
-            c, s = _cos_sin(m00, m11, m01)
-            m00, m01 = _rot(c, s, m00, m01)
-            m10, m11 = _rot(c, s, m10, m11)
-            m20, m21 = _rot(c, s, m20, m21)
-            m00, m10 = _rot(c, s, m00, m10)
-            m01, m11 = _rot(c, s, m01, m11)
-            m02, m12 = _rot(c, s, m02, m12)
-            v00, v01 = _rot(c, s, v00, v01)
-            v10, v11 = _rot(c, s, v10, v11)
-            v20, v21 = _rot(c, s, v20, v21)
-        if m02 != 0.0:  # p, q = 0, 2
-            c, s = _cos_sin(m00, m22, m02)
-            m00, m02 = _rot(c, s, m00, m02)
-            m10, m12 = _rot(c, s, m10, m12)
-            m20, m22 = _rot(c, s, m20, m22)
-            m00, m20 = _rot(c, s, m00, m20)
-            m01, m21 = _rot(c, s, m01, m21)
-            m02, m22 = _rot(c, s, m02, m22)
-            v00, v02 = _rot(c, s, v00, v02)
-            v10, v12 = _rot(c, s, v10, v12)
-            v20, v22 = _rot(c, s, v20, v22)
-        if m12 != 0.0:  # p, q = 1, 2
-            c, s = _cos_sin(m11, m22, m12)
-            m01, m02 = _rot(c, s, m01, m02)
-            m11, m12 = _rot(c, s, m11, m12)
-            m21, m22 = _rot(c, s, m21, m22)
-            m10, m20 = _rot(c, s, m10, m20)
-            m11, m21 = _rot(c, s, m11, m21)
-            m12, m22 = _rot(c, s, m12, m22)
-            v01, v02 = _rot(c, s, v01, v02)
-            v11, v12 = _rot(c, s, v11, v12)
-            v21, v22 = _rot(c, s, v21, v22)
-    return m00, m11, m22, v00, v01, v02, v10, v11, v12, v20, v21, v22
+    q = (c00 + c11 + c22) / 3.0
+    a0, a1, a2 = c00 - q, c11 - q, c22 - q
+    p2 = a0 * a0 + a1 * a1 + a2 * a2 + 2.0 * (c01 * c01 + c02 * c02 + c12 * c12)
+    if not p2 > 0.0:
+        return q, q, q, False
+    p = math.sqrt(p2 / 6.0)
+    det = a0 * (a1 * a2 - c12 * c12) - c01 * (c01 * a2 - c12 * c02) + c02 * (c01 * c12 - a1 * c02)
+    r = min(max(det / (2.0 * p * p * p), -1.0), 1.0)
+    phi = math.acos(r) / 3.0
+    high = q + 2.0 * p * math.cos(phi)
+    low = q + 2.0 * p * math.cos(phi + 2.0 * math.pi / 3.0)
+    return low, 3.0 * q - high - low, high, True
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _null_direction(
+    c00: float, c01: float, c02: float, c11: float, c12: float, c22: float, lam: float
+) -> Triple:
+    """An (unnormalised) eigenvector of C for the eigenvalue lam: the longest of the cross
+    products of two rows of C - lam I, all three orthogonal to it."""
+    r00, r11, r22 = c00 - lam, c11 - lam, c22 - lam
+    ax, ay, az = c01 * c12 - c02 * r11, c02 * c01 - r00 * c12, r00 * r11 - c01 * c01
+    bx, by, bz = c01 * r22 - c02 * c12, c02 * c02 - r00 * r22, r00 * c12 - c01 * c02
+    cx, cy, cz = r11 * r22 - c12 * c12, c12 * c02 - c01 * r22, c01 * c12 - r11 * c02
+    na = ax * ax + ay * ay + az * az
+    nb = bx * bx + by * by + bz * bz
+    nc = cx * cx + cy * cy + cz * cz
+    if na >= nb and na >= nc:
+        return ax, ay, az
+    return (bx, by, bz) if nb >= nc else (cx, cy, cz)
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
@@ -115,7 +80,8 @@ def _patch_cos(
     min_planarity: float,
 ) -> tuple[float, bool]:
     """|cos| of the PCA normal of point qi's `count` neighbours (nbrs: (k,) in ascending
-    distance, entries >= N missing), and whether the patch is planar enough."""
+    distance, entries >= N missing), and whether the patch is planar enough (a covariance
+    with no preferred direction is not)."""
     n = xyz.shape[0]
     qx, qy, qz = xyz[qi, 0], xyz[qi, 1], xyz[qi, 2]
     s0 = s1 = s2 = 0.0  # the offsets' sums, then their mean
@@ -139,23 +105,10 @@ def _patch_cos(
     s0, s1, s2 = s0 / count, s1 / count, s2 / count
     c00, c01, c02 = c00 / count - s0 * s0, c01 / count - s0 * s1, c02 / count - s0 * s2
     c11, c12, c22 = c11 / count - s1 * s1, c12 / count - s1 * s2, c22 / count - s2 * s2
-    d0, d1, d2, v00, v01, v02, v10, v11, v12, v20, v21, v22 = _jacobi_eigen(
-        c00, c01, c02, c01, c11, c12, c02, c12, c22
-    )
-    lo, hi, d_lo, d_hi = 0, 0, d0, d0  # the first smallest, the last largest eigenvalue
-    if d1 < d_lo:
-        lo, d_lo = 1, d1
-    if d1 >= d_hi:
-        hi, d_hi = 1, d1
-    if d2 < d_lo:
-        lo, d_lo = 2, d2
-    if d2 >= d_hi:
-        hi, d_hi = 2, d2
-    mid = 3 - lo - hi if lo != hi else (lo + 1) % 3
-    d_mid = d0 if mid == 0 else (d1 if mid == 1 else d2)
-    if d_mid < min_planarity * max(d_hi, 1e-300):
+    low, middle, high, directed = _eigenvalues(c00, c01, c02, c11, c12, c22)
+    if not directed or middle < min_planarity * max(high, 1e-300):
         return 0.0, False
-    nx, ny, nz = (v00, v10, v20) if lo == 0 else ((v01, v11, v21) if lo == 1 else (v02, v12, v22))
+    nx, ny, nz = _null_direction(c00, c01, c02, c11, c12, c22, low)
     norm = math.sqrt(nx * nx + ny * ny + nz * nz) * math.sqrt(qx * qx + qy * qy + qz * qz)
     return (min(abs(nx * qx + ny * qy + nz * qz) / norm, 1.0) if norm > 0.0 else 0.0), True
 

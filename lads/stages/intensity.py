@@ -38,7 +38,9 @@ if TYPE_CHECKING:  # torch is imported only where a learned stage runs (start-up
     from lads.intensity.predict import PointRequest
 
 # Bump when the stage's output bytes change for the same input and weights.
-INTENSITY_STAGE_VERSION = "2"  # 2: one azimuth wrap per pass (float rounding), batch-invariant
+# 2: one azimuth wrap per pass (float rounding), batch-invariant; 3: the neighbour fallback's
+# plane fit in closed form (its |cos| moves by ~1e-13, which can move a float32 step).
+INTENSITY_STAGE_VERSION = "3"
 
 
 @functools.lru_cache(maxsize=8)
@@ -109,8 +111,11 @@ class IntensityStage:
         out = []
         for frame, valid, prediction in zip(frames, valids, predictions, strict=True):
             points = frame.points.copy()
-            points[:, 3] = 0.0
-            points[valid, 3] = prediction.encoded
+            if valid.all():  # the usual frame: no zero-range point, no masked write
+                points[:, 3] = prediction.encoded
+            else:
+                points[:, 3] = 0.0
+                points[valid, 3] = prediction.encoded
             out.append(replace(frame, points=points))
         return out
 

@@ -560,6 +560,43 @@ def test_pointwise_inference_in_chunks_equals_the_training_forward(monkeypatch):
         assert changed.nonzero().flatten().tolist() == [700]
 
 
+@pytest.mark.parametrize(
+    ("materials", "law_input", "with_law"),
+    [(True, True, True), (True, True, False), (False, True, True), (True, False, True)],
+)
+def test_the_compiled_input_rows_are_the_torch_inputs_bits(materials, law_input, with_law):
+    """Inference on a CPU frame builds the MLP's input rows in one compiled pass; they are
+    torch's `_inputs`, bit for bit: z-scores beyond the clamp, material indices outside the
+    table, channels not z-scored, without a law or a material table."""
+    from lads.intensity.model import PointGenerator
+
+    names = channel_names(False)
+    torch.manual_seed(2)
+    n_mat = len(material_names()) if materials else 0
+    gen = PointGenerator(
+        names, ("ln_range", "cos_incidence"), width=8, materials=n_mat, law_input=law_input
+    )
+    gen.norm.set_stats(
+        {"ln_range": 2.3, "cos_incidence": 0.6}, {"ln_range": 0.7, "cos_incidence": 0.01}
+    )
+    with torch.no_grad():
+        for p in gen.parameters():
+            p.normal_(0, 0.5)
+    raw = torch.randn(1, len(names), 999, 1) * 3
+    if materials:
+        raw[0, names.index("material")] = torch.randint(-3, n_mat + 5, (999, 1)).float()
+    law = torch.randn(1, 1, 999, 1) if with_law else None
+    with torch.inference_mode():
+        rows = gen._point_rows(raw, None, law)
+        want = gen._inputs(raw, None, law)
+        assert rows is not None and rows.shape == (999, want.shape[-1])
+        assert rows.numpy().tobytes() == want.reshape(999, -1).numpy().tobytes()
+        assert bool((want.abs() == 4.0).any())  # the clamp was reached
+        torch.testing.assert_close(
+            gen.infer(raw, None, law), gen(raw, None, law), rtol=0, atol=1e-6
+        )
+
+
 def test_a_pointwise_model_without_a_fitted_law_is_refused(tmp_path):
     with pytest.raises(ModelError, match="fitted law"):
         load_model(tiny_model(tmp_path, architecture="pointwise"))
