@@ -268,12 +268,12 @@ class PointGenerator(nn.Module):
         has_table = self.material_channel >= 0
         table = self.material_embedding.weight if has_table else raw.new_zeros((1, 1))
         rows = input_rows(
-            np.ascontiguousarray(raw[0].reshape(raw.shape[1], -1).float().numpy()),
+            np.ascontiguousarray(raw.detach()[0].reshape(raw.shape[1], -1).float().numpy()),
             self.picked.numpy(),
             mean.float().numpy(),
             std.float().numpy(),
             POINT_INPUT_CLAMP,
-            None if law is None else np.ascontiguousarray(law.reshape(-1).float().numpy()),
+            None if law is None else np.ascontiguousarray(law.detach().reshape(-1).float().numpy()),
             self.law_input,
             self.material_channel,
             np.ascontiguousarray(table.detach().float().numpy()),
