@@ -33,7 +33,8 @@ def _eigenvalues(
     c00: float, c01: float, c02: float, c11: float, c12: float, c22: float
 ) -> tuple[float, float, float, bool]:
     """(low, middle, high) eigenvalues of the symmetric 3 x 3 matrix C (upper triangle),
-    and False when C is a multiple of the identity (every direction an eigenvector).
+    and False when C is a multiple of the identity (every direction an eigenvector) or too
+    small to solve (|C - qI| below ~1e-100).
 
     Trigonometric solution of det(C - lambda I) = 0 with C = q I + p B, det(B) = 2 r:
     lambda = q + 2 p cos(acos(r) / 3 + 2 pi j / 3), j = 0 (high), 1 (low); the middle one
@@ -46,7 +47,10 @@ def _eigenvalues(
         return q, q, q, False
     p = math.sqrt(p2 / 6.0)
     det = a0 * (a1 * a2 - c12 * c12) - c01 * (c01 * a2 - c12 * c02) + c02 * (c01 * c12 - a1 * c02)
-    r = min(max(det / (2.0 * p * p * p), -1.0), 1.0)
+    r = det / (2.0 * p * p * p)
+    if not math.isfinite(r):  # p^3 underflows: offsets far below any sensor's resolution
+        return q, q, q, False
+    r = min(max(r, -1.0), 1.0)
     phi = math.acos(r) / 3.0
     high = q + 2.0 * p * math.cos(phi)
     low = q + 2.0 * p * math.cos(phi + 2.0 * math.pi / 3.0)
