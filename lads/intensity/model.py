@@ -247,9 +247,8 @@ class PointGenerator(nn.Module):
         if flat is None:
             x = self._inputs(raw, mask, law)
             flat = x.reshape(-1, x.shape[-1])
-        out = torch.cat(
-            [self._mlp(flat[i : i + INFER_CHUNK]) for i in range(0, flat.shape[0], INFER_CHUNK)]
-        )
+        chunks = [self._mlp(flat[i : i + INFER_CHUNK]) for i in range(0, len(flat), INFER_CHUNK)]
+        out = torch.cat(chunks) if chunks else flat.new_zeros((0, 1))  # a frame without points
         b, _, h, w = raw.shape
         return out.reshape(b, h, w, 1).permute(0, 3, 1, 2)
 

@@ -639,3 +639,34 @@ def test_a_pointwise_model_gives_every_point_its_own_value(tmp_path):
         from lads.intensity.predict import predict_image
 
         predict_image(model, fi)
+
+
+@pytest.mark.parametrize("variant", ["intensity-kitti", "snow"])
+def test_frames_without_a_usable_point_go_through_the_learned_stage(synthetic_tree, variant):
+    """A frame whose points all sit at zero range (a blocked sensor), or one without points,
+    passes the learned stage: the zero-range points kept, their intensity 0."""
+    from lads.config import pipeline_for
+    from lads.readers import get_reader
+    from lads.worker import stages_for
+
+    reader = get_reader("semantickitti", synthetic_tree("semantickitti"))
+    frame = reader.read(reader.items()[0])
+
+    def first(n: int):
+        return dataclasses.replace(
+            frame,
+            points=frame.points[:n].copy(),
+            labels=frame.labels[:n],
+            outcome=frame.outcome[:n],
+        )
+
+    at_origin, none = first(7), first(0)
+    at_origin.points[:, :3] = 0.0
+    stages = stages_for(pipeline_for("semantickitti", variant))
+    for source in (at_origin, none):
+        out = source
+        for k, stage in enumerate(stages):
+            out = stage(out, np.random.default_rng([0, k]))
+        origin = ~out.points[:, :3].any(axis=1)
+        assert origin.sum() == len(source.points)  # the weather passes them through too
+        assert np.all(out.points[origin, 3] == 0.0) and np.isfinite(out.points).all()
