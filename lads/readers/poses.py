@@ -20,12 +20,34 @@ from lads.errors import CorruptItemError
 
 F64 = npt.NDArray[np.float64]
 
+# A pose's or calibration's 3 x 3 part must be a rotation: max |R^T R - I| up to this (text
+# files round their entries at 1e-6 or finer; a broken file is off by order 1), det R > 0.
+RIGID_TOLERANCE = 1e-2
+
+
+def _check_rigid(transforms: F64, path: Path, what: str, line_of: str) -> None:
+    """Raise CorruptItemError naming the first (4, 4) of `transforms` (K, 4, 4) whose
+    rotation part is not a rotation (`line_of`: how to say where it is, {k} its index)."""
+    rot = transforms[:, :3, :3]
+    gram = np.einsum("kji,kjl->kil", rot, rot)
+    off = np.abs(gram - np.eye(3)).max(axis=(1, 2))
+    det = np.linalg.det(rot)
+    bad = np.flatnonzero((off > RIGID_TOLERANCE) | ~(det > 0.0))
+    if bad.size:
+        k = int(bad[0])
+        raise CorruptItemError(
+            f"{path}: {what}, {line_of.format(k=k + 1)}: not a rigid transform (its 3 x 3 "
+            f"part R has max |R^T R - I| = {off[k]:.3g} and det R = {det[k]:.3g}); expected "
+            "[R | t] with R a rotation. Replace the file with the dataset's own."
+        )
+
 
 def read_pose_lines(path: Path, what: str) -> F64:
     """(K, 4, 4) float64 poses from a text file of K lines of 12 numbers (3 x 4 row-major).
 
     Raises:
-        CorruptItemError: the file is missing or unreadable, or a line is not 12 numbers.
+        CorruptItemError: the file is missing or unreadable, a line is not 12 numbers, or a
+            pose is not a rigid transform (`RIGID_TOLERANCE`).
     """
     try:
         text = path.read_text(encoding="utf-8")
@@ -50,6 +72,7 @@ def read_pose_lines(path: Path, what: str) -> F64:
         raise CorruptItemError(f"{path}: {what} holds NaN or infinite values.")
     out = np.tile(np.eye(4), (len(values), 1, 1))
     out[:, :3, :] = values
+    _check_rigid(out, path, what, "line {k}")
     return out
 
 
@@ -57,7 +80,8 @@ def kitti_velodyne_to_camera(calib: Path) -> F64:
     """(4, 4) `Tr` of a KITTI `calib.txt`: Velodyne -> left grey camera.
 
     Raises:
-        CorruptItemError: no readable `Tr:` line of 12 numbers.
+        CorruptItemError: no readable `Tr:` line of 12 numbers, or one that is not a rigid
+            transform.
     """
     try:
         lines = calib.read_text(encoding="utf-8").splitlines()
@@ -73,7 +97,15 @@ def kitti_velodyne_to_camera(calib: Path) -> F64:
             nums = rest.split()
             if len(nums) == 12:
                 tr = np.eye(4)
-                tr[:3, :] = np.array(nums, dtype=np.float64).reshape(3, 4)
+                try:
+                    tr[:3, :] = np.array(nums, dtype=np.float64).reshape(3, 4)
+                except ValueError as exc:
+                    raise CorruptItemError(
+                        f"{calib}: the 'Tr:' line holds text that is not a number ({exc})."
+                    ) from exc
+                if not np.isfinite(tr).all():
+                    raise CorruptItemError(f"{calib}: the 'Tr:' line holds NaN or infinite values.")
+                _check_rigid(tr[None], calib, "the calibration", "line 'Tr'")
                 return tr
     raise CorruptItemError(
         f"{calib}: no 'Tr:' line of 12 numbers; some KITTI downloads ship a calib.txt without "

@@ -303,6 +303,16 @@ def test_kitti_poses_are_turned_into_velodyne_poses(synthetic_tree):
     (seq / "calib.txt").write_text("P0: " + " ".join(["0"] * 12) + "\n")
     with pytest.raises(CorruptItemError, match="no 'Tr:' line"):
         reader.sensor_poses(reader.items())
+    # A placeholder Tr or a mirrored pose is no rigid transform: named, not a singular matrix.
+    (seq / "calib.txt").write_text("Tr: " + " ".join(["1"] * 12) + "\n")
+    with pytest.raises(CorruptItemError, match="calib.txt: the calibration, line 'Tr': not a rig"):
+        reader.sensor_poses(reader.items())
+    (seq / "calib.txt").write_text("Tr: " + _pose_line(tr))
+    mirrored = cams[1].copy()
+    mirrored[0, 0] = -1.0
+    (seq / "poses.txt").write_text("".join(_pose_line(p) for p in (cams[0], mirrored, cams[2])))
+    with pytest.raises(CorruptItemError, match=r"poses, line 2: not a rigid .* det R = -1"):
+        reader.sensor_poses(reader.items())
 
 
 def test_nuscenes_kitti_poses_are_read_line_by_keyframe(synthetic_tree):
