@@ -169,3 +169,18 @@ def test_nuscenes_include_sweeps_adds_the_real_sweep(nusc_root):
     frame = reader.read(sweep)
     assert frame.points.shape == (100, 5) and frame.labels is None
     _assert_round_trip(reader, nusc_root)
+
+
+def test_the_real_poses_and_calibration_are_rigid_transforms(shared_data):
+    """Every real pose file and calib.txt passes the rigidity check, with a margin of four
+    orders of magnitude: the check only refuses broken files."""
+    from lads.readers.poses import RIGID_TOLERANCE, kitti_velodyne_to_camera, read_pose_lines
+
+    files = sorted(shared_data.rglob("poses.txt")) + [shared_data / "kitti_odometry/poses/00.txt"]
+    assert len(files) >= 2
+    for path in files:
+        rot = read_pose_lines(path, "poses")[:, :3, :3]
+        off = np.abs(np.einsum("kji,kjl->kil", rot, rot) - np.eye(3)).max()
+        assert off < 1e-4 * RIGID_TOLERANCE, (path, off)
+    for path in sorted(shared_data.rglob("calib.txt")):
+        kitti_velodyne_to_camera(path)
