@@ -31,14 +31,27 @@ def json_lines(path: Path) -> list[dict[str, Any]]:
     return out
 
 
+def recorded_versions(row: dict[str, Any]) -> list[tuple[str, str]]:
+    """(name, version) of each stage a manifest row says built the item."""
+    stages = row.get("stages")
+    if not isinstance(stages, list):
+        return []
+    return [(str(s.get("name")), str(s.get("version"))) for s in stages if isinstance(s, dict)]
+
+
 def finished_rows(
-    out_root: Path, source_root: Path, items: list[Item]
+    out_root: Path,
+    source_root: Path,
+    items: list[Item],
+    stage_versions: list[tuple[str, str]] | None = None,
 ) -> dict[str, dict[str, Any]]:
     """Rows of items already built whose every artefact is still intact on disk: each
     output file (size and sha256), the provenance group (`provenance.item_intact`, against
     the SHA256SUMS of an earlier finished run when there is one), and the source files the
-    item was built from (unchanged since). Anything else is rebuilt, so a rerun repairs
-    whatever damage it finds and follows a source that changed."""
+    item was built from (unchanged since); with `stage_versions` ((name, version) of each
+    stage of this build), also built by those stage versions: an item an older lads built
+    with other bytes is rebuilt rather than mixed into the tree. Anything else is rebuilt,
+    so a rerun repairs whatever damage it finds and follows a source that changed."""
     rows = {r["item_id"]: r for r in json_lines(out_root / MANIFEST)}
     for item in items:
         for row in json_lines(state_path(out_root, item.item_id)):
@@ -50,6 +63,7 @@ def finished_rows(
         if (
             item_id in wanted
             and row.get("status") == "ok"
+            and (stage_versions is None or recorded_versions(row) == stage_versions)
             and files_intact(out_root, row.get("outputs"))
             and files_intact(source_root, row.get("source"))
             and provenance.item_intact(out_root, row, listed)

@@ -254,7 +254,8 @@ def _build_locked(
         )
     except OSError as exc:
         raise write_error(out_root / provenance.STORE_NAME, exc) from exc
-    done = finished_rows(out_root, Path(reader.root), items)
+    versions = [(stage.name, stage.version) for stage in stages_for(plan.pipeline)]
+    done = finished_rows(out_root, Path(reader.root), items, versions)
     todo = [i for i in items if i.item_id not in done]
     report.skipped = len(done)
     rows = dict(done)

@@ -197,6 +197,22 @@ def test_damaged_output_is_rebuilt_on_rerun(source, built, tmp_path):
     assert tree_digest(out) == tree_digest(built)
 
 
+def test_items_an_older_stage_version_built_are_rebuilt_on_rerun(source, built, tmp_path):
+    """A rerun after an upgrade that changed a stage's bytes (its version) rebuilds the items
+    the older version built instead of mixing both versions in one tree."""
+    import shutil
+
+    out = tmp_path / "older"
+    shutil.copytree(built, out)
+    manifest = out / "manifest.jsonl"
+    rows = [json.loads(line) for line in manifest.read_text().splitlines()]
+    rows[1]["stages"][0]["version"] = "0"  # as an older lads recorded it
+    manifest.write_text("".join(json.dumps(r) + "\n" for r in rows))
+    report = run_build("semantickitti", source, out, snow(rate_mm_h=10.0), seed=0)
+    assert (report.built, report.skipped) == (1, FRAMES - 1)
+    assert tree_digest(out) == tree_digest(built)
+
+
 def test_refuses_to_write_inside_the_source(source):
     with pytest.raises(BuildError, match="inside the source"):
         run_build("semantickitti", source, source / "out", snow(), seed=0)
