@@ -23,7 +23,7 @@ from typing import Any
 
 import torch
 
-from lads.errors import ModelError
+from lads.errors import ConfigError, ModelError
 from lads.files import atomic_write
 from lads.intensity.features import FEATURE_VERSION, NORMALISED_CHANNELS, channel_names
 from lads.intensity.model import Generator, PointGenerator, make_generator
@@ -225,13 +225,29 @@ def save_model(path: Path, meta: ModelMeta, generator: Generator | PointGenerato
     atomic_write(Path(path), buffer.getvalue())
 
 
+def checked_device(device: str) -> str:
+    """The device, or ConfigError when it is "cuda" and PyTorch here has no CUDA device (or
+    it is neither "cpu" nor "cuda")."""
+    if device == "cpu" or (device == "cuda" and torch.cuda.is_available()):
+        return device
+    if device == "cuda":
+        raise ConfigError(
+            "--device cuda: PyTorch on this machine has no CUDA device "
+            "(torch.cuda.is_available() is False); use --device cpu (the default), or a machine "
+            "with a GPU and a CUDA build of torch."
+        )
+    raise ConfigError(f"device {device!r}: expected 'cpu' or 'cuda'.")
+
+
 def load_model(path: str | Path, *, device: str = "cpu") -> IntensityModel:
     """Load and check a weight file.
 
     Raises:
         ModelError: missing, unreadable or corrupt file; another format or feature version;
             channels that do not match; normalisation statistics that do not match their hash.
+        ConfigError: a device this machine does not have (`checked_device`).
     """
+    checked_device(device)
     where = str(path)
     blob = _read_weights(Path(path), where)
     meta = _checked_meta(blob, where)

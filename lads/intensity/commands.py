@@ -158,7 +158,9 @@ def train_command(
         cfg = replace(cfg, workers=jobs)
     if output is not None:
         cfg = replace(cfg, output=str(output))
-    dev = device or ("cuda" if torch.cuda.is_available() else "cpu")
+    from lads.intensity.checkpoint import checked_device
+
+    dev = checked_device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
     summary = train(cfg, run_dir=run_dir, device=dev, progress=True)
     click.echo(json.dumps(summary, indent=2))
 

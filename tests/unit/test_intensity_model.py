@@ -670,3 +670,27 @@ def test_frames_without_a_usable_point_go_through_the_learned_stage(synthetic_tr
         origin = ~out.points[:, :3].any(axis=1)
         assert origin.sum() == len(source.points)  # the weather passes them through too
         assert np.all(out.points[origin, 3] == 0.0) and np.isfinite(out.points).all()
+
+
+def test_a_device_the_machine_lacks_is_a_named_error(tmp_path):
+    """`--device cuda` without a CUDA device: a ConfigError saying what to use, before any
+    output (not PyTorch's assertion from deep inside the weight loading)."""
+    from click.testing import CliRunner
+
+    from lads.cli import main
+    from lads.intensity.checkpoint import checked_device
+    from lads.synth import write_synthetic_dataset
+
+    assert checked_device("cpu") == "cpu"
+    with pytest.raises(ConfigError, match="expected 'cpu' or 'cuda'"):
+        checked_device("tpu")
+    if torch.cuda.is_available():
+        return  # the refusal below needs a machine without CUDA
+    with pytest.raises(ConfigError, match="no CUDA device"):
+        load_model(tmp_path / "never-read.pt", device="cuda")
+    src = tmp_path / "src"
+    write_synthetic_dataset(src, sensor="hdl64e", frames=1, layout="semantickitti")
+    args = ["build", "--source", "semantickitti", "--variant", "snow", "--device", "cuda"]
+    result = CliRunner().invoke(main, [*args, "--in", str(src), "--out", str(tmp_path / "out")])
+    assert result.exit_code != 0 and "no CUDA device" in result.output
+    assert not (tmp_path / "out").exists()
