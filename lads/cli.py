@@ -90,10 +90,10 @@ def main() -> None:
 @click.option(
     "--out", type=click.Path(path_type=Path), default=Path("demo_output"), show_default=True
 )
-@click.option("--frames", type=int, default=8, show_default=True)
+@click.option("--frames", type=click.IntRange(min=1), default=8, show_default=True)
 @click.option("--sensor", default="hdl64e", show_default=True)
-@click.option("--seed", type=int, default=0, show_default=True)
-@click.option("--jobs", type=int, default=2, show_default=True)
+@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True)
+@click.option("--jobs", type=click.IntRange(min=1), default=2, show_default=True)
 @_lads_errors
 def demo(out: Path, frames: int, sensor: str, seed: int, jobs: int) -> None:
     """Synthesise a sequence, build snow/rain/fog, verify them, draw before/after figures."""
@@ -174,7 +174,7 @@ def variants() -> None:
     type=click.Path(file_okay=False, path_type=Path),
     help="Output root (new, or a partial build of the same settings to resume).",
 )
-@click.option("--seed", type=int, default=0, show_default=True, help="Root seed.")
+@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True, help="Root seed.")
 @click.option("--rate-mm-h", type=float, help="Override the rain/snow rate, mm/h.")
 @click.option("--visibility-m", type=float, help="Override the fog visibility, m.")
 @click.option("--water-film-mm", type=float, help="Override the wet-ground water film, mm.")
@@ -248,7 +248,13 @@ def variants() -> None:
     "`--variant sensor-<profile>` built (its run.json names the profile).",
 )
 @click.option("--include-sweeps", is_flag=True, help="nuScenes: transform sweeps too.")
-@click.option("--jobs", type=int, default=1, show_default=True, help="Worker processes (loky).")
+@click.option(
+    "--jobs",
+    type=click.IntRange(min=1),
+    default=1,
+    show_default=True,
+    help="Worker processes (loky).",
+)
 @click.option(
     "--batch",
     type=click.IntRange(min=1),
@@ -263,7 +269,7 @@ def variants() -> None:
     is_flag=True,
     help="If another lads process is writing --out, wait for it instead of refusing.",
 )
-@click.option("--limit", type=int, help="Only the first N items (trial runs).")
+@click.option("--limit", type=click.IntRange(min=1), help="Only the first N items (trial runs).")
 @click.option(
     "--figures/--no-figures",
     default=True,

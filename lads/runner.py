@@ -26,7 +26,7 @@ from lads.built_tree import (
 )
 from lads.config import PipelineConfig
 from lads.dispatch import default_batch, dispatch
-from lads.errors import BuildError, OutputWriteError
+from lads.errors import BuildError, ConfigError, OutputWriteError
 from lads.files import atomic_write, remove_stray_temps, write_error
 from lads.finalise import finalise
 from lads.frame import Item
@@ -139,6 +139,7 @@ def run_build(
             the first failed item. ConfigError/ReaderError for bad settings or source trees.
     """
     start = time.perf_counter()
+    _check_counts(seed=seed, jobs=jobs, limit=limit, batch=batch)
     source_root, out_root = Path(source_root).resolve(), Path(out_root).resolve()
     plan, reader, items = _plan_build(
         source, source_root, out_root, pipeline, seed, reader_options, limit
@@ -150,6 +151,18 @@ def run_build(
     if report.stopped_early:
         raise _fail_fast_error(report)
     return report
+
+
+def _check_counts(*, seed: int, jobs: int, limit: int | None, batch: int | None) -> None:
+    """ConfigError for a negative seed (seeds derive numpy SeedSequences, which need one >= 0)
+    or a job, limit or batch count below 1 (a limit of -1 would silently drop the last item)."""
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+        raise ConfigError(f"seed {seed!r}: expected an integer >= 0.")
+    for name, value in (("jobs", jobs), ("limit", limit), ("batch", batch)):
+        if value is not None and (
+            isinstance(value, bool) or not isinstance(value, int) or value < 1
+        ):
+            raise ConfigError(f"{name} {value!r}: expected an integer >= 1.")
 
 
 @dataclass(frozen=True, slots=True)

@@ -28,11 +28,21 @@ from lads.physics.severity import SEVERITIES
     "`lads variants` lists them as C-<corruption>-<severity>).",
 )
 @click.option("--severities", help=f"Comma-separated severities (default: {','.join(SEVERITIES)}).")
-@click.option("--seed", type=int, default=0, show_default=True, help="Root seed.")
-@click.option("--jobs", type=int, default=1, show_default=True, help="Worker processes (loky).")
+@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True, help="Root seed.")
+@click.option(
+    "--jobs",
+    type=click.IntRange(min=1),
+    default=1,
+    show_default=True,
+    help="Worker processes (loky).",
+)
 @click.option("--sequences", help="Comma-separated sequences to build (as lads build).")
 @click.option("--version", "nuscenes_version", help="nuScenes table version.")
-@click.option("--limit", type=int, help="Only the first N items of each tree (trial runs).")
+@click.option(
+    "--limit",
+    type=click.IntRange(min=1),
+    help="Only the first N items of each tree (trial runs).",
+)
 @click.option("--figures/--no-figures", default=True, show_default=True)
 def suite_command(
     source: str,

@@ -30,7 +30,11 @@ from lads.files import atomic_write
     "--inventory", help="Expected release inventory, e.g. semantickitti-00-10 (see manifests/)."
 )
 @click.option(
-    "--seed", type=int, default=0, show_default=True, help="Seed for choosing items to regenerate."
+    "--seed",
+    type=click.IntRange(min=0),
+    default=0,
+    show_default=True,
+    help="Seed for choosing items to regenerate.",
 )
 @click.option(
     "--json",

@@ -33,7 +33,7 @@ if TYPE_CHECKING:  # the command imports the physics only when it runs (start-up
 @click.option(
     "--mode", type=click.Choice(["strongest", "last"]), default="strongest", show_default=True
 )
-@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True)
 @click.option(
     "--labels",
     "labels_in",

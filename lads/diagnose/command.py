@@ -32,7 +32,7 @@ import click
     "the same sensor, compared by feature-conditional distributions only.",
 )
 @click.option("--out", required=True, type=click.Path(path_type=Path), help="Report folder.")
-@click.option("--seed", default=0, show_default=True, type=int)
+@click.option("--seed", default=0, show_default=True, type=click.IntRange(min=0))
 @click.option(
     "--write-corrected",
     "corrected",
@@ -43,10 +43,12 @@ import click
 @click.option(
     "--resamples",
     default=None,
-    type=int,
+    type=click.IntRange(min=0),
     help="Selection reruns on group-bootstrap resamples (stability).",
 )
-@click.option("--bootstrap", default=None, type=int, help="Bootstrap refits for the CIs.")
+@click.option(
+    "--bootstrap", default=None, type=click.IntRange(min=0), help="Bootstrap refits for the CIs."
+)
 @click.option(
     "--jobs",
     default=None,

@@ -132,8 +132,8 @@ _DATA_ROOT_HELP = (
     default=None,
     help="Default: cuda when present, else cpu.",
 )
-@click.option("--steps", type=int, help="Override the number of steps.")
-@click.option("--jobs", type=int, help="Parallel jobs for the range-image cache.")
+@click.option("--steps", type=click.IntRange(min=1), help="Override the number of steps.")
+@click.option("--jobs", type=click.IntRange(min=1), help="Parallel jobs for the range-image cache.")
 def train_command(
     config: str,
     data_root: Path | None,

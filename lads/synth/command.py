@@ -20,7 +20,9 @@ _LAYOUTS = ("semantickitti", "nuscenes", "voxelscape")
     help="Sensor profile name or YAML path (see `lads profiles`). Default: hdl64e, "
     "or hdl32e for --layout nuscenes.",
 )
-@click.option("--frames", type=int, default=20, show_default=True, help="Frames at 10 Hz.")
+@click.option(
+    "--frames", type=click.IntRange(min=1), default=20, show_default=True, help="Frames at 10 Hz."
+)
 @click.option(
     "--layout",
     type=click.Choice(_LAYOUTS),
@@ -40,7 +42,7 @@ _LAYOUTS = ("semantickitti", "nuscenes", "voxelscape")
     show_default=True,
     help="Sequence folder name (nuscenes: scene-00SS).",
 )
-@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True)
 def synth_command(
     sensor: str | None, frames: int, layout: str, out: Path, sequence: str, seed: int
 ) -> None:

@@ -213,6 +213,30 @@ def test_items_an_older_stage_version_built_are_rebuilt_on_rerun(source, built, 
     assert tree_digest(out) == tree_digest(built)
 
 
+@pytest.mark.parametrize(
+    ("setting", "message"),
+    [
+        ({"seed": -1}, "seed -1: expected an integer >= 0"),
+        ({"jobs": 0}, "jobs 0: expected an integer >= 1"),
+        ({"limit": -1}, "limit -1: expected an integer >= 1"),  # would drop the last item
+        ({"batch": 0}, "batch 0: expected an integer >= 1"),
+    ],
+)
+def test_bad_counts_are_refused_before_any_output(source, tmp_path, setting, message):
+    """A negative seed or a count below 1 is a ConfigError before anything is written (the
+    CLI refuses them as click ranges), not a failure of every item or joblib's ValueError."""
+    from lads.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=message):
+        run_build("semantickitti", source, tmp_path / "out", snow(), **setting)
+    assert not (tmp_path / "out").exists()
+    args = ["build", "--source", "semantickitti", "--variant", "snow", "--in", str(source)]
+    flag = {"seed": "--seed", "jobs": "--jobs", "limit": "--limit", "batch": "--batch"}
+    ((name, value),) = setting.items()
+    result = CliRunner().invoke(main, [*args, "--out", str(tmp_path / "o"), flag[name], str(value)])
+    assert result.exit_code == 2 and "is not in the range" in result.output
+
+
 def test_refuses_to_write_inside_the_source(source):
     with pytest.raises(BuildError, match="inside the source"):
         run_build("semantickitti", source, source / "out", snow(), seed=0)
