@@ -20,9 +20,7 @@ _LAYOUTS = ("semantickitti", "nuscenes", "voxelscape")
     help="Sensor profile name or YAML path (see `lads profiles`). Default: hdl64e, "
     "or hdl32e for --layout nuscenes.",
 )
-@click.option(
-    "--frames", type=click.IntRange(min=1), default=20, show_default=True, help="Frames at 10 Hz."
-)
+@click.option("--frames", type=int, default=20, show_default=True, help="Frames at 10 Hz.")
 @click.option(
     "--layout",
     type=click.Choice(_LAYOUTS),
