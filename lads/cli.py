@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, Any
 
 import click
 
-from lads.cli_options import SOURCE, SOURCE_ROOT, reader_options
+from lads.cli_options import SOURCE, SOURCE_ROOT, jobs_option, reader_options, seed_option
 from lads.correspondence import POINT_MODES
 from lads.errors import LadsError
 from lads.exit_codes import EXIT_INCOMPLETE, EXIT_LADS_ERROR
@@ -174,7 +174,7 @@ def variants() -> None:
     type=click.Path(file_okay=False, path_type=Path),
     help="Output root (new, or a partial build of the same settings to resume).",
 )
-@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True, help="Root seed.")
+@seed_option()
 @click.option("--rate-mm-h", type=float, help="Override the rain/snow rate, mm/h.")
 @click.option("--visibility-m", type=float, help="Override the fog visibility, m.")
 @click.option("--water-film-mm", type=float, help="Override the wet-ground water film, mm.")
@@ -248,13 +248,7 @@ def variants() -> None:
     "`--variant sensor-<profile>` built (its run.json names the profile).",
 )
 @click.option("--include-sweeps", is_flag=True, help="nuScenes: transform sweeps too.")
-@click.option(
-    "--jobs",
-    type=click.IntRange(min=1),
-    default=1,
-    show_default=True,
-    help="Worker processes (loky).",
-)
+@jobs_option()
 @click.option(
     "--batch",
     type=click.IntRange(min=1),

@@ -19,6 +19,20 @@ SOURCE_ROOT = click.option(
 )
 
 
+def seed_option(help_text: str = "Root seed.") -> Any:
+    """--seed: an integer >= 0 (every item's randomness derives a numpy SeedSequence from it)."""
+    return click.option(
+        "--seed", type=click.IntRange(min=0), default=0, show_default=True, help=help_text
+    )
+
+
+def jobs_option(default: int = 1, help_text: str = "Worker processes (loky).") -> Any:
+    """--jobs: an integer >= 1."""
+    return click.option(
+        "--jobs", type=click.IntRange(min=1), default=default, show_default=True, help=help_text
+    )
+
+
 def comma_list(value: str | None) -> list[str] | None:
     """A comma-separated option as a list of its non-empty items (None when not given)."""
     return None if value is None else [v.strip() for v in value.split(",") if v.strip()]

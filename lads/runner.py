@@ -139,13 +139,12 @@ def run_build(
             the first failed item. ConfigError/ReaderError for bad settings or source trees.
     """
     start = time.perf_counter()
-    _check_counts(seed=seed, jobs=jobs, limit=limit, batch=batch)
+    settings = _RunSettings(jobs, backend, scheduler, fail_fast, progress, figures, batch)
     source_root, out_root = Path(source_root).resolve(), Path(out_root).resolve()
     plan, reader, items = _plan_build(
         source, source_root, out_root, pipeline, seed, reader_options, limit
     )
     make_output(out_root)
-    settings = _RunSettings(jobs, backend, scheduler, fail_fast, progress, figures, batch)
     with output_lock(out_root, "build", wait=wait):
         report = _build_and_report(plan, reader, items, settings, start)
     if report.stopped_early:
@@ -153,16 +152,13 @@ def run_build(
     return report
 
 
-def _check_counts(*, seed: int, jobs: int, limit: int | None, batch: int | None) -> None:
-    """ConfigError for a negative seed (seeds derive numpy SeedSequences, which need one >= 0)
-    or a job, limit or batch count below 1 (a limit of -1 would silently drop the last item)."""
-    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
-        raise ConfigError(f"seed {seed!r}: expected an integer >= 0.")
-    for name, value in (("jobs", jobs), ("limit", limit), ("batch", batch)):
-        if value is not None and (
-            isinstance(value, bool) or not isinstance(value, int) or value < 1
-        ):
-            raise ConfigError(f"{name} {value!r}: expected an integer >= 1.")
+def _check_count(name: str, value: int | None, least: int) -> None:
+    """ConfigError unless value is None or an integer >= least: seeds derive numpy
+    SeedSequences (which need one >= 0), and a limit of -1 would drop the last item."""
+    if value is not None and (
+        isinstance(value, bool) or not isinstance(value, int) or value < least
+    ):
+        raise ConfigError(f"{name} {value!r}: expected an integer >= {least}.")
 
 
 @dataclass(frozen=True, slots=True)
@@ -177,6 +173,10 @@ class _RunSettings:
     figures: bool
     batch: int | None
 
+    def __post_init__(self) -> None:
+        _check_count("jobs", self.jobs, 1)
+        _check_count("batch", self.batch, 1)
+
 
 def _plan_build(
     source: str,
@@ -188,6 +188,8 @@ def _plan_build(
     limit: int | None,
 ) -> tuple[BuildPlan, Any, list[Item]]:
     """The checked build plan, its reader and the items to build (the first `limit`)."""
+    _check_count("seed", seed, 0)
+    _check_count("limit", limit, 1)
     check_paths(source_root, out_root)
     options = freeze_options(reader_options or {})
     plan = BuildPlan(source, str(source_root), str(out_root), options, pipeline, seed)

@@ -7,7 +7,14 @@ from pathlib import Path
 
 import click
 
-from lads.cli_options import SOURCE, SOURCE_ROOT, comma_list, reader_options
+from lads.cli_options import (
+    SOURCE,
+    SOURCE_ROOT,
+    comma_list,
+    jobs_option,
+    reader_options,
+    seed_option,
+)
 from lads.exit_codes import EXIT_INCOMPLETE
 from lads.physics.severity import SEVERITIES
 
@@ -28,14 +35,8 @@ from lads.physics.severity import SEVERITIES
     "`lads variants` lists them as C-<corruption>-<severity>).",
 )
 @click.option("--severities", help=f"Comma-separated severities (default: {','.join(SEVERITIES)}).")
-@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True, help="Root seed.")
-@click.option(
-    "--jobs",
-    type=click.IntRange(min=1),
-    default=1,
-    show_default=True,
-    help="Worker processes (loky).",
-)
+@seed_option()
+@jobs_option()
 @click.option("--sequences", help="Comma-separated sequences to build (as lads build).")
 @click.option("--version", "nuscenes_version", help="nuScenes table version.")
 @click.option(

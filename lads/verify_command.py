@@ -7,6 +7,7 @@ from pathlib import Path
 
 import click
 
+from lads.cli_options import seed_option
 from lads.exit_codes import EXIT_INCOMPLETE
 from lads.files import atomic_write
 
@@ -29,13 +30,7 @@ from lads.files import atomic_write
 @click.option(
     "--inventory", help="Expected release inventory, e.g. semantickitti-00-10 (see manifests/)."
 )
-@click.option(
-    "--seed",
-    type=click.IntRange(min=0),
-    default=0,
-    show_default=True,
-    help="Seed for choosing items to regenerate.",
-)
+@seed_option("Seed for choosing items to regenerate.")
 @click.option(
     "--json",
     "json_out",
