@@ -14,7 +14,14 @@ from typing import TYPE_CHECKING, Any
 
 import click
 
-from lads.cli_options import SOURCE, SOURCE_ROOT, jobs_option, reader_options, seed_option
+from lads.cli_options import (
+    SOURCE,
+    SOURCE_ROOT,
+    jobs_option,
+    reader_options,
+    seed_option,
+    weather_physics_options,
+)
 from lads.correspondence import POINT_MODES
 from lads.errors import LadsError
 from lads.exit_codes import EXIT_INCOMPLETE, EXIT_LADS_ERROR
@@ -36,18 +43,6 @@ def _lads_errors(func: Callable[..., Any]) -> Callable[..., Any]:
             sys.exit(EXIT_LADS_ERROR)
 
     return wrapper
-
-
-def _detection_rule(value: str | None) -> str | float | None:
-    """--detection: "sensor", "frame" or a number (a fixed threshold, reflectivity / m^2)."""
-    if value is None or value in ("sensor", "frame"):
-        return value
-    try:
-        return float(value)
-    except ValueError:
-        raise click.BadParameter(
-            f"{value!r}: expected sensor, frame or a threshold in reflectivity / m^2"
-        ) from None
 
 
 class _LazyGroup(click.Group):
@@ -184,26 +179,7 @@ def variants() -> None:
     help="Weather severity preset: sets the rain/snow rate or fog visibility to the preset's "
     "(docs/physics.md, 'Severity presets'); both are recorded.",
 )
-@click.option(
-    "--weather-settings",
-    type=click.Choice(["lads", "lisa"]),
-    help="Physics settings of the weather stage: lads (the default: fitted to real snow, "
-    "nothing lost in clear air) or lisa (LISA's published model with its fixed threshold, to "
-    "compare; rain and snow).",
-)
-@click.option(
-    "--detection",
-    callback=lambda _ctx, _param, value: _detection_rule(value),
-    help="Detection rule of the weather stage: sensor (the default: the profile's detection "
-    "limit, nothing lost in clear air), frame (the frame's weakest return as threshold) or a "
-    "fixed threshold in reflectivity / m^2 (docs/physics.md, 'Detection limits').",
-)
-@click.option(
-    "--mode",
-    type=click.Choice(["strongest", "last", "dual"]),
-    help="Override the return mode; dual writes a beam's strongest and, where it differs, last "
-    "return (physical points only).",
-)
+@weather_physics_options(default_mode=None, default_settings=None)
 @click.option(
     "--points",
     type=click.Choice(list(POINT_MODES)),

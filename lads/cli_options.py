@@ -1,4 +1,5 @@
-"""Command-line options that several `lads` commands share (build, suite), defined once."""
+"""Command-line options that several `lads` commands share (build, suite, weather), defined
+once."""
 
 from __future__ import annotations
 
@@ -31,6 +32,62 @@ def jobs_option(default: int = 1, help_text: str = "Worker processes (loky).") -
     return click.option(
         "--jobs", type=click.IntRange(min=1), default=default, show_default=True, help=help_text
     )
+
+
+# The weather stage's return modes and physics settings (`lads.stage_params.RETURN_MODES`,
+# `lads.physics.weather.SETTINGS`; a unit test keeps them equal): spelled out here so that
+# the command line starts without importing the physics.
+RETURN_MODES = ("strongest", "last", "dual")
+WEATHER_SETTINGS = ("lads", "lisa")
+
+
+def detection_rule(value: str | None) -> str | float | None:
+    """--detection: "sensor", "frame" or a number (a fixed threshold, reflectivity / m^2)."""
+    if value is None or value in ("sensor", "frame"):
+        return value
+    try:
+        return float(value)
+    except ValueError:
+        raise click.BadParameter(
+            f"{value!r}: expected sensor, frame or a threshold in reflectivity / m^2"
+        ) from None
+
+
+def weather_physics_options(default_mode: str | None, default_settings: str | None) -> Any:
+    """--mode, --weather-settings and --detection of a weather stage (None: the pipeline's)."""
+    options = [
+        click.option(
+            "--mode",
+            type=click.Choice(RETURN_MODES),
+            default=default_mode,
+            show_default=default_mode is not None,
+            help="Return mode: dual writes a beam's strongest and, where it differs, last "
+            "return, two points on one ray (in a build: physical points only).",
+        ),
+        click.option(
+            "--weather-settings",
+            type=click.Choice(WEATHER_SETTINGS),
+            default=default_settings,
+            show_default=default_settings is not None,
+            help="Physics settings of the weather: lads (fitted to real snow, nothing lost in "
+            "clear air) or lisa (LISA's published model with its fixed threshold, to compare; "
+            "rain and snow).",
+        ),
+        click.option(
+            "--detection",
+            callback=lambda _ctx, _param, value: detection_rule(value),
+            help="Detection rule: sensor (the default for lads: the profile's detection limit, "
+            "nothing lost in clear air), frame (the frame's weakest return as threshold) or a "
+            "fixed threshold in reflectivity / m^2 (docs/physics.md, 'Detection limits').",
+        ),
+    ]
+
+    def apply(func: Any) -> Any:
+        for option in reversed(options):
+            func = option(func)
+        return func
+
+    return apply
 
 
 def comma_list(value: str | None) -> list[str] | None:

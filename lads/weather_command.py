@@ -1,20 +1,52 @@
-"""`lads weather SCAN OUTPUT`: one weather on one headerless float32 scan file (no tree)."""
+"""`lads weather SCAN OUTPUT`: one weather on one headerless float32 scan file (no tree).
+
+It runs the build's own weather stage (`lads.stages.weather.WeatherStage`), with the same
+parameter checks, severity presets, physics settings and detection rules.
+"""
 
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import click
 import numpy as np
 import numpy.typing as npt
 
+from lads.cli_options import seed_option, weather_physics_options
 from lads.errors import ConfigError
 from lads.files import atomic_write
+from lads.physics.severity import SEVERITIES
+from lads.readers import READERS, reader_class
 
 if TYPE_CHECKING:  # the command imports the physics only when it runs (start-up time)
     from lads.physics.result import WeatherResult
-    from lads.sensors.profile import SensorProfile
+
+# Label files the command reads, told apart by their size: SemanticKITTI-style uint32
+# (class in the low 16 bits, instance above) and nuScenes lidarseg uint8.
+LABEL_DTYPES = (np.dtype("<u4"), np.dtype("u1"))
+
+
+def _datasets_particle_labels() -> str:
+    """The readers' own particle labels, e.g. "semantickitti 1, wads 110"."""
+    return ", ".join(f"{r} {reader_class(r).particle_label}" for r in sorted(READERS))
+
+
+class _Strength(click.ParamType):
+    """A rate (mm/h) or visibility (m) as a number, or a severity preset's name."""
+
+    name = "NUMBER|SEVERITY"
+
+    def convert(self, value: Any, param: Any, ctx: Any) -> float | str:
+        if isinstance(value, float | int) or value in SEVERITIES:
+            return value  # type: ignore[no-any-return]
+        try:
+            return float(value)
+        except ValueError:
+            self.fail(f"{value!r}: expected a number or one of {', '.join(SEVERITIES)}")
+
+
+STRENGTH = _Strength()
 
 
 @click.command("weather")
@@ -27,97 +59,157 @@ if TYPE_CHECKING:  # the command imports the physics only when it runs (start-up
     default=None,
     help="float32 columns per point (default: 5 if the profile has a ring column, else 4).",
 )
-@click.option("--rain", "rain_mm_h", type=float, help="Rain rate, mm/h.")
-@click.option("--snow", "snow_mm_h", type=float, help="Snowfall rate (water equivalent), mm/h.")
-@click.option("--fog", "visibility_m", type=float, help="Fog visibility (MOR), m.")
+@click.option("--rain", type=STRENGTH, help="Rain rate in mm/h, or light, moderate, heavy.")
 @click.option(
-    "--mode", type=click.Choice(["strongest", "last"]), default="strongest", show_default=True
+    "--snow",
+    type=STRENGTH,
+    help="Snowfall rate (water equivalent) in mm/h, or light, moderate, heavy.",
 )
-@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True)
+@click.option("--fog", type=STRENGTH, help="Fog visibility (MOR) in m, or light, moderate, heavy.")
+@weather_physics_options(default_mode="strongest", default_settings="lads")
+@seed_option(help_text="Seed of the weather's random draws.")
 @click.option(
     "--labels",
     "labels_in",
     type=click.Path(exists=True, dir_okay=False, path_type=Path),
-    help="Per-point uint32 labels to carry along.",
+    help="Per-point labels to carry along: uint32 (SemanticKITTI) or uint8 (nuScenes "
+    "lidarseg), told apart by the file's size.",
 )
 @click.option(
     "--labels-out",
     type=click.Path(dir_okay=False, path_type=Path),
-    help="Where to write the carried labels.",
+    help="Where to write the carried labels (default: OUTPUT with the suffix .label).",
+)
+@click.option(
+    "--particle-label",
+    type=click.IntRange(min=0),
+    help="Class of the particle returns (drops, flakes, fog echoes) in the written labels; "
+    f"needed with --labels. The datasets' own: {_datasets_particle_labels()}.",
 )
 def weather_command(
     scan: Path,
     output: Path,
     sensor: str,
     columns: int | None,
-    rain_mm_h: float | None,
-    snow_mm_h: float | None,
-    visibility_m: float | None,
+    rain: float | str | None,
+    snow: float | str | None,
+    fog: float | str | None,
     mode: str,
+    weather_settings: str,
+    detection: str | float | None,
     seed: int,
     labels_in: Path | None,
     labels_out: Path | None,
+    particle_label: int | None,
 ) -> None:
     """Apply one weather to a headerless float32 scan (KITTI .bin, nuScenes .pcd.bin).
 
-    Extra columns (e.g. the nuScenes ring) and labels follow each output point's source beam.
+    Extra columns (e.g. the nuScenes ring) follow each output point's source beam; so do the
+    labels, except on particle returns, which get --particle-label.
     """
-    from lads.readers.base import read_labels, read_records
+    from lads.readers.base import read_records
     from lads.sensors.profile import load_profile
 
-    chosen = [v is not None for v in (rain_mm_h, snow_mm_h, visibility_m)]
-    if sum(chosen) != 1:
+    chosen = {k: v for k, v in (("rain", rain), ("snow", snow), ("fog", fog)) if v is not None}
+    if len(chosen) != 1:
         raise click.UsageError("give exactly one of --rain, --snow, --fog")
+    if labels_in is not None and particle_label is None:
+        raise click.UsageError(_particle_label_hint())
+    ((name, strength),) = chosen.items()
+    stage = _stage(name, strength, mode, weather_settings, detection)
     profile = load_profile(sensor)
     ncol = columns or (5 if profile.has_ring_column else 4)
     # A lone file has no reader's layout: the shared record helpers read it (readers/base.py).
     what = f"a scan of {ncol} float32 columns (pass --columns with the file's column count)"
     points = read_records(scan, np.float32, ncol, what)
-    rng = np.random.default_rng(seed)
-    result = _apply_weather(points, profile, rng, rain_mm_h, snow_mm_h, visibility_m, mode)
+    labels = None if labels_in is None else _read_labels(labels_in, len(points), scan)
+    if labels is not None and particle_label is not None:
+        _check_fits(particle_label, labels.dtype)
+    result = stage.simulate(points[:, :3], points[:, 3], profile, np.random.default_rng(seed))
     out = points[result.source_index].copy()
     out[:, :3] = result.xyz
     out[:, 3] = result.intensity
     atomic_write(output, out.tobytes())
-    if labels_in is not None:
-        labels = read_labels(labels_in, np.uint32, points.shape[0], "uint32 labels", scan)
+    if labels is not None:
         target = labels_out or output.with_suffix(".label")
-        atomic_write(target, labels[result.source_index].tobytes())
-    c = result.counts()
-    click.echo(
-        f"{output}: {out.shape[0]} points (attenuated {c['attenuated']}, particle {c['particle']}, "
-        f"lost {c['lost']}); alpha = {result.extinction_per_m:.3e} 1/m"
+        atomic_write(target, _carried(labels, result, particle_label).tobytes())
+    click.echo(_summary(output, out.shape[0], result, stage))
+
+
+def _stage(
+    name: str, strength: float | str, mode: str, settings: str, detection: str | float | None
+) -> Any:
+    """The build's weather stage with these parameters, checked as a pipeline's are."""
+    from lads.stage_params import check_stage, resolved
+    from lads.stages.weather import WeatherStage
+
+    key = "visibility_m" if name == "fog" else "rate_mm_h"
+    params: dict[str, Any] = {"mode": mode, "settings": settings}
+    if isinstance(strength, str):
+        params["severity"] = strength
+    else:
+        params[key] = strength
+    if detection is not None:
+        params["detection"] = detection
+    where = f"--{name}"
+    params = resolved(name, params, where)
+    check_stage(name, params, where)
+    return WeatherStage(name=name, **params)
+
+
+def _particle_label_hint() -> str:
+    return (
+        "--labels needs --particle-label: rain, snow and fog add returns of drops, flakes and "
+        "fog that belong to no class of the scan. The datasets' own: "
+        f"{_datasets_particle_labels()}."
     )
 
 
-def _apply_weather(
-    points: npt.NDArray[np.float32],
-    profile: SensorProfile,
-    rng: np.random.Generator,
-    rain_mm_h: float | None,
-    snow_mm_h: float | None,
-    visibility_m: float | None,
-    mode: str,
-) -> WeatherResult:
-    """The one weather given (rain or snow in mm/h, fog by visibility in m) on `points`
-    (N, C) float32: x, y, z in m, then the intensity."""
-    from lads.physics import weather as wx
+def _read_labels(path: Path, n_points: int, scan: Path) -> npt.NDArray[Any]:
+    """(N,) labels of one of LABEL_DTYPES, the one whose record count matches the scan."""
+    from lads.readers.base import read_labels
 
-    if rain_mm_h is not None:
-        return wx.rain(
-            points[:, :3], points[:, 3], rate_mm_h=rain_mm_h, sensor=profile, rng=rng, mode=mode
+    size = path.stat().st_size
+    for dtype in LABEL_DTYPES:
+        if size == n_points * dtype.itemsize:
+            return read_labels(path, dtype, n_points, f"{dtype.name} labels", scan)
+    raise ConfigError(
+        f"{path}: {size} bytes, but scan {scan} has {n_points} points: expected "
+        + " or ".join(f"{n_points * d.itemsize} ({d.name} labels)" for d in LABEL_DTYPES)
+        + ". Pass the label file of this scan."
+    )
+
+
+def _check_fits(particle_label: int, dtype: np.dtype) -> None:
+    if particle_label > np.iinfo(dtype).max:
+        raise ConfigError(
+            f"--particle-label {particle_label} does not fit the {dtype.name} labels "
+            f"(0..{np.iinfo(dtype).max}); pass a class id of that label set."
         )
-    if snow_mm_h is not None:
-        return wx.snow(
-            points[:, :3], points[:, 3], rate_mm_h=snow_mm_h, sensor=profile, rng=rng, mode=mode
-        )
-    if visibility_m is None:  # exactly one of the three is given (checked by the command)
-        raise ConfigError("give exactly one of --rain, --snow, --fog")
-    return wx.fog(
-        points[:, :3],
-        points[:, 3],
-        visibility_m=visibility_m,
-        sensor=profile,
-        rng=rng,
-        mode=mode,
+
+
+def _carried(
+    labels: npt.NDArray[Any], result: WeatherResult, particle_label: int | None
+) -> npt.NDArray[Any]:
+    """Each output point's label: its source beam's, or the particle label on a particle
+    return (class and instance: the build's physical-mode rule, `lads.correspondence`)."""
+    from lads.physics.result import Outcome
+
+    carried = labels[result.source_index]
+    carried[result.outcome == Outcome.PARTICLE] = particle_label
+    return carried
+
+
+def _summary(output: Path, n_out: int, result: WeatherResult, stage: Any) -> str:
+    c = result.counts()
+    strength = (
+        f"visibility {stage.visibility_m:g} m"
+        if stage.name == "fog"
+        else f"rate {stage.rate_mm_h:g} mm/h"
+    )
+    preset = f" ({stage.severity} preset)" if stage.severity else ""
+    return (
+        f"{output}: {n_out} points (attenuated {c['attenuated']}, particle {c['particle']}, "
+        f"lost {c['lost']}); {stage.name} {strength}{preset}, {stage.mode} return, "
+        f"{stage.settings} settings; alpha = {result.extinction_per_m:.3e} 1/m"
     )

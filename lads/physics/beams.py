@@ -17,7 +17,7 @@ import numpy as np
 import numpy.typing as npt
 
 from lads.errors import InvalidPointsError
-from lads.physics.detection import resolve_detection
+from lads.physics.detection import Detection, resolve_detection
 from lads.physics.kernels import survivors
 from lads.physics.result import Outcome, WeatherResult
 from lads.sensors.profile import SensorProfile, load_profile
@@ -113,7 +113,8 @@ def auto_threshold(beams: Beams) -> float:
 
     Every input point was detected in clear air, so the sensor's threshold lies at or below
     the smallest clear-air power in the frame; taking that bound guarantees that clear
-    weather loses nothing (LISA's fixed threshold drops ~0.6 % of a clear KITTI scan).
+    weather loses nothing (LISA's fixed threshold drops 4 % of a real clear KITTI scan,
+    whose far returns often store remission 0; docs/physics.md §5.2).
     """
     power = beams.clear_power
     return float(power.min()) if power.size and np.isfinite(power).any() else 1.0
@@ -200,6 +201,31 @@ def assemble_dual(
         lost_index=np.flatnonzero(first[0] == Outcome.LOST).astype(np.int64),
         extinction_per_m=float(extinction_per_m),
         detection_threshold=float(detection_threshold),
+    )
+
+
+def fixed_threshold_in_clear_air(
+    beams: Beams, sensor: SensorProfile, rule: Detection
+) -> WeatherResult | None:
+    """Clear air (rate 0, visibility inf) under a fixed detection threshold (LISA's model):
+    the returns weaker than it are LOST, as at any rate, so that a weather's loss tends to
+    this one as its rate tends to 0; the rest KEPT with their input bytes. None under the
+    sensor's limit or the frame's threshold, which every clear-air return meets: the caller
+    then returns the frame unchanged."""
+    if rule.setting != "fixed":
+        return None
+    lost = beams.active & (beams.clear_power < rule.threshold)
+    if not lost.any():
+        return None
+    n = beams.range_m.size
+    return assemble(
+        beams,
+        sensor,
+        outcome=np.where(lost, Outcome.LOST, Outcome.KEPT).astype(np.uint8),
+        range_m=np.zeros(n),
+        reflectivity=np.zeros(n),
+        extinction_per_m=0.0,
+        detection_threshold=rule.threshold,
     )
 
 

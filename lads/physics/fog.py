@@ -65,7 +65,13 @@ import numpy as np
 import numpy.typing as npt
 
 from lads.errors import ConfigError
-from lads.physics.beams import Beams, assemble, assemble_dual, auto_threshold
+from lads.physics.beams import (
+    Beams,
+    assemble,
+    assemble_dual,
+    auto_threshold,
+    fixed_threshold_in_clear_air,
+)
 from lads.physics.detection import Detection, resolve_detection
 from lads.physics.fog_echo import SoftReturnTable, soft_return_peak, soft_return_table
 from lads.physics.fog_kernels import MODE_CODES, echo_lookup, fog_choices, fog_returns
@@ -219,7 +225,8 @@ def simulate_fog(
     Args:
         beams: the prepared frame (`prepare_beams`), N beams.
         sensor: its profile (range_accuracy_m = dR, detection limit, intensity encoding).
-        visibility_m: meteorological optical range (MOR), m; inf returns the input unchanged.
+        visibility_m: meteorological optical range (MOR), m; inf returns the input unchanged
+            (under a fixed threshold, without the clear-air returns weaker than it).
         rng: source of the detection draws and range noise; the same state gives
             byte-identical output.
         mode: "strongest", "last" or "dual" (the strongest return and, where the fog echo is
@@ -239,7 +246,8 @@ def simulate_fog(
     detection = _frame_detection(beams, sensor, params)
     p_min = detection.threshold
     if alpha == 0.0 or beams.range_m.size == 0:
-        return _unchanged(beams, sensor, alpha, p_min)
+        clear = fixed_threshold_in_clear_air(beams, sensor, detection) if alpha == 0.0 else None
+        return clear or _unchanged(beams, sensor, alpha, p_min)
     beta = backscatter_from_visibility(visibility_m, params)
     first, second = _beam_returns(beams, sensor, alpha, beta, params, detection, mode, rng)
     return assemble_dual(

@@ -37,7 +37,14 @@ import numpy as np
 import numpy.typing as npt
 
 from lads.errors import ConfigError
-from lads.physics.beams import Beams, assemble, assemble_dual, auto_threshold, unchanged
+from lads.physics.beams import (
+    Beams,
+    assemble,
+    assemble_dual,
+    auto_threshold,
+    fixed_threshold_in_clear_air,
+    unchanged,
+)
 from lads.physics.detection import Detection, resolve_detection
 from lads.physics.kernels import dual_particle_returns
 from lads.physics.mie import extinction_per_m
@@ -199,8 +206,16 @@ def simulate_particles(
     if not (math.isfinite(rate_mm_h) and rate_mm_h >= 0):
         raise ConfigError(f"rate_mm_h={rate_mm_h!r}: expected a finite rate >= 0 in mm/h.")
     n = beams.range_m.size
-    if rate_mm_h == 0 or n == 0:
+    if n == 0:
         return unchanged(beams, sensor)
+    if rate_mm_h == 0:
+        rule = resolve_detection(
+            params.detection_threshold,
+            sensor.detection.power,
+            sensor.detection.spread_ln,
+            auto_threshold(beams),
+        )
+        return fixed_threshold_in_clear_air(beams, sensor, rule) or unchanged(beams, sensor)
     optics = resolve_optics(beams, sensor, rate_mm_h, params)
     alpha = optics.particles.alpha_per_m
     r0 = np.where(beams.active, beams.range_m, 0.0)

@@ -5,7 +5,8 @@
 
 Every function validates its input (`lads.physics.beams.prepare_beams`), draws all its
 randomness from `rng` (same generator state, same bytes) and returns a `WeatherResult`.
-Rate 0 (or visibility inf) returns the input unchanged.
+Rate 0 (or visibility inf) returns the input unchanged, except under a fixed detection
+threshold (LISA's), which drops the clear-air returns weaker than it there as at any rate.
 """
 
 from __future__ import annotations

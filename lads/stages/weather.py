@@ -3,15 +3,19 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from lads.config import StageConfig
 from lads.frame import Frame
 from lads.physics import weather as wx
+from lads.physics.result import WeatherResult
+from lads.sensors.profile import SensorProfile
 
 # Bump when the physics changes the bytes produced for the same input and seed.
-WEATHER_STAGE_VERSION = "5"
+WEATHER_STAGE_VERSION = "6"
 
 
 @dataclass(frozen=True, slots=True)
@@ -49,31 +53,7 @@ class WeatherStage:
     def __call__(self, frame: Frame, rng: np.random.Generator) -> Frame:
         """Points that still return, with weather intensities; labels and extra columns
         (e.g. the nuScenes ring) follow each point's source beam."""
-        xyz, intensity = frame.xyz, frame.intensity
-        params = wx.settings_for(self.name, self.settings)
-        if self.detection is not None:
-            params = replace(params, detection_threshold=self.detection)
-        if self.name == "fog":
-            result = wx.fog(
-                xyz,
-                intensity,
-                visibility_m=float(self.visibility_m),  # type: ignore[arg-type]
-                sensor=frame.sensor,
-                rng=rng,
-                mode=self.mode,
-                params=params,  # type: ignore[arg-type]
-            )
-        else:
-            simulate = wx.rain if self.name == "rain" else wx.snow
-            result = simulate(
-                xyz,
-                intensity,
-                rate_mm_h=float(self.rate_mm_h),  # type: ignore[arg-type]
-                sensor=frame.sensor,
-                rng=rng,
-                mode=self.mode,
-                params=params,  # type: ignore[arg-type]
-            )
+        result = self.simulate(frame.xyz, frame.intensity, frame.sensor, rng)
         points = frame.points[result.source_index]
         points[:, :3] = result.xyz
         points[:, 3] = result.intensity
@@ -82,3 +62,37 @@ class WeatherStage:
         )
         conditions = (("style", self.name), ("extinction_per_m", float(result.extinction_per_m)))
         return replace(out, conditions=out.conditions + conditions)
+
+    def simulate(
+        self,
+        xyz: npt.NDArray[np.floating[Any]],
+        intensity: npt.NDArray[np.floating[Any]],
+        sensor: str | SensorProfile,
+        rng: np.random.Generator,
+    ) -> WeatherResult:
+        """This weather on (N, 3) coordinates in m and (N,) intensities in the sensor's
+        encoding, with the stage's settings and detection rule (`lads weather` runs it on a
+        lone scan file)."""
+        params = wx.settings_for(self.name, self.settings)
+        if self.detection is not None:
+            params = replace(params, detection_threshold=self.detection)
+        if self.name == "fog":
+            return wx.fog(
+                xyz,
+                intensity,
+                visibility_m=float(self.visibility_m),  # type: ignore[arg-type]
+                sensor=sensor,
+                rng=rng,
+                mode=self.mode,
+                params=params,  # type: ignore[arg-type]
+            )
+        simulate = wx.rain if self.name == "rain" else wx.snow
+        return simulate(
+            xyz,
+            intensity,
+            rate_mm_h=float(self.rate_mm_h),  # type: ignore[arg-type]
+            sensor=sensor,
+            rng=rng,
+            mode=self.mode,
+            params=params,  # type: ignore[arg-type]
+        )

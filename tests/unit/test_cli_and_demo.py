@@ -61,13 +61,16 @@ def test_weather_command_writes_scan_and_labels_that_follow_their_beams(tmp_path
             "10",
             "--labels",
             str(tmp_path / "scan.label"),
+            "--particle-label",
+            "1",
         ],
     )
     assert result.exit_code == 0, result.output
     written = np.fromfile(out, dtype=np.float32).reshape(-1, 4)
     written_labels = np.fromfile(out.with_suffix(".label"), dtype=np.uint32)
     assert written_labels.size == written.shape[0] <= points.shape[0]
-    assert set(np.unique(written_labels)) <= set(np.unique(labels))
+    # (which points carry the particle label: tests/unit/test_weather_command.py)
+    assert set(np.unique(written_labels)) <= set(np.unique(labels)) | {1}
     assert "particle" in result.output
 
 

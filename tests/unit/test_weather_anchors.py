@@ -20,6 +20,7 @@ from lads.physics.psd import marshall_palmer
 from lads.physics.result import Outcome
 from lads.physics.thinning import sample_winning_particles
 from lads.physics.weather import (
+    FOG_DEFAULTS,
     RAIN_DEFAULTS,
     SNOW_DEFAULTS,
     fog,
@@ -241,6 +242,48 @@ def test_infinite_visibility_returns_the_input_byte_for_byte(street, mode):
         rng=np.random.default_rng(0),
     )
     assert_unchanged(result, xyz, intensity)
+
+
+@pytest.mark.parametrize("weather", ["rain", "snow", "fog"])
+def test_a_fixed_threshold_drops_the_same_clear_air_returns_at_rate_zero_as_near_it(
+    street, weather
+):
+    """docs/physics.md §5.2: LISA's fixed threshold drops the clear-air returns weaker than
+    it at any rate; rate 0 (visibility inf) must not be the one exception, or a sweep over
+    rates jumps between 0 and the smallest rate. The returns it keeps keep their bytes."""
+    xyz, intensity = street
+    params = with_overrides(
+        FOG_DEFAULTS if weather == "fog" else PRECIPITATION[weather][1],
+        detection_threshold=LISA_THRESHOLD,
+    )
+
+    def run(strength):
+        call = fog if weather == "fog" else PRECIPITATION[weather][0]
+        key = "visibility_m" if weather == "fog" else "rate_mm_h"
+        return call(
+            xyz,
+            intensity,
+            sensor="hdl64e",
+            params=params,
+            rng=np.random.default_rng(0),
+            **{key: strength},
+        )
+
+    clear, near = (
+        run(math.inf if weather == "fog" else 0.0),
+        run(1e12 if weather == "fog" else 1e-9),
+    )
+    beams = prepare_beams(xyz, intensity, load_profile("hdl64e"))
+    weak = np.flatnonzero(beams.active & (beams.clear_power < LISA_THRESHOLD))
+    assert weak.size > 0  # the street has far, dark returns below 0.9 / 200^2
+    np.testing.assert_array_equal(clear.lost_index, weak)
+    np.testing.assert_array_equal(near.lost_index, weak)
+    kept = np.setdiff1d(np.arange(len(xyz)), weak)
+    np.testing.assert_array_equal(clear.source_index, kept)
+    assert np.all(clear.outcome == Outcome.KEPT)
+    assert clear.xyz.tobytes() == np.asarray(xyz, np.float32)[kept].tobytes()
+    assert clear.intensity.tobytes() == np.asarray(intensity, np.float32)[kept].tobytes()
+    assert clear.detection_threshold == LISA_THRESHOLD
 
 
 @pytest.mark.parametrize(
