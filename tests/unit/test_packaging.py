@@ -29,7 +29,7 @@ def test_the_package_list_names_every_package_under_lads_and_the_mapped_folders(
     mapped = {"lads.pipelines": "pipelines", "lads.manifests": "manifests",
               "lads.dataset_cards": "dataset_cards"}  # fmt: skip
     assert tool["package-dir"] == mapped
-    expected = on_disk | set(mapped) | {"lads.pipelines.train"}
+    expected = on_disk | set(mapped) | {"lads.pipelines.train", "lads.intensity.weights"}
     assert set(tool["packages"]) == expected, sorted(set(tool["packages"]) ^ expected)
     assert all((REPO / folder / "__init__.py").is_file() for folder in mapped.values())
 
