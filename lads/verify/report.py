@@ -28,7 +28,11 @@ ADVICE = {
     "source_unreadable": "pass the source tree the output was built from",
     "missing_source_item": "the build skipped it: re-run the build",
     "extra_output_item": "the tree was built from another source, or the source lost items",
-    "regenerate_failed": "pass --source and check that lads.worker is installed",
+    "regenerate_no_source": "pass the source tree it was built from (--against)",
+    "regenerate_nothing_built": "no item was built, so none can be rebuilt: fix the failed "
+    "items' cause and re-run the build",
+    "regenerate_failed": "the rebuild itself failed: see the message (an installed lads "
+    "provides lads.worker)",
     "regenerated_differs": "processing is not reproducible here (compare lads version, "
     "libraries and device with run.json) or the tree was altered",
     "incomplete_release": "",

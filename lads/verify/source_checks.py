@@ -96,8 +96,11 @@ def _check_copied_list(v: Verifier, reader: Any) -> None:
 
 def check_regenerated(v: Verifier, k: int, seed: int) -> None:
     rows = sorted(v.ok_rows(), key=lambda r: r["item_id"])
-    if v.src is None or not rows:
-        v.add(".", "regenerate_failed", f"--regenerate {k} needs a source and ok items")
+    if v.src is None:
+        v.add(".", "regenerate_no_source", f"--regenerate {k} rebuilds items from their source")
+        return
+    if not rows:
+        v.add(".", "regenerate_nothing_built", f"--regenerate {k}: the tree has no built item")
         return
     picks = np.random.default_rng(seed).choice(len(rows), size=min(k, len(rows)), replace=False)
     chosen = [rows[i] for i in sorted(int(i) for i in picks)]

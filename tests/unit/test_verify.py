@@ -449,4 +449,20 @@ def test_regenerate_picks_k_ok_items_reproducibly(tree, fake_regenerate):
 def test_regenerate_needs_a_source(tree, fake_regenerate):
     _, out = tree
     report = verify_tree(out, None, regenerate=1)
-    assert kinds(report) == {"regenerate_failed"}
+    assert kinds(report) == {"regenerate_no_source"}
+    assert "--against" in report.problems[0].message
+
+
+def test_regenerate_of_a_tree_whose_every_item_failed_says_so(tree, fake_regenerate):
+    src, out = tree
+    rows = [
+        {"item_id": r["item_id"], "status": "failed", "error": "CorruptItemError: x",
+         "source": [], "outputs": []}
+        for r in read_manifest(out)
+    ]  # fmt: skip
+    write_manifest(out, rows)
+    report = verify_tree(out, src, regenerate=2, source_items=[r["item_id"] for r in rows])
+    (problem,) = [p for p in report.problems if p.kind.startswith("regenerate")]
+    assert problem.kind == "regenerate_nothing_built"
+    assert "no built item" in problem.message and "re-run the build" in problem.message
+    assert fake_regenerate == []
