@@ -37,6 +37,7 @@ from lads.intensity.features import PHYSICS_FLOOR, FrameImage, frame_image
 from lads.intensity.law_groups import GroupedLaw
 from lads.intensity.model import PointGenerator
 from lads.physics.materials import class_ids
+from lads.physics.projection import RangeImage
 from lads.sensors.conformity import check_scan_of
 from lads.sensors.profile import SensorProfile
 
@@ -51,12 +52,19 @@ class Prediction:
         reflectivity: (N,) float32 predicted reflectivity in the output sensor's units
             (encoded intensity / full scale), before quantisation.
         encoded: (N,) float32 in the output sensor's intensity encoding.
-        owner: (N,) bool, True for points that own their pixel.
+        image: the frame's range image (`owner` reads it).
     """
 
     reflectivity: npt.NDArray[np.float32]
     encoded: npt.NDArray[np.float32]
-    owner: npt.NDArray[np.bool_]
+    image: RangeImage
+
+    @property
+    def owner(self) -> npt.NDArray[np.bool_]:
+        """(N,) bool, True for points that own their pixel (made when asked for: a build
+        never needs it)."""
+        image = self.image
+        return image.index[image.row, image.col] == np.arange(image.row.size)
 
 
 def predict_image(
@@ -283,19 +291,23 @@ def _prepare(model: IntensityModel, req: PointRequest) -> _Prepared:
 def _finish_points(model: IntensityModel, p: _Prepared, device: str) -> Prediction:
     """Every point's value from the pointwise generator at its own inputs and law."""
     spec, fi = p.spec, p.fi
-    n = len(fi.range_m)
     ln_law = law_points(spec, fi, p.extinction_per_m, p.labels, p.label_set)
     law = ((ln_law - spec.log_mean) / spec.log_std).astype(np.float32)
     raw = torch.from_numpy(fi.point_inputs)[None, :, :, None].to(device)
     law_t = torch.from_numpy(law)[None, None, :, None].to(device)
     generator = cast(PointGenerator, model.generator)  # only pointwise models come here
     out = _single_threaded(lambda: generator.infer(raw, None, law_t) + law_t)
-    z = out[0, 0, :, 0].float().cpu().numpy().astype(np.float64)
-    refl = np.maximum(np.exp(z * spec.log_std + spec.log_mean) - spec.floor, 0.0) * np.exp(p.shift)
+    refl = out[0, 0, :, 0].float().cpu().numpy().astype(np.float64)
+    # max(exp(z sigma + mu) - f, 0) exp(shift), in place: the same operations, fewer copies.
+    refl *= spec.log_std
+    refl += spec.log_mean
+    np.exp(refl, out=refl)
+    refl -= spec.floor
+    np.maximum(refl, 0.0, out=refl)
+    if p.shift != 0.0:  # exp(0) = 1 leaves every value as it is
+        refl *= np.exp(p.shift)
     refl32 = refl.astype(np.float32)
-    image = fi.image
-    owner = image.index[image.row, image.col] == np.arange(n)
-    return Prediction(refl32, p.out_profile.intensity.from_reflectivity(refl32), owner)
+    return Prediction(refl32, p.out_profile.intensity.from_reflectivity(refl32), fi.image)
 
 
 def _finish(p: _Prepared, z: npt.NDArray[np.float32]) -> Prediction:
@@ -318,4 +330,4 @@ def _finish(p: _Prepared, z: npt.NDArray[np.float32]) -> Prediction:
     ln_value = np.where(owner, ln_pixel, ln_pixel + ratio)
     refl = np.maximum(np.exp(ln_value) - spec.floor, 0.0) * np.exp(p.shift)
     refl32 = refl.astype(np.float32)
-    return Prediction(refl32, p.out_profile.intensity.from_reflectivity(refl32), owner)
+    return Prediction(refl32, p.out_profile.intensity.from_reflectivity(refl32), image)

@@ -43,6 +43,7 @@ import numpy.typing as npt
 from lads.errors import ConfigError, InvalidPointsError
 from lads.physics.image_kernels import image_normals, on_pixel_surface, pixel_normal_cos
 from lads.physics.knn_normals import neighbour_cos
+from lads.physics.masked_median import masked_median
 from lads.physics.materials import reflectance_for_labels
 from lads.physics.projection import (
     MIN_RANGE_M,
@@ -291,7 +292,8 @@ def _incidence(
         cos[rest[found]] = knn_cos[found]
         source[rest[found]] = IncidenceSource.NEIGHBOURS
     computed = source != IncidenceSource.MEDIAN
-    cos[~computed] = np.median(cos[computed]) if computed.any() else FALLBACK_COS
+    if not computed.all():
+        cos[~computed] = masked_median(cos, computed) if computed.any() else FALLBACK_COS
     return Incidence(np.clip(cos, 0.0, 1.0).astype(np.float32), source)
 
 
