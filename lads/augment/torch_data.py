@@ -2,7 +2,8 @@
 (docs/augment.md §2.3).
 
 The corruption's randomness comes from (seed, sample id, epoch), so the same sample gets
-the same corruption in epoch e whichever worker loads it, with any `num_workers`.
+the same corruption in epoch e whichever worker loads it, with any `num_workers`, persistent
+workers included.
 """
 
 from __future__ import annotations
@@ -72,12 +73,19 @@ class CorruptedDataset(Dataset):  # type: ignore[type-arg]
         self.id_key = id_key
         self.info_key = info_key
         self.probability = float(probability)
-        self.epoch = 0
+        # In shared memory: a DataLoader's workers, persistent ones too, read the value the
+        # main process sets, not the one they were started with.
+        self._epoch = torch.zeros((), dtype=torch.int64).share_memory_()
+
+    @property
+    def epoch(self) -> int:
+        """The epoch whose corruptions `__getitem__` draws."""
+        return int(self._epoch)
 
     def set_epoch(self, epoch: int) -> None:
-        """Draw the next epoch's corruptions. Workers see it when they start: call it before
-        iterating a DataLoader built with persistent_workers=False (the default)."""
-        self.epoch = int(epoch)
+        """Draw the next epoch's corruptions: call it before iterating the DataLoader for that
+        epoch (its workers, persistent or not, then read it)."""
+        self._epoch.fill_(int(epoch))
 
     def __len__(self) -> int:
         return len(self.dataset)

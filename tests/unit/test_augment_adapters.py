@@ -48,6 +48,21 @@ def _epoch(dataset: CorruptedDataset, workers: int) -> list[dict]:
     return list(loader)
 
 
+def test_persistent_workers_draw_the_epoch_set_after_they_started():
+    data = _wrapped()
+    loader = DataLoader(
+        data, batch_size=None, num_workers=2, persistent_workers=True, worker_init_fn=worker_init_fn
+    )
+    first = list(loader)
+    data.set_epoch(1)
+    second = list(loader)  # the same two worker processes
+    fresh = _epoch(data, 0)  # epoch 1 drawn in this process
+    assert data.epoch == 1
+    for b, c in zip(second, fresh, strict=True):
+        assert torch.equal(b["points"], c["points"]) and torch.equal(b["labels"], c["labels"])
+    assert not torch.equal(first[0]["points"], second[0]["points"])
+
+
 def test_dataset_wrapper_same_bytes_with_any_worker_count_and_new_draw_per_epoch():
     data = _wrapped()
     one, two = _epoch(data, 0), _epoch(data, 2)
