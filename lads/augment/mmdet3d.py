@@ -10,6 +10,8 @@ mmdet3d's TRANSFORMS registry when mmdet3d is installed, else in mmengine's root
 The transform follows mmcv's BaseTransform contract (`transform(results) -> results`) and
 updates `points` (a BasePoints such as LiDARPoints, a tensor or an array), and
 `pts_semantic_mask` / `pts_instance_mask` when present; boxes are left as they are.
+`LadsEpochHook` (HOOKS, `custom_hooks = [dict(type="LadsEpochHook")]`) gives the runner's
+epoch to the transforms before each training epoch, so each epoch draws new corruptions.
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ import numpy as np
 
 from lads.augment.core import Corruption
 from lads.augment.pseudo_labels import PSEUDO_LABEL_SET, vehicle_labels
+from lads.augment.shared_epoch import SharedEpoch
 from lads.errors import AugmentInputError
 
 try:  # mmcv's base class when it is installed; the contract is the same without it.
@@ -83,11 +86,16 @@ class LadsCorruption(_Base):  # type: ignore[misc]
             options.setdefault("dataset", PSEUDO_LABEL_SET)
         self.corruption = Corruption(corruption, **options)
         self.probability = float(probability)
-        self.epoch = 0
+        self._epoch = SharedEpoch()  # persistent workers read what set_epoch sets
+
+    @property
+    def epoch(self) -> int:
+        """The epoch whose corruptions `transform` draws (`LadsEpochHook` sets the runner's)."""
+        return self._epoch.get()
 
     def set_epoch(self, epoch: int) -> None:
-        """Draw the next epoch's corruptions (workers see it when they are started)."""
-        self.epoch = int(epoch)
+        """Draw the next epoch's corruptions, in running workers too."""
+        self._epoch.set(epoch)
 
     def transform(self, results: dict[str, Any]) -> dict[str, Any]:
         sample_id = sample_id_of(results)
@@ -129,18 +137,67 @@ class LadsCorruption(_Base):  # type: ignore[misc]
         return f"LadsCorruption({self.corruption!r}, probability={self.probability})"
 
 
+def corruptions_in(dataset: Any) -> list[LadsCorruption]:
+    """Every LadsCorruption in the pipelines of a dataset and the datasets it wraps
+    (mmengine's ConcatDataset, RepeatDataset, ClassBalancedDataset, CBGS wrappers...)."""
+    found: list[LadsCorruption] = []
+    todo, seen = [dataset], set()
+    while todo:
+        node = todo.pop()
+        if node is None or id(node) in seen:
+            continue
+        seen.add(id(node))
+        transforms = getattr(getattr(node, "pipeline", None), "transforms", None) or []
+        found += [t for t in transforms if isinstance(t, LadsCorruption)]
+        todo += [getattr(node, "dataset", None), *(getattr(node, "datasets", None) or [])]
+    return found
+
+
+def set_epoch_of(dataset: Any, epoch: int) -> int:
+    """Set `epoch` on every LadsCorruption of a dataset's pipelines; returns how many."""
+    corruptions = corruptions_in(dataset)
+    for corruption in corruptions:
+        corruption.set_epoch(epoch)
+    return len(corruptions)
+
+
+def _epoch_hook() -> type | None:
+    """`LadsEpochHook`, an mmengine hook; None without mmengine."""
+    try:
+        from mmengine.hooks import Hook
+    except ImportError:  # pragma: no cover - depends on the environment
+        return None
+
+    class LadsEpochHook(Hook):  # type: ignore[misc]
+        """Before each training epoch, give the runner's epoch to every LadsCorruption of
+        the train dataloader's dataset, so each epoch draws new corruptions (config:
+        `custom_hooks = [dict(type="LadsEpochHook")]`)."""
+
+        def before_train_epoch(self, runner: Any) -> None:
+            set_epoch_of(runner.train_dataloader.dataset, runner.epoch)
+
+    return LadsEpochHook
+
+
+LadsEpochHook = _epoch_hook()
+
+
 def register() -> str | None:
-    """Register LadsCorruption in mmdet3d's TRANSFORMS, else mmengine's; returns the
-    registry's scope, or None when neither package is installed."""
+    """Register LadsCorruption in mmdet3d's TRANSFORMS and LadsEpochHook in its HOOKS, else
+    in mmengine's; returns the registry's scope, or None when neither package is installed."""
     import importlib
 
     for module in ("mmdet3d.registry", "mmengine.registry"):
         try:
-            registry: Any = importlib.import_module(module).TRANSFORMS
+            registries: Any = importlib.import_module(module)
         except ImportError:
             continue
-        registry.register_module(name="LadsCorruption", module=LadsCorruption, force=True)
-        return str(registry.scope)
+        registries.TRANSFORMS.register_module(
+            name="LadsCorruption", module=LadsCorruption, force=True
+        )
+        if LadsEpochHook is not None:
+            registries.HOOKS.register_module(name="LadsEpochHook", module=LadsEpochHook, force=True)
+        return str(registries.TRANSFORMS.scope)
     return None
 
 

@@ -26,6 +26,7 @@ import numpy as np
 
 from lads.augment.core import Corruption
 from lads.augment.pseudo_labels import PSEUDO_LABEL_SET, VEHICLE_NAMES, vehicle_labels
+from lads.augment.shared_epoch import SharedEpoch
 from lads.corruptions import corruption_spec
 from lads.errors import AugmentInputError
 
@@ -64,7 +65,7 @@ class OpenPCDetCorruption:
         self.corruption = Corruption(**options, **dict(given.get("PARAMS") or {}))
         self.probability = float(given.get("PROBABILITY", 1.0))
         self.epoch_key = given.get("EPOCH_KEY", "epoch")
-        self.epoch = 0
+        self._epoch = _shared_epoch()  # `set_epoch` reaches it, in running workers too
 
     def __call__(self, data_dict: dict[str, Any]) -> dict[str, Any]:
         if "frame_id" not in data_dict:
@@ -73,7 +74,7 @@ class OpenPCDetCorruption:
                 "sample; OpenPCDet's datasets set it in __getitem__."
             )
         sample_id = str(data_dict["frame_id"])
-        epoch = int(data_dict.get(self.epoch_key, self.epoch))
+        epoch = int(data_dict.get(self.epoch_key, self._epoch.get()))
         rng = self.corruption.rng(sample_id, epoch)
         if self.probability < 1.0 and rng.random() >= self.probability:
             return data_dict
@@ -86,6 +87,22 @@ class OpenPCDetCorruption:
         out = self.corruption.apply(points, labels, None, rng, sample_id)
         data_dict["points"] = out.points
         return data_dict
+
+
+_EPOCH: list[SharedEpoch] = []  # one for every entry this process configures
+
+
+def _shared_epoch() -> SharedEpoch:
+    if not _EPOCH:
+        _EPOCH.append(SharedEpoch())
+    return _EPOCH[0]
+
+
+def set_epoch(epoch: int) -> None:
+    """Draw the next epoch's corruptions in every lads_corruption entry, in the DataLoader's
+    running workers too: call it at the start of each epoch of the training loop, in the
+    process that built the datasets (a data_dict's own `epoch` key takes precedence)."""
+    _shared_epoch().set(epoch)
 
 
 def lads_corruption(self: Any, data_dict: dict[str, Any] | None = None, config: Any = None) -> Any:

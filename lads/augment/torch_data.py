@@ -17,6 +17,7 @@ import torch
 from torch.utils.data import Dataset
 
 from lads.augment.core import AugmentInfo, Corruption
+from lads.augment.shared_epoch import SharedEpoch
 from lads.errors import AugmentInputError
 
 
@@ -73,19 +74,17 @@ class CorruptedDataset(Dataset):  # type: ignore[type-arg]
         self.id_key = id_key
         self.info_key = info_key
         self.probability = float(probability)
-        # In shared memory: a DataLoader's workers, persistent ones too, read the value the
-        # main process sets, not the one they were started with.
-        self._epoch = torch.zeros((), dtype=torch.int64).share_memory_()
+        self._epoch = SharedEpoch()  # persistent workers read what set_epoch sets
 
     @property
     def epoch(self) -> int:
         """The epoch whose corruptions `__getitem__` draws."""
-        return int(self._epoch)
+        return self._epoch.get()
 
     def set_epoch(self, epoch: int) -> None:
         """Draw the next epoch's corruptions: call it before iterating the DataLoader for that
         epoch (its workers, persistent or not, then read it)."""
-        self._epoch.fill_(int(epoch))
+        self._epoch.set(epoch)
 
     def __len__(self) -> int:
         return len(self.dataset)

@@ -130,6 +130,56 @@ def test_mmdet3d_transform_builds_from_a_config_through_mmengine():
     assert out["gt_bboxes_3d"] is boxes
 
 
+class PipelineDataset(torch.utils.data.Dataset):
+    """mmengine's dataset contract as LadsEpochHook walks it: a `pipeline` (Compose) run on
+    each sample's results dict."""
+
+    def __init__(self, pipeline) -> None:
+        xyz, intensity = street_frame(load_profile("hdl64e"), azimuths=240)
+        self.points = torch.from_numpy(np.column_stack([xyz, intensity]).astype(np.float32))
+        self.pipeline = pipeline
+
+    def __len__(self) -> int:
+        return 2
+
+    def __getitem__(self, i: int) -> torch.Tensor:
+        results = self.pipeline({"points": FakeLiDARPoints(self.points.clone()), "sample_idx": i})
+        return results["points"].tensor
+
+
+class Repeated:
+    """A dataset wrapper (mmengine's RepeatDataset holds the wrapped one as `.dataset`)."""
+
+    def __init__(self, dataset) -> None:
+        self.dataset = dataset
+
+
+def test_mmdet3d_epoch_hook_reaches_the_transforms_in_persistent_workers():
+    pytest.importorskip("mmengine")
+    from mmengine.dataset import Compose
+    from mmengine.registry import HOOKS
+
+    import lads.augment.mmdet3d as adapter
+
+    transform = dict(type="LadsCorruption", corruption="snow", severity="heavy", sensor="hdl64e",
+                     particle_label=0)  # fmt: skip
+    data = PipelineDataset(Compose([transform]))
+    loader = DataLoader(data, batch_size=None, num_workers=2, persistent_workers=True)
+    hook = HOOKS.build(dict(type="LadsEpochHook"))
+    runner = type("Runner", (), {"epoch": 0, "train_dataloader": Repeated(loader)})()
+    runner.train_dataloader.dataset = Repeated(data)  # the hook walks the wrappers
+    hook.before_train_epoch(runner)
+    first = list(loader)
+    runner.epoch = 1
+    hook.before_train_epoch(runner)
+    second = list(loader)  # the same worker processes
+    (lads,) = adapter.corruptions_in(runner.train_dataloader.dataset)
+    assert lads.epoch == 1
+    fresh = [data[i] for i in range(len(data))]  # epoch 1, in this process
+    assert all(torch.equal(a, b) for a, b in zip(second, fresh, strict=True))
+    assert not torch.equal(first[0], second[0])
+
+
 class FakeDataAugmentor:
     """OpenPCDet's DataAugmentor contract: the queue is built with
     getattr(self, cfg.NAME)(config=cfg) and run as augmentor(data_dict=data_dict)."""
@@ -242,3 +292,41 @@ def test_dataset_wrapper_keeps_tuple_and_named_tuple_samples():
         out = CorruptedDataset(samples, corruption, points_key=0, labels_key=1)[0]
         assert type(out) is type(samples[0]) and out[0].shape[0] == out[1].shape[0]
         assert out[0].shape[0] < samples[0][0].shape[0]
+
+
+class AugmentedFrames(torch.utils.data.Dataset):
+    """An OpenPCDet-like dataset: its DataAugmentor runs in the DataLoader's workers."""
+
+    def __init__(self) -> None:
+        from lads.augment.openpcdet import install
+
+        install(FakeDataAugmentor)
+        config = {"NAME": "lads_corruption", "CORRUPTION": "rain", "SEVERITY": "heavy",
+                  "SENSOR": "hdl64e"}  # fmt: skip
+        self.augmentor = FakeDataAugmentor([config])
+        xyz, intensity = street_frame(load_profile("hdl64e"), azimuths=240)
+        self.points = np.column_stack([xyz, intensity]).astype(np.float32)
+
+    def __len__(self) -> int:
+        return 2
+
+    def __getitem__(self, i: int) -> np.ndarray:
+        return self.augmentor.forward({"points": self.points.copy(), "frame_id": str(i)})["points"]
+
+
+def test_openpcdet_set_epoch_reaches_persistent_workers():
+    from lads.augment.openpcdet import set_epoch
+
+    data = AugmentedFrames()
+    loader = DataLoader(data, batch_size=None, num_workers=2, persistent_workers=True)
+    set_epoch(0)
+    first = list(loader)
+    set_epoch(1)
+    second = list(loader)
+    fresh = [data[i] for i in range(len(data))]
+    set_epoch(0)  # the module's epoch is shared by every entry of this process
+    assert all(
+        torch.equal(torch.as_tensor(a), torch.as_tensor(b))
+        for a, b in zip(second, fresh, strict=True)
+    )
+    assert not torch.equal(torch.as_tensor(first[0]), torch.as_tensor(second[0]))
