@@ -38,9 +38,8 @@ import numpy.typing as npt
 from lads.errors import ConfigError, InvalidPointsError
 from lads.physics.materials import (
     default_material,
-    material_index_for_labels,
     material_names,
-    reflectance_for_labels,
+    reflectance_and_material_for_labels,
 )
 from lads.physics.modalities import _incidence, physics_intensity
 from lads.physics.projection import RangeImage, channels_of, checked_xyz, organise
@@ -350,10 +349,7 @@ def _reflectance_and_material(
     label_arr = np.asarray(labels)
     if label_arr.shape != (n,):
         raise InvalidPointsError(f"labels: shape {label_arr.shape}, expected ({n},).")
-    return (
-        reflectance_for_labels(label_arr, label_set),
-        material_index_for_labels(label_arr, label_set),
-    )
+    return reflectance_and_material_for_labels(label_arr, label_set)
 
 
 def _target(

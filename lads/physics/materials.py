@@ -96,6 +96,19 @@ def material_index_for_labels(labels: npt.ArrayLike, label_set: str) -> npt.NDAr
     return lset.material[ids].astype(np.int64)
 
 
+def reflectance_and_material_for_labels(
+    labels: npt.ArrayLike, label_set: str
+) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.int64]]:
+    """`reflectance_for_labels` and `material_index_for_labels` from one lookup of the
+    points' classes (a learned intensity stage needs both for every frame).
+
+    Raises:
+        ConfigError, InputDataError: as `reflectance_for_labels`.
+    """
+    lset, ids = _classes_of(labels, label_set)
+    return lset.lookup[ids], lset.material[ids].astype(np.int64)
+
+
 def _classes_of(labels: npt.ArrayLike, label_set: str) -> tuple[LabelSet, npt.NDArray[np.intp]]:
     """The label set and each point's class id (warning once about ids without a material)."""
     lset = _label_set_of(label_set)
