@@ -76,23 +76,12 @@ class WeatherStage:
         params = wx.settings_for(self.name, self.settings)
         if self.detection is not None:
             params = replace(params, detection_threshold=self.detection)
-        if self.name == "fog":
-            return wx.fog(
-                xyz,
-                intensity,
-                visibility_m=float(self.visibility_m),  # type: ignore[arg-type]
-                sensor=sensor,
-                rng=rng,
-                mode=self.mode,
-                params=params,  # type: ignore[arg-type]
-            )
-        simulate = wx.rain if self.name == "rain" else wx.snow
+        strength = (
+            {"visibility_m": float(self.visibility_m)}  # type: ignore[arg-type]
+            if self.name == "fog"
+            else {"rate_mm_h": float(self.rate_mm_h)}  # type: ignore[arg-type]
+        )
+        simulate: Any = {"fog": wx.fog, "rain": wx.rain, "snow": wx.snow}[self.name]
         return simulate(
-            xyz,
-            intensity,
-            rate_mm_h=float(self.rate_mm_h),  # type: ignore[arg-type]
-            sensor=sensor,
-            rng=rng,
-            mode=self.mode,
-            params=params,  # type: ignore[arg-type]
+            xyz, intensity, sensor=sensor, rng=rng, mode=self.mode, params=params, **strength
         )
