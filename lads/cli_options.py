@@ -53,25 +53,34 @@ def detection_rule(value: str | None) -> str | float | None:
         ) from None
 
 
+def _choice(name: str, choices: tuple[str, ...], default: str | None, help_text: str) -> Any:
+    """A click option taking one of `choices`, its default shown when it has one."""
+    return click.option(
+        name,
+        type=click.Choice(choices),
+        default=default,
+        show_default=default is not None,
+        help=help_text,
+    )
+
+
 def weather_physics_options(default_mode: str | None, default_settings: str | None) -> Any:
     """--mode, --weather-settings and --detection of a weather stage (None: the pipeline's)."""
     options = [
-        click.option(
+        _choice(
             "--mode",
-            type=click.Choice(RETURN_MODES),
-            default=default_mode,
-            show_default=default_mode is not None,
-            help="Return mode: dual writes a beam's strongest and, where it differs, last "
-            "return, two points on one ray (in a build: physical points only).",
+            RETURN_MODES,
+            default_mode,
+            "Return mode: dual writes a beam's strongest and, where it differs, last return, "
+            "two points on one ray (in a build: physical points only).",
         ),
-        click.option(
+        _choice(
             "--weather-settings",
-            type=click.Choice(WEATHER_SETTINGS),
-            default=default_settings,
-            show_default=default_settings is not None,
-            help="Physics settings of the weather: lads (fitted to real snow, nothing lost in "
-            "clear air) or lisa (LISA's published model with its fixed threshold, to compare; "
-            "rain and snow).",
+            WEATHER_SETTINGS,
+            default_settings,
+            "Physics settings of the weather: lads (fitted to real snow, nothing lost in clear "
+            "air) or lisa (LISA's published model with its fixed threshold, to compare; rain "
+            "and snow).",
         ),
         click.option(
             "--detection",

@@ -32,39 +32,35 @@ def _span(values: npt.NDArray[np.float64], mask: npt.NDArray[np.bool_]) -> tuple
 
 
 @numba.njit(cache=True, nogil=True)
-def _bucket_counts(
+def _buckets(
     values: npt.NDArray[np.float64],
     mask: npt.NDArray[np.bool_],
     lo: float,
     scale: float,
     buckets: int,
-) -> npt.NDArray[np.int64]:
+) -> tuple[npt.NDArray[np.int32], npt.NDArray[np.int64]]:
+    """Each value's bucket (-1 where not selected) and the selected values per bucket."""
+    bucket = np.full(values.shape[0], -1, dtype=np.int32)
     counts = np.zeros(buckets, dtype=np.int64)
     for i in range(values.shape[0]):
         if mask[i]:
-            counts[int((values[i] - lo) * scale)] += 1
-    return counts
+            b = int((values[i] - lo) * scale)
+            bucket[i] = b
+            counts[b] += 1
+    return bucket, counts
 
 
 @numba.njit(cache=True, nogil=True)
 def _in_buckets(
-    values: npt.NDArray[np.float64],
-    mask: npt.NDArray[np.bool_],
-    lo: float,
-    scale: float,
-    first: int,
-    last: int,
-    size: int,
+    values: npt.NDArray[np.float64], bucket: npt.NDArray[np.int32], first: int, last: int, size: int
 ) -> npt.NDArray[np.float64]:
-    """The selected values of buckets first..last, sorted."""
+    """The values of buckets first..last, sorted."""
     picked = np.empty(size)
     k = 0
     for i in range(values.shape[0]):
-        if mask[i]:
-            b = int((values[i] - lo) * scale)
-            if first <= b <= last:
-                picked[k] = values[i]
-                k += 1
+        if first <= bucket[i] <= last:
+            picked[k] = values[i]
+            k += 1
     picked.sort()
     return picked
 
@@ -77,7 +73,7 @@ def _median(values: npt.NDArray[np.float64], mask: npt.NDArray[np.bool_], bucket
     if lo == hi or not (hi - lo < np.inf):
         return _sorted_middle(values, mask, lo, hi, n)
     scale = (buckets - 1) / (hi - lo)
-    counts = _bucket_counts(values, mask, lo, scale, buckets)
+    bucket, counts = _buckets(values, mask, lo, scale, buckets)
     first, second = (n - 1) // 2, n // 2  # the middle ranks (equal for odd n)
     below, b_first, b_second, seen = 0, -1, -1, 0
     for b in range(buckets):
@@ -87,9 +83,7 @@ def _median(values: npt.NDArray[np.float64], mask: npt.NDArray[np.bool_], bucket
             b_second = b
             break
         seen += counts[b]
-    picked = _in_buckets(
-        values, mask, lo, scale, b_first, b_second, seen + counts[b_second] - below
-    )
+    picked = _in_buckets(values, bucket, b_first, b_second, seen + counts[b_second] - below)
     a, c = picked[first - below], picked[second - below]
     return a if first == second else (a + c) / 2.0
 
