@@ -89,7 +89,7 @@ class OpenPCDetCorruption:
         return data_dict
 
 
-_EPOCH: list[SharedEpoch] = []  # one for every entry this process configures
+_EPOCH: list[SharedEpoch] = []  # one epoch, shared by every entry this process configures
 
 
 def _shared_epoch() -> SharedEpoch:

@@ -26,5 +26,10 @@ class SharedEpoch:
     def get(self) -> int:
         return int(self._value)
 
+    def __deepcopy__(self, memo: dict[int, Any]) -> SharedEpoch:
+        """A copied transform or dataset keeps reading the same epoch (a deep copy of the
+        tensor would leave shared memory)."""
+        return self
+
     def set(self, epoch: int) -> None:
         self._value.fill_(int(epoch))

@@ -5,6 +5,8 @@ CUDA ops and does not install here)."""
 
 from __future__ import annotations
 
+import copy
+
 import numpy as np
 import pytest
 import torch
@@ -61,6 +63,9 @@ def test_persistent_workers_draw_the_epoch_set_after_they_started():
     for b, c in zip(second, fresh, strict=True):
         assert torch.equal(b["points"], c["points"]) and torch.equal(b["labels"], c["labels"])
     assert not torch.equal(first[0]["points"], second[0]["points"])
+    copied = copy.deepcopy(data)  # a copied dataset keeps reading the same epoch
+    data.set_epoch(2)
+    assert copied.epoch == 2
 
 
 def test_dataset_wrapper_same_bytes_with_any_worker_count_and_new_draw_per_epoch():
