@@ -21,6 +21,7 @@ from lads.readers import READERS, reader_class
 
 if TYPE_CHECKING:  # the command imports the physics only when it runs (start-up time)
     from lads.physics.result import WeatherResult
+    from lads.stages.weather import WeatherStage
 
 # Label files the command reads, told apart by their size: SemanticKITTI-style uint32
 # (class in the low 16 bits, instance above) and nuScenes lidarseg uint8.
@@ -138,7 +139,7 @@ def weather_command(
 
 def _stage(
     name: str, strength: float | str, mode: str, settings: str, detection: str | float | None
-) -> Any:
+) -> WeatherStage:
     """The build's weather stage with these parameters, checked as a pipeline's are."""
     from lads.stage_params import check_stage, resolved
     from lads.stages.weather import WeatherStage
@@ -200,7 +201,7 @@ def _carried(
     return carried
 
 
-def _summary(output: Path, n_out: int, result: WeatherResult, stage: Any) -> str:
+def _summary(output: Path, n_out: int, result: WeatherResult, stage: WeatherStage) -> str:
     c = result.counts()
     strength = (
         f"visibility {stage.visibility_m:g} m"

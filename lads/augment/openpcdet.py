@@ -19,7 +19,7 @@ lies on the fitted ground (`lads.augment.pseudo_labels`).
 
 from __future__ import annotations
 
-from functools import partial
+from functools import cache, partial
 from typing import Any
 
 import numpy as np
@@ -89,13 +89,10 @@ class OpenPCDetCorruption:
         return data_dict
 
 
-_EPOCH: list[SharedEpoch] = []  # one epoch, shared by every entry this process configures
-
-
+@cache
 def _shared_epoch() -> SharedEpoch:
-    if not _EPOCH:
-        _EPOCH.append(SharedEpoch())
-    return _EPOCH[0]
+    """The one epoch every entry this process configures reads (made on first use)."""
+    return SharedEpoch()
 
 
 def set_epoch(epoch: int) -> None:
