@@ -57,6 +57,8 @@ def finished_rows(
         for row in json_lines(state_path(out_root, item.item_id)):
             rows[item.item_id] = row
     listed = listed_sums(out_root / SHA256SUMS)
+    # A window's scans and the pose files are sources of many rows: hashed once each.
+    seen: dict[tuple[Path, int, int], str] = {}
     intact = {}
     wanted = {i.item_id for i in items}
     for item_id, row in rows.items():
@@ -65,7 +67,7 @@ def finished_rows(
             and row.get("status") == "ok"
             and (stage_versions is None or recorded_versions(row) == stage_versions)
             and files_intact(out_root, row.get("outputs"))
-            and files_intact(source_root, row.get("source"))
+            and files_intact(source_root, row.get("source"), seen)
             and provenance.item_intact(out_root, row, listed)
         ):
             intact[item_id] = row
@@ -81,19 +83,29 @@ def listed_sums(path: Path) -> dict[str, str]:
     return {line[66:]: line[:64] for line in lines if len(line) > 66 and line[64:66] == "  "}
 
 
-def files_intact(root: Path, entries: Any) -> bool:
+def files_intact(
+    root: Path, entries: Any, seen: dict[tuple[Path, int, int], str] | None = None
+) -> bool:
     """Whether every {path, bytes, sha256} entry (a row's outputs or sources) is on disk
-    under `root` with that size and digest."""
+    under `root` with that size and digest; `seen` keeps digests by (path, size, mtime) for
+    files that many rows name."""
     if not isinstance(entries, list) or not entries:
         return False
     try:
         for entry in entries:
             path = root / entry["path"]
-            if (
-                not path.is_file()
-                or path.stat().st_size != entry["bytes"]
-                or sha256_file(path) != entry["sha256"]
-            ):
+            if not path.is_file():
+                return False
+            stat = path.stat()
+            if stat.st_size != entry["bytes"]:
+                return False
+            key = (path, stat.st_size, stat.st_mtime_ns)
+            digest = seen.get(key) if seen is not None else None
+            if digest is None:
+                digest = sha256_file(path)
+                if seen is not None:
+                    seen[key] = digest
+            if digest != entry["sha256"]:
                 return False
     except (OSError, KeyError, TypeError):
         return False

@@ -111,6 +111,8 @@ def run_window_stage(
     keyed: Any = reader  # readers are hashable objects; the Reader protocol does not say so
     stamp = _stamp(reader, item)
     window, centre = window_of(_items(keyed, stamp), item, stage.neighbours, keyed.scan_position)
+    if len(window) == 1:
+        return stage(frame, rng)  # no neighbour in the tree: the frame's own pose cancels
     poses = _sequence_poses(keyed, keyed.scan_position(item)[0], stamp)
     # One window and a few more: a worker handed every k-th frame (k jobs) needs k new scans
     # per frame, and the window holds most of the next frame's.
@@ -175,22 +177,28 @@ def _prepare(
     return _PREPARED.get((*key, item.item_id), make, size)
 
 
-def window_source_rows(reader: Reader, item: Item, window: tuple[str, ...]) -> list[dict[str, Any]]:
-    """{path, bytes, sha256} of every file of the window's scans other than `item`'s own,
-    for the manifest row (a changed neighbour changes the output: verify and resume see it)."""
-    if not window:
-        return []
-    keyed: Any = reader  # as in run_window_stage
-    by_path = {it.relpath: it for it in _items(keyed, _stamp(reader, item))}
+def window_source_rows(
+    reader: Reader, item: Item, window: tuple[str, ...], tracked: bool = False
+) -> list[dict[str, Any]]:
+    """{path, bytes, sha256} of every file the output drew on besides `item`'s own: the
+    files of the window's other scans and, when the stages used poses (a window of more
+    than the frame, or `tracked`: a stage took the motion from them), the reader's pose
+    files. For the manifest row: a changed neighbour or pose changes the output, and
+    verify and resume see it."""
+    paths: list[str] = []
+    if len(window) > 1:
+        keyed: Any = reader  # as in run_window_stage
+        by_path = {it.relpath: it for it in _items(keyed, _stamp(reader, item))}
+        for rel in window:
+            paths += by_path[rel].source_relpaths() if rel != item.relpath else []
+    if (len(window) > 1 or tracked) and hasattr(reader, "pose_relpaths"):
+        paths += reader.pose_relpaths(item)
     rows = []
-    for rel in window:
-        if rel == item.relpath:
-            continue
-        for path in by_path[rel].source_relpaths():
-            full = Path(reader.root) / path
-            stat = full.stat()
-            digest = _digest(str(full), stat.st_size, stat.st_mtime_ns)
-            rows.append({"path": path, "bytes": stat.st_size, "sha256": digest})
+    for path in paths:
+        full = Path(reader.root) / path
+        stat = full.stat()
+        digest = _digest(str(full), stat.st_size, stat.st_mtime_ns)
+        rows.append({"path": path, "bytes": stat.st_size, "sha256": digest})
     return rows
 
 

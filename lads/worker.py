@@ -183,6 +183,11 @@ def _conditions(frame: Frame) -> dict[str, Any]:
     return json_types(dict(frame.conditions))  # type: ignore[no-any-return]
 
 
+def _tracked(plan: BuildPlan) -> bool:
+    """Whether a stage of the build takes the vehicle's motion from the reader's poses."""
+    return any(getattr(s, "needs_track", False) for s in stages_for(plan.pipeline))
+
+
 def _source_rows(item: Item, root: Path) -> list[dict[str, Any]]:
     rows = []
     for rel in item.source_relpaths():
@@ -309,7 +314,7 @@ def process_item(
             **fields,
             "status": "ok",
             "source": _source_rows(item, reader.root)
-            + window_source_rows(reader, item, frame.window),
+            + window_source_rows(reader, item, frame.window, _tracked(plan)),
             "outputs": _output_rows(files),
         }
         clock.lap("hash")

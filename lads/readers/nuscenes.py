@@ -64,6 +64,8 @@ TABLES = (
     "sample_annotation",
     "map",
 )
+# The tables a scan's pose and time come from (`pose_relpaths`).
+POSE_TABLES = ("ego_pose", "calibrated_sensor", "sample_data")
 CHANNEL = "LIDAR_TOP"
 # Why a nuScenes scan file holds exactly nuScenes' five columns (`Reader.record_fixed_by`).
 DEVKIT_RECORD = (
@@ -284,6 +286,12 @@ class NuScenesReader:
         for a sensor transfer's window (`lads.transfer.window`)."""
         meta = dict(item.meta)
         return meta["scene"], int(meta["scan_number"])
+
+    def pose_relpaths(self, item: Item) -> list[str]:
+        """The tables an item's pose and time come from (ego_pose, calibrated_sensor and
+        sample_data of its version): sources of every output built from the poses."""
+        version = self.resolved_version()
+        return [f"{version}/{name}.json" for name in POSE_TABLES]
 
     def sensor_poses(self, items: list[Item]) -> dict[str, npt.NDArray[np.float64]]:
         """(4, 4) lidar -> global pose of each item: its sample_data's ego_pose times its

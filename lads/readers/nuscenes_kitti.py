@@ -146,6 +146,11 @@ class NuScenesKittiReader:
         window (`lads.transfer.window`)."""
         return item.relpath.rsplit("/", 2)[0], int(Path(item.relpath).stem)
 
+    def pose_relpaths(self, item: Item) -> list[str]:
+        """The file an item's pose comes from (its scene's poses.txt): a source of every
+        output built from the poses."""
+        return [f"{item.relpath.rsplit('/', 2)[0]}/poses.txt"]
+
     def sensor_poses(self, items: list[Item]) -> dict[str, npt.NDArray[np.float64]]:
         """(4, 4) lidar -> global pose of each item: line NNNNNN of its scene's poses.txt.
 

@@ -178,6 +178,14 @@ class SemanticKittiReader:
         window (`lads.transfer.window`)."""
         return item.relpath.split("/")[1], int(Path(item.relpath).stem)
 
+    def pose_relpaths(self, item: Item) -> list[str]:
+        """The files an item's pose and time come from (poses.txt, calib.txt's Tr and, when
+        present, times.txt): sources of every output built from the poses."""
+        seq = item.relpath.split("/")[1]
+        rels = [self.sequence_file(seq, POSES_FILE), self.sequence_file(seq, CALIB_FILE)]
+        times = self.sequence_file(seq, TIMES_FILE)
+        return rels + [times] if present(self.root / times) else rels
+
     def sensor_poses(self, items: list[Item]) -> dict[str, npt.NDArray[np.float64]]:
         """(4, 4) Velodyne -> world pose of each item, from its sequence's poses.txt (line i
         for scan i, camera frame) and calib.txt's Tr: Tr^-1 P_i Tr.

@@ -138,6 +138,10 @@ def test_motion_recorded_takes_each_frames_speed_from_the_poses(street, tmp_path
         assert abs(row["conditions"]["speed_m_s"] - EGO_SPEED_M_S) < 0.05
         assert abs(row["conditions"]["yaw_rate_deg_s"]) < 10.0
         assert row["points"]["displaced"] > 0.9 * row["points"]["source"]
+        # the motion came from the poses: a changed pose file is a changed source
+        assert {"sequences/00/poses.txt", "sequences/00/calib.txt"} <= {
+            s["path"] for s in row["source"]
+        }
     check = verify_tree(out, street, regenerate=2, seed=0)
     assert check.ok, [f"{p.kind} {p.path}: {p.message}" for p in check.problems]
     # the seam behind the vehicle opens by about v T
@@ -166,8 +170,11 @@ def test_motion_recorded_reads_nuscenes_ego_poses_and_timestamps(tmp_path):
     # each 10 Hz step of the street (1 m) is a keyframe stamped NUSC_KEYFRAME_US later, so the
     # tables' poses and timestamps say 1 m per 0.5 s
     expected = EGO_SPEED_M_S * 0.1 / (NUSC_KEYFRAME_US * 1e-6)
-    speeds = [row["conditions"]["speed_m_s"] for row in _manifest(out) if "points" in row]
+    rows = [row for row in _manifest(out) if "points" in row]
+    speeds = [row["conditions"]["speed_m_s"] for row in rows]
     assert len(speeds) == 3 and all(abs(s - expected) < 0.02 for s in speeds)
+    tables = {f"v1.0-mini/{t}.json" for t in ("ego_pose", "calibrated_sensor", "sample_data")}
+    assert all(tables <= {s["path"] for s in row["source"]} for row in rows)
 
 
 def test_suite_lists_the_recorded_motion_beside_the_preset_speeds(street, tmp_path):

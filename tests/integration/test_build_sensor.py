@@ -4,6 +4,7 @@ return behind every output point; the window, the variant names and bad input.""
 
 from __future__ import annotations
 
+import json
 import shutil
 from pathlib import Path
 
@@ -19,7 +20,7 @@ from lads.runner import run_build
 from lads.sensors.profile import load_profile
 from lads.synth.writer import write_synthetic_dataset
 from lads.transfer.blend import MIN_TOL_COS
-from lads.transfer.window import window_of
+from lads.transfer.window import DEFAULT_NEIGHBOURS, window_of
 from lads.verify import verify_tree
 from lads.worker import stages_for
 
@@ -299,3 +300,58 @@ def test_weather_on_a_transferred_tree_uses_the_target_sensor(built: Path, tmp_p
     assert frame.sensor == "hdl32e"
     with pytest.raises(ConfigError, match="no-such-lidar"):
         get_reader("semantickitti", built, sensor="no-such-lidar")
+
+
+def _build_32(src: Path, out: Path, **overrides: object) -> object:
+    pipeline = pipeline_for("semantickitti", "sensor-hdl32e").with_overrides(**overrides)
+    return run_build("semantickitti", src, out, pipeline, jobs=1, progress=False, figures=False)
+
+
+def test_changed_poses_are_a_changed_source_to_verify_and_resume(street: Path, tmp_path: Path):
+    src, out = tmp_path / "src", tmp_path / "out"
+    shutil.copytree(street, src)
+    assert _build_32(src, out).complete  # type: ignore[attr-defined]
+    rows = [r for r in map(json.loads, (out / "manifest.jsonl").read_text().splitlines())]
+    assert all(
+        {"sequences/00/poses.txt", "sequences/00/calib.txt"} <= {s["path"] for s in r["source"]}
+        for r in rows
+    )
+    poses = src / "sequences" / "00" / "poses.txt"
+    lines = poses.read_text().splitlines()
+    fields = lines[2].split()
+    fields[3] = repr(float(fields[3]) + 0.5)  # scan 2 placed half a metre further along x
+    lines[2] = " ".join(fields)
+    poses.write_text("\n".join(lines) + "\n")
+    check = verify_tree(out, src)
+    assert not check.ok
+    kinds = {p.kind for p in check.problems}
+    assert kinds == {"source_changed", "copied_file_differs"}, check.problems
+    report = _build_32(src, out)
+    assert report.built == FRAMES and report.skipped == 0  # type: ignore[attr-defined]
+    assert verify_tree(out, src, regenerate=1, seed=0).ok
+
+
+def test_a_frame_without_neighbours_in_the_tree_needs_no_poses(street: Path, tmp_path: Path):
+    src = tmp_path / "src"
+    shutil.copytree(street, src)
+    seq = src / "sequences" / "00"
+    (seq / "poses.txt").unlink()
+    far = 3 + 2 * DEFAULT_NEIGHBOURS  # beyond every other scan's window
+    for sub, ext in (("velodyne", "bin"), ("labels", "label")):
+        (seq / sub / f"000003.{ext}").rename(seq / sub / f"{far:06d}.{ext}")
+    rel = f"sequences/00/velodyne/{far:06d}.bin"
+    report = _build_32(src, tmp_path / "window")
+    assert [i for i, _ in report.failed] == [  # type: ignore[attr-defined]
+        f"semantickitti:sequences/00/velodyne/{k:06d}.bin" for k in range(3)
+    ]
+    _build_32(src, tmp_path / "alone", neighbours=0)
+    assert (tmp_path / "window" / rel).read_bytes() == (tmp_path / "alone" / rel).read_bytes()
+    row = next(
+        r
+        for r in map(json.loads, (tmp_path / "window" / "manifest.jsonl").read_text().splitlines())
+        if r["item_id"].endswith(rel)
+    )
+    assert [s["path"] for s in row["source"]] == [
+        rel,
+        rel.replace("velodyne", "labels")[:-3] + "label",
+    ]
