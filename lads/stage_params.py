@@ -60,6 +60,8 @@ STAGE_PARAMS: dict[str, dict[str, str]] = {
 _OPTIONAL_KINDS = {"return_mode", "optional_text", "device", "severity", "settings", "detection",
                    "neighbours", "channel_list", "optional_number", "optional_period",
                    "vector3", "ego_motion", "optional_distance"}  # fmt: skip
+# (stage, parameter) -> the parameter that makes it unneeded: fixed dead lasers need no share.
+_GIVEN_BY = {("beam_missing", "lost_channel_share"): "channels"}
 # Weather stages, and the sensor faults and artefacts that are not weather.
 WEATHER_STAGES = ("rain", "snow", "fog", "wet_ground")
 FAULT_STAGES = ("beam_missing", "motion_distortion", "incomplete_echo", "crosstalk")
@@ -183,7 +185,13 @@ def check_stage(name: str, params: dict[str, Any], where: str) -> None:
             f"{where}: stage {name!r} has unknown parameters {unknown}; "
             f"it accepts {sorted(accepted)}."
         )
-    missing = [k for k, kind in accepted.items() if kind not in _OPTIONAL_KINDS and k not in params]
+    missing = [
+        k
+        for k, kind in accepted.items()
+        if kind not in _OPTIONAL_KINDS
+        and k not in params
+        and params.get(_GIVEN_BY.get((name, k), "")) is None
+    ]
     if missing:
         raise ConfigError(f"{where}: stage {name!r} needs {missing}.")
     for key, value in params.items():

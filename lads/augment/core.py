@@ -23,6 +23,7 @@ from lads.errors import AugmentInputError, ConfigError
 from lads.frame import RING_COLUMN, Frame, Item
 from lads.physics.result import Outcome
 from lads.physics.severity import SEVERITIES
+from lads.readers.base import unusable_values
 from lads.seeding import augment_rng
 from lads.sensors.profile import SensorProfile, load_profile
 from lads.stage_params import check_stage, resolved
@@ -206,6 +207,8 @@ class Corruption:
                 "were given with no class for them; pass particle_label=<id> (e.g. your "
                 "ignore index) or dataset=<reader name> for that dataset's particle label."
             )
+        if labels is not None and self.spec.adds_particles:
+            _check_label_fits(self.particle_label, labels, sample_id)
         if self.spec.needs_labels and (labels is None or self.dataset is None):
             raise AugmentInputError(
                 f"sample {sample_id!r}: {self.spec.name} reads point classes: pass labels and "
@@ -348,6 +351,22 @@ def _particle_label(dataset: str | None, particle_label: int | None) -> int | No
     return int(reader_class(dataset).particle_label) if particle_label is None else particle_label
 
 
+def _check_label_fits(label: Any, labels: npt.NDArray[np.generic], sample_id: str | int) -> None:
+    """AugmentInputError unless the particle class `label` is a value of the labels' dtype
+    (a cast would wrap -1 to 4294967295 in uint32, or 300 to a real class in uint8)."""
+    dtype: Any = labels.dtype
+    if not np.issubdtype(dtype, np.integer):
+        return  # the contract asks for integer labels; nothing to wrap otherwise
+    info = np.iinfo(dtype)
+    if info.min <= int(label) <= info.max:
+        return
+    raise AugmentInputError(
+        f"sample {sample_id!r}: particle_label {label} is not a value of the labels' dtype "
+        f"{labels.dtype}; pass a class id that fits it, or labels of a wider signed dtype "
+        "(e.g. int64 for an ignore index of -1)."
+    )
+
+
 def _check_arrays(
     points: Any,
     labels: Any,
@@ -381,5 +400,12 @@ def _check_arrays(
         raise AugmentInputError(
             f"{where}: ring_column {ring_column} is not one of the further columns "
             f"4..{points.shape[1] - 1} of these points."
+        )
+    columns = LEADING_COLUMNS + tuple(f"column_{k}" for k in range(4, points.shape[1]))
+    problem = unusable_values(points, columns)
+    if problem is not None:
+        raise AugmentInputError(
+            f"{where}: {problem}. Drop or repair such rows before corrupting the cloud (a "
+            "build reports a scan file holding them as corrupt)."
         )
     profile.intensity.validate(points[:, 3], f"{where}: points[:, 3] (intensity)")

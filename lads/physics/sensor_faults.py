@@ -44,14 +44,15 @@ def dead_channels(channels: int, share: float, rng: np.random.Generator) -> npt.
 def beam_missing(
     xyz: FloatArray, intensity: FloatArray, channel: npt.NDArray[np.int64], dead: npt.ArrayLike
 ) -> WeatherResult:
-    """Every return of a dead laser is lost; every other point is kept unchanged.
+    """Every return of a dead laser is lost; every other point is kept unchanged. A row at
+    exactly zero range is no return of any laser (a dataset's placeholder) and is kept.
 
     Args:
         xyz: (N, 3) float32 m. intensity: (N,) float32 in the sensor's encoding.
         channel: (N,) int64 laser of each point (ring column, or nearest elevation).
         dead: channel ids that return nothing (`dead_channels`).
     """
-    lost = np.isin(channel, np.asarray(dead, dtype=np.int64))
+    lost = np.isin(channel, np.asarray(dead, dtype=np.int64)) & np.any(xyz != 0, axis=1)
     rows = np.flatnonzero(~lost).astype(np.int64)
     return WeatherResult(
         xyz=np.ascontiguousarray(xyz[rows], dtype=np.float32),

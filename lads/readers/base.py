@@ -172,23 +172,34 @@ def check_finite(points: np.ndarray, path: Path, columns: tuple[str, ...]) -> No
             "returns, so this is a truncated copy. Re-extract it from the dataset archive, or "
             "remove it from the source tree."
         )
+    problem = unusable_values(points, columns)
+    if problem is not None:
+        raise CorruptItemError(
+            f"{path}: {problem}. The file is corrupt: re-extract it from the dataset archive "
+            "(lads never drops points, since labels are matched by index)."
+        )
+
+
+def unusable_values(points: np.ndarray, columns: tuple[str, ...]) -> str | None:
+    """What makes (N, C) `points` unusable, naming the first bad point and column: NaN or
+    infinite values, or a coordinate beyond `MAX_COORDINATE_M`; None when there is none."""
     bad = ~np.isfinite(points)
     if bad.any():
         rows, cols = np.nonzero(bad)
-        raise CorruptItemError(
-            f"{path}: {rows.size} NaN or infinite values (first: point {rows[0]}, column "
+        return (
+            f"{rows.size} NaN or infinite values (first: point {rows[0]}, column "
             f"'{columns[cols[0]]}' = {points[rows[0], cols[0]]}); expected finite "
-            f"{', '.join(columns)} values. The file is corrupt: re-extract it from the dataset "
-            "archive (lads never drops points, since labels are matched by index)."
+            f"{', '.join(columns)} values"
         )
     far = np.abs(points[:, :3]) > MAX_COORDINATE_M
     if far.any():
         rows, cols = np.nonzero(far)
-        raise CorruptItemError(
-            f"{path}: {rows.size} coordinates beyond {MAX_COORDINATE_M:g} m (first: point "
-            f"{rows[0]}, column '{columns[cols[0]]}' = {points[rows[0], cols[0]]:g} m); no LiDAR "
-            "measures that far, so the file is corrupt: re-extract it from the dataset archive."
+        return (
+            f"{rows.size} coordinates beyond {MAX_COORDINATE_M:g} m (first: point {rows[0]}, "
+            f"column '{columns[cols[0]]}' = {points[rows[0], cols[0]]:g} m); no LiDAR "
+            "measures that far"
         )
+    return None
 
 
 def read_labels(

@@ -21,7 +21,7 @@ from lads.readers.poses import PoseTrack
 from lads.sensors.profile import SensorProfile, load_profile
 
 # Bump when the output bytes change for the same input and seed.
-SENSOR_FAULT_STAGE_VERSION = "2"
+SENSOR_FAULT_STAGE_VERSION = "3"
 
 
 def _apply(
@@ -66,7 +66,8 @@ class BeamMissingStage:
 
     Attributes:
         name: "beam_missing".
-        lost_channel_share: share of the sensor's lasers that fail, in [0, 1].
+        lost_channel_share: share of the sensor's lasers that fail, in [0, 1] (not needed
+            with `channels`).
         channels: the failed channel ids; None draws them per frame from the frame's rng.
         severity: the preset the share came from (lads.physics.severity), or None.
     """

@@ -104,6 +104,44 @@ def test_zero_range_rows_pass_through_every_corruption(cloud):
             with_zero, lab, ins, sample_id="z"
         )
         assert np.isfinite(out.points).all(), name
+    # every laser dead: the rows at zero range are no laser's returns, and stay
+    dead = Corruption("beam_missing", sensor="hdl64e", lost_channel_share=1.0)
+    out = dead(with_zero, lab, ins, sample_id="z")
+    n = points.shape[0]
+    assert out.info.source_index.tolist() == list(range(n, n + 5))
+    assert (out.info.outcome == Outcome.KEPT).all() and not out.points.any()
+
+
+def test_fixed_dead_lasers_need_no_share(cloud):
+    from lads.physics.projection import channels_of
+
+    points, labels, instance = cloud
+    dead = Corruption("beam_missing", sensor="hdl64e", channels=[5, 17])
+    out = dead(points, labels, instance, sample_id="x")
+    laser = channels_of(points[:, :3].astype(np.float64), load_profile("hdl64e"), None)
+    assert sorted(out.info.lost_index) == sorted(np.flatnonzero(np.isin(laser, [5, 17])))
+    assert out.info.conditions["dead_channels"] == "5 17"
+
+
+@pytest.mark.parametrize("bad", [np.nan, np.inf, 2e4])
+@pytest.mark.parametrize("name", GRADED)
+def test_unusable_coordinates_are_refused_by_every_corruption(cloud, name, bad):
+    points, labels, instance = cloud
+    broken = points.copy()
+    broken[3, 0] = bad  # a far stray point once made the particle table grow without bound
+    c = Corruption(name, "light", sensor="hdl64e", dataset="semantickitti")
+    with pytest.raises(AugmentInputError, match="point 3, column 'x'"):
+        c(broken, labels, instance, sample_id="bad")
+
+
+@pytest.mark.parametrize(("dtype", "label"), [(np.uint32, -1), (np.uint8, 300), (np.int8, 200)])
+def test_a_particle_label_the_labels_cannot_hold_is_refused(cloud, dtype, label):
+    points, labels, _ = cloud
+    c = Corruption("snow", "light", sensor="hdl64e", particle_label=label)
+    with pytest.raises(AugmentInputError, match=f"particle_label {label}"):
+        c(points, labels.astype(dtype), sample_id="x")
+    out = c(points, labels.astype(np.int64), sample_id="x")  # a wide signed dtype holds it
+    assert (out.labels[out.info.outcome == Outcome.PARTICLE] == label).all()
 
 
 @pytest.mark.parametrize(
