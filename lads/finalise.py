@@ -41,9 +41,15 @@ def finalise(
     copied: list[dict[str, Any]],
     *,
     figures: bool,
+    limit: int | None = None,
+    source_items: int | None = None,
 ) -> list[str]:
     """Write the tree's metadata, card and SHA256SUMS; returns the relpaths of files in the
-    tree that this build did not write (left out of SHA256SUMS, for the report)."""
+    tree that this build did not write (left out of SHA256SUMS, for the report).
+
+    `items` are the items the tree holds; `limit` the build's --limit and `source_items`
+    how many items the source has (run.json records both: verify and the card tell a trial
+    subset from a complete variant)."""
     manifest = [rows[i.item_id] for i in sorted(items, key=lambda i: i.item_id)]
     lines = "".join(json.dumps(r, sort_keys=True) + "\n" for r in manifest)
     atomic_write(out_root / MANIFEST, lines.encode())
@@ -66,6 +72,8 @@ def finalise(
         "libraries": library_versions(),
         "items": len(manifest),
         "failed": sum(r["status"] != "ok" for r in manifest),
+        "limit": limit,
+        "source_items": len(manifest) if source_items is None else source_items,
         "copied_files": copied,
     }
     atomic_write(out_root / RUN_JSON, (json.dumps(run, sort_keys=True, indent=1) + "\n").encode())

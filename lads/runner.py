@@ -54,6 +54,8 @@ class BuildReport:
     peak_worker_rss_mb: float = 0.0
     foreign: list[str] = field(default_factory=list)
     step_ms: dict[str, float] = field(default_factory=dict)  # summed over the items built
+    # (items in the tree, items of the source) when a --limit trial left some out, else None
+    subset: tuple[int, int] | None = None
 
     def step_ms_per_item(self) -> dict[str, float]:
         """Mean worker milliseconds per processed item of each step (read, stage:NAME,
@@ -71,6 +73,8 @@ class BuildReport:
 
     def summary_text(self) -> str:
         state = "complete" if self.complete else "INCOMPLETE"
+        if self.subset is not None:
+            state += f" (a trial subset: {self.subset[0]} of the source's {self.subset[1]} items)"
         lines = [
             f"{self.out_root}: {state}",
             f"  items {self.items}  built {self.built}  skipped (already done) {self.skipped}  "
@@ -139,11 +143,9 @@ def run_build(
             the first failed item. ConfigError/ReaderError for bad settings or source trees.
     """
     start = time.perf_counter()
-    settings = _RunSettings(jobs, backend, scheduler, fail_fast, progress, figures, batch)
+    settings = _RunSettings(jobs, backend, scheduler, fail_fast, progress, figures, batch, limit)
     source_root, out_root = Path(source_root).resolve(), Path(out_root).resolve()
-    plan, reader, items = _plan_build(
-        source, source_root, out_root, pipeline, seed, reader_options, limit
-    )
+    plan, reader, items = _plan_build(source, source_root, out_root, pipeline, seed, reader_options)
     make_output(out_root)
     with output_lock(out_root, "build", wait=wait):
         report = _build_and_report(plan, reader, items, settings, start)
@@ -172,10 +174,12 @@ class _RunSettings:
     progress: bool | None
     figures: bool
     batch: int | None
+    limit: int | None
 
     def __post_init__(self) -> None:
         _check_count("jobs", self.jobs, 1)
         _check_count("batch", self.batch, 1)
+        _check_count("limit", self.limit, 1)
 
 
 def _plan_build(
@@ -185,19 +189,16 @@ def _plan_build(
     pipeline: PipelineConfig,
     seed: int,
     reader_options: dict[str, Any] | None,
-    limit: int | None,
 ) -> tuple[BuildPlan, Any, list[Item]]:
-    """The checked build plan, its reader and the items to build (the first `limit`)."""
+    """The checked build plan, its reader and every item of the source (sorted)."""
     _check_count("seed", seed, 0)
-    _check_count("limit", limit, 1)
     check_paths(source_root, out_root)
     options = freeze_options(reader_options or {})
     plan = BuildPlan(source, str(source_root), str(out_root), options, pipeline, seed)
     pipeline.check_source(source, f"pipeline '{pipeline.variant}'")
     stages_for(pipeline)  # a bad stage (e.g. missing weights) stops here, before any output
     reader = reader_for(plan)
-    items = reader.items()[:limit] if limit else reader.items()
-    return plan, reader, items
+    return plan, reader, reader.items()
 
 
 def _build_and_report(
@@ -205,7 +206,8 @@ def _build_and_report(
 ) -> BuildReport:
     """The BuildReport of the build (lock held), also written to run_report.json."""
     out_root = Path(plan.out_root)
-    report = BuildReport(out_root, items=len(items), built=0, skipped=0)
+    wanted = len(items[: settings.limit]) if settings.limit else len(items)
+    report = BuildReport(out_root, items=wanted, built=0, skipped=0)
     seconds: list[float] = []
     try:
         _build_locked(
@@ -221,6 +223,7 @@ def _build_and_report(
             progress=settings.progress,
             figures=settings.figures,
             batch=default_batch(plan.pipeline) if settings.batch is None else settings.batch,
+            limit=settings.limit,
         )
     except (OutputWriteError, KeyboardInterrupt):
         report.stopped_early = True
@@ -255,8 +258,13 @@ def _build_locked(
     progress: bool | None,
     figures: bool,
     batch: int,
+    limit: int | None,
 ) -> None:
-    """The build proper, with the output's lock held: claim, clean, copy, build, finalise."""
+    """The build proper, with the output's lock held: claim, clean, copy, build, finalise.
+
+    `items` are every item of the source; the first `limit` are built. Items an earlier
+    build of the same settings finished stay in the tree even beyond the limit (a smaller
+    trial after a larger one keeps the larger one's items)."""
     from tqdm import tqdm
 
     out_root = Path(plan.out_root)
@@ -271,9 +279,12 @@ def _build_locked(
         raise write_error(out_root / provenance.STORE_NAME, exc) from exc
     versions = [(stage.name, stage.version) for stage in stages_for(plan.pipeline)]
     done = finished_rows(out_root, Path(reader.root), items, versions)
-    todo = [i for i in items if i.item_id not in done]
-    report.skipped = len(done)
+    wanted = items[:limit] if limit else items
+    todo = [i for i in wanted if i.item_id not in done]
+    report.skipped = len(wanted) - len(todo)
     rows = dict(done)
+    ids = {i.item_id for i in wanted} | set(done)
+    kept = [i for i in items if i.item_id in ids]
     bar = tqdm(
         total=len(todo),
         unit="scan",
@@ -295,7 +306,10 @@ def _build_locked(
             if fail_fast:
                 report.stopped_early = True
                 return
-    report.foreign = finalise(out_root, plan, items, rows, copied, figures=figures)
+    report.subset = (len(kept), len(items)) if len(kept) < len(items) else None
+    report.foreign = finalise(
+        out_root, plan, kept, rows, copied, figures=figures, limit=limit, source_items=len(items)
+    )
 
 
 def _try_report(out_root: Path, report: BuildReport, seconds: list[float]) -> None:
@@ -318,6 +332,7 @@ def _write_report(out_root: Path, report: BuildReport, seconds: list[float]) -> 
         "frames_per_s": round(report.frames_per_s, 3),
         "peak_worker_rss_mb": round(report.peak_worker_rss_mb, 1),
         "foreign_files": report.foreign,
+        "subset": report.subset and {"items": report.subset[0], "of": report.subset[1]},
         "item_seconds_median": round(sorted(seconds)[len(seconds) // 2], 4) if seconds else None,
         "step_ms_per_item": report.step_ms_per_item(),
     }

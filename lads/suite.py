@@ -127,6 +127,8 @@ def _readme(summary: dict[str, Any]) -> str:
         "| tree | corruption | severity | physical value | items | complete |",
         "|---|---|---|---|---|---|",
     ]
+    if summary.get("trial_subset"):
+        lines[5:5] = ["A trial subset (`--limit`): the trees hold the first items only.", ""]
     for row in summary["variants"]:
         spec = corruption_spec(row["corruption"])
         if row["severity"] is None:
@@ -159,5 +161,14 @@ def _summary(source: str, suite: SuiteReport) -> dict[str, Any]:
             row[spec.parameter] = "per frame, from the poses (manifest conditions)"
         else:
             row[spec.parameter] = spec.preset(severity)
-        rows.append({**row, "tree": variant, "items": report.items, "complete": report.complete})
-    return {"source": source, "complete": suite.complete, "variants": rows}
+        rows.append(
+            {
+                **row,
+                "tree": variant,
+                "items": report.items,
+                "complete": report.complete,
+                "source_items": report.subset[1] if report.subset else report.items,
+            }
+        )
+    trial = any(report.subset for _, report in suite.builds)
+    return {"source": source, "complete": suite.complete, "trial_subset": trial, "variants": rows}

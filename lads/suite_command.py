@@ -77,6 +77,8 @@ def suite_command(
     )
     for variant, build in report.builds:
         state = "complete" if build.complete else "INCOMPLETE"
+        if build.subset:
+            state += f" (trial subset of {build.subset[1]})"
         click.echo(f"{variant:30s} {build.items:6d} items  {state}")
     click.echo(f"suite: {len(report.builds)} trees in {out_root} (suite.json)")
     if not report.complete:

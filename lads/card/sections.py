@@ -90,8 +90,8 @@ def fields(
         **texts,
         "pretty_name": f"LADS {src.pretty}: {run.get('variant', 'variant')}",
         "summary": f"`{run.get('variant', '?')}`, a {texts['kind_word']} variant of "
-        f"{src.pretty} built by lads: every source scan once, in {_record_words(run)} and the "
-        "source's folder layout.",
+        f"{src.pretty} built by lads: {_coverage(run, len(ok))}, in {_record_words(run)} and "
+        "the source's folder layout.",
         "description": _description(run, src),
         "lads_version": str(run.get("lads_version", "?")),
         "source_pretty": src.pretty,
@@ -122,6 +122,14 @@ def fields(
         "figures": "\n".join(f"![{Path(f).stem}]({f})" for f in figures),
         "citation": "\n".join(c for c in (src.citation, REALITY) if c),
     }
+
+
+def _coverage(run: dict[str, Any], built: int) -> str:
+    """Which source scans the tree holds: every one, or a --limit trial's subset."""
+    limit, total = run.get("limit"), run.get("source_items")
+    if limit is None or not isinstance(total, int) or built >= total:
+        return "every source scan once"
+    return f"a trial subset (`--limit {limit}`), {built} of the source's {total} scans, each once"
 
 
 def _description(run: dict[str, Any], src: Source) -> str:

@@ -469,3 +469,41 @@ def test_dual_returns_build_count_and_verify_with_regeneration(source, tmp_path)
         main, ["verify", str(out), "--against", str(source), "--regenerate", "2"]
     )
     assert result.exit_code == 0, result.output
+
+
+def test_a_limited_trial_is_a_named_subset_and_a_smaller_one_keeps_the_larger(
+    source, built, tmp_path
+):
+    from lads.verify import verify_tree
+
+    out = tmp_path / "trial"
+    report = run_build("semantickitti", source, out, snow(rate_mm_h=10.0), seed=0, limit=3)
+    assert report.complete and report.subset == (3, FRAMES)
+    assert f"a trial subset: 3 of the source's {FRAMES} items" in report.summary_text()
+    run = json.loads((out / "run.json").read_text())
+    assert run["limit"] == 3 and run["source_items"] == FRAMES
+    assert (
+        "a trial subset (`--limit 3`), 3 of the source's 4 scans" in (out / "README.md").read_text()
+    )
+    check = verify_tree(out, source)
+    assert check.ok, check.problems
+    assert any(
+        "a trial subset (built with --limit 3): 1 of the source's 4" in n for n in check.notes
+    )
+    # a smaller trial after it keeps the items the larger one built (same settings, intact)
+    report = run_build("semantickitti", source, out, snow(rate_mm_h=10.0), seed=0, limit=1)
+    assert report.complete and report.built == 0 and report.skipped == 1 and not report.foreign
+    assert report.subset == (3, FRAMES)
+    assert verify_tree(out, source).ok
+    # the first items of a limited tree are not optional: one lost is still reported
+    rows = (out / "manifest.jsonl").read_text().splitlines()
+    (out / "manifest.jsonl").write_text("\n".join(rows[1:]) + "\n")
+    kinds = {p.kind for p in verify_tree(out, source).problems}
+    assert "missing_source_item" in kinds
+    # without a limit the rest is built and the tree is the full build's
+    report = run_build("semantickitti", source, out, snow(rate_mm_h=10.0), seed=0)
+    assert report.complete and report.subset is None and report.built == 2  # lost row + 4th
+    full, trial = tree_digest(built), tree_digest(out)
+    assert {k: v for k, v in trial.items() if k != "run.json"} == {
+        k: v for k, v in full.items() if k != "run.json"
+    }

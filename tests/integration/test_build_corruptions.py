@@ -190,3 +190,22 @@ def test_suite_lists_the_recorded_motion_beside_the_preset_speeds(street, tmp_pa
     assert row["severity"] == "recorded" and "poses" in row["speed_m_s"]
     front = (tmp_path / "suite" / "README.md").read_text()
     assert "| motion_distortion | recorded | speed_m_s per frame, from the poses" in front
+
+
+def test_a_limited_suite_says_it_is_a_trial_subset(street, tmp_path):
+    from lads.suite import build_suite
+
+    suite = build_suite(
+        "semantickitti",
+        street,
+        tmp_path / "suite",
+        ["C-beam_missing-light"],
+        progress=False,
+        figures=False,
+        limit=1,
+    )
+    assert suite.complete
+    summary = json.loads((tmp_path / "suite" / "suite.json").read_text())
+    assert summary["trial_subset"] is True
+    assert summary["variants"][0]["items"] == 1 and summary["variants"][0]["source_items"] == 2
+    assert "A trial subset (`--limit`)" in (tmp_path / "suite" / "README.md").read_text()
