@@ -20,6 +20,9 @@ NOT_MODELLED = (
     "no correlation of particles between consecutive scans (each scan draws its own)",
     "no effect on cameras or other sensors of the source dataset",
 )
+# How a sensor transfer's scene is made, with a window and with the frame alone.
+WINDOW_WORDS = "the returns of a window of source scans, placed with the sequence's poses,"
+ALONE_WORDS = "the returns of the frame's own scan (neighbours 0: no other scan, no poses),"
 PHYSICS = {
     "rain": "rain: Marshall-Palmer drop sizes, water Mie extinction and Fresnel backscatter; "
     "per-beam Monte Carlo of the drops in the beam, sampled exactly as a thinned Poisson "
@@ -30,8 +33,8 @@ PHYSICS = {
     "fog": "fog: extinction from the meteorological optical range (visibility), hard-target "
     "attenuation exp(-2 alpha R) and the soft volume return of the fog itself (Mie lidar "
     "ratio of advection-fog droplets, about 17 sr).",
-    "sensor": "sensor: the returns of a window of source scans, placed with the sequence's "
-    "poses, become surfels (ellipses in the surface plane carrying label and albedo); the "
+    "sensor": f"sensor: {WINDOW_WORDS} become surfels (ellipses in the surface plane "
+    "carrying label and albedo); the "
     "target's beams (its elevations, azimuth step, range limits) are ray-cast against them "
     "from the frame's pose, depths blended over the beam's footprint, returns kept where the "
     "target's detector sees them (a surface is never taken as fainter than the source's own "
@@ -58,6 +61,16 @@ PHYSICS = {
 }
 
 
+# The arrays of a provenance group, for the card's Provenance section.
+PROVENANCE_ARRAYS = {
+    "other": "`source_index` (int64, the source row of each output point) and `outcome` "
+    "(uint8: 0 kept, 1 attenuated, 2 particle, 3 lost, the last in aligned mode only, 5 "
+    "displaced by the vehicle's motion).",
+    "resampled": "`source_index` (int64, the row of the source return whose surface each "
+    "beam hit), `source_scan` (int16, which scan of the frame's window that row is in; the "
+    "group's `window` attribute lists the window's scan paths) and `outcome` (uint8, 4: "
+    "a beam of the target sensor).",
+}
 POINTS_MODE_TEXT = {
     "physical": "Lost beams are removed and particle returns stay where the particle was; "
     "label files are rewritten to match (particle returns get the particle label). Output "
@@ -93,6 +106,8 @@ def fields(
         f"{src.pretty} built by lads: {_coverage(run, len(ok))}, in {_record_words(run)} and "
         "the source's folder layout.",
         "description": _description(run, src),
+        "format_text": _format_text(run),
+        "provenance_arrays": PROVENANCE_ARRAYS["resampled" if mode == "resampled" else "other"],
         "lads_version": str(run.get("lads_version", "?")),
         "source_pretty": src.pretty,
         "source": str(run.get("source", "?")),
@@ -133,11 +148,35 @@ def _coverage(run: dict[str, Any], built: int) -> str:
 
 
 def _description(run: dict[str, Any], src: Source) -> str:
+    copied = [c.get("path", "?") for c in run.get("copied_files") or [] if isinstance(c, dict)]
+    names = sorted({Path(str(p)).name for p in copied})
+    side = (
+        f"The source's other files ({len(copied)}: {', '.join(names[:6])}"
+        f"{', ...' if len(names) > 6 else ''}) are copied unchanged."
+        if copied
+        else "The source has no calibration, pose or table files to copy."
+    )
     return (
         f"Each scan of {src.pretty} was passed through the lads pipeline of variant "
         f"`{run.get('variant', '?')}` (sensor profile `{run.get('sensor', '?')}`, root seed "
         f"{run.get('seed', '?')}); the result is written at the scan's own relative path in "
-        f"{_record_words(run)}. Calibration, poses, timestamps and tables are copied unchanged."
+        f"{_record_words(run)}. {side}"
+    )
+
+
+def _format_text(run: dict[str, Any]) -> str:
+    """What a loader of the tree needs: the source's own record, or the target's."""
+    if run.get("point_format", "source") != "target":
+        return (
+            "Every file has the source's format, name and folder, so the source dataset's "
+            "loaders, calibration, poses and label maps work unchanged."
+        )
+    columns = ", ".join(str(c) for c in run.get("point_columns") or []) or "see run.json"
+    return (
+        "Every file has the source's name and folder, so calibration, poses and label maps "
+        "work unchanged; the scan files hold the target sensor's own point record (float32 "
+        f"{columns}; `point_columns` in run.json), so a loader must read that record instead "
+        "of the source's."
     )
 
 
@@ -173,8 +212,9 @@ def _layout(ok: list[dict[str, Any]], run: dict[str, Any]) -> str:
 
 
 def _generation(run: dict[str, Any]) -> str:
+    # Not source_root: the builder's local path means nothing to the card's readers.
     keys = ("lads_version", "git_commit", "config_hash", "seed", "variant", "source",
-            "source_root", "sensor", "points_mode", "point_format", "device")  # fmt: skip
+            "sensor", "points_mode", "point_format", "device")  # fmt: skip
     recorded = {"point_format": "source", **run}  # trees before the setting: the source's
     lines = [f"| {k} | `{recorded.get(k, '?')}` |" for k in keys]
     libs = run.get("libraries") or {}
@@ -236,6 +276,8 @@ def _physics(run: dict[str, Any], pipeline_text: str) -> str:
         kind = next((k for k in PHYSICS if k in name.lower()), None)
         shown = ", ".join(f"{k}={v}" for k, v in params.items()) or "defaults"
         text = PHYSICS[kind] if kind else f"{name}: see the stage's documentation in lads."
+        if kind == "sensor" and params.get("neighbours") == 0:
+            text = text.replace(WINDOW_WORDS, ALONE_WORDS)
         lines.append(f"- `{name}` ({shown}): {text}")
     if any(name in WEATHER_STAGES for name, _ in pipeline_stages(pipeline_text)):
         lines.append(

@@ -54,6 +54,21 @@ def test_the_setting_is_saved_with_the_tree(native: Path):
     assert yaml.safe_load((native / "pipeline.yaml").read_text())["writer"]["point_format"] == (
         "target"
     )
+    # the card tells a loader which record to read and how the provenance names the window
+    card = (native / "README.md").read_text()
+    assert "the scan files hold the target sensor's own point record" in card
+    assert "source's format, name" not in card
+    assert "`source_scan` (int16" in card and run["source_root"] not in card  # a local path
+
+
+def test_a_card_of_frames_transferred_alone_says_so(street: Path, tmp_path):
+    pipeline = pipeline_for("semantickitti", "sensor-hdl32e").with_overrides(neighbours=0)
+    out = tmp_path / "alone"
+    run_build("semantickitti", street, out, pipeline, jobs=1, progress=False, limit=1)
+    card = (out / "README.md").read_text()
+    assert "the frame's own scan (neighbours 0: no other scan, no poses)" in card
+    assert "a window of source scans, placed with the sequence's poses" not in card
+    assert "source's format, name and folder" in card
 
 
 def test_each_scan_is_the_targets_native_record_with_its_ring(native: Path, street: Path):
