@@ -72,12 +72,36 @@ def claim_output(out_root: Path, plan: BuildPlan) -> None:
             "new --out."
         )
     if previous is not None and previous != ident:
-        diff = sorted(k for k in ident if previous.get(k) != ident[k])
+        old_variant = _recorded_variant(marker if marker.is_file() else out_root / RUN_JSON)
+        diff = [
+            _difference(k, previous.get(k), ident[k], old_variant, plan.pipeline.variant)
+            for k in sorted(ident)
+            if previous.get(k) != ident[k]
+        ]
         raise BuildError(
-            f"{out_root}: holds a build with other settings ({', '.join(diff)} differ); use "
+            f"{out_root}: holds a build with other settings ({'; '.join(diff)}); use "
             "another --out, or delete it to rebuild."
         )
-    atomic_write(marker, json.dumps(ident, sort_keys=True).encode())
+    # The variant rides along (not part of the identity) so a refusal can name it.
+    record = {**ident, "variant": plan.pipeline.variant}
+    atomic_write(marker, json.dumps(record, sort_keys=True).encode())
+
+
+def _recorded_variant(path: Path) -> str | None:
+    try:
+        variant = json.loads(path.read_text()).get("variant")
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError, AttributeError):
+        return None
+    return variant if isinstance(variant, str) else None
+
+
+def _difference(key: str, old: Any, new: Any, old_variant: str | None, variant: str) -> str:
+    """One differing identity key in words: the pipeline by its variant names."""
+    if key != "config_hash":
+        return f"{key} {old!r} there, {new!r} here"
+    if old_variant is not None and old_variant != variant:
+        return f"variant {old_variant!r} there, {variant!r} here"
+    return f"the pipeline of variant {variant!r} with other parameters (its pipeline.yaml)"
 
 
 def copy_source_files(reader: Any, source_root: Path, out_root: Path) -> list[dict[str, Any]]:

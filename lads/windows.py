@@ -18,7 +18,7 @@ from typing import Any, Protocol
 import numpy as np
 import numpy.typing as npt
 
-from lads.errors import InputDataError
+from lads.errors import CorruptItemError, InputDataError
 from lads.files import sha256_file
 from lads.frame import Frame, Item
 from lads.readers.base import Reader
@@ -113,7 +113,13 @@ def run_window_stage(
     window, centre = window_of(_items(keyed, stamp), item, stage.neighbours, keyed.scan_position)
     if len(window) == 1:
         return stage(frame, rng)  # no neighbour in the tree: the frame's own pose cancels
-    poses = _sequence_poses(keyed, keyed.scan_position(item)[0], stamp)
+    try:
+        poses = _sequence_poses(keyed, keyed.scan_position(item)[0], stamp)
+    except CorruptItemError as exc:
+        raise CorruptItemError(
+            f"{exc} (Without poses, neighbours 0, `--neighbours 0`, transfers each frame "
+            "from its own scan.)"
+        ) from exc
     # One window and a few more: a worker handed every k-th frame (k jobs) needs k new scans
     # per frame, and the window holds most of the next frame's.
     size = stage.neighbours + 1 + WINDOW_SPARE

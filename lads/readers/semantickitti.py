@@ -197,6 +197,7 @@ class SemanticKittiReader:
         out: dict[str, npt.NDArray[np.float64]] = {}
         for seq in sorted({it.relpath.split("/")[1] for it in items}):
             base = self.root / "sequences" / seq
+            _require_pose_files(base)
             poses = pose_lines(base / POSES_FILE, "the sequence's camera poses")
             tr = kitti_velodyne_to_camera(base / CALIB_FILE)
             tr_inv = np.linalg.inv(tr)
@@ -222,6 +223,7 @@ class SemanticKittiReader:
                 pose for the scan.
         """
         base = self.root / "sequences" / item.relpath.split("/")[1]
+        _require_pose_files(base)
         poses = pose_lines(base / POSES_FILE, "the sequence's camera poses")
         tr = kitti_velodyne_to_camera(base / CALIB_FILE)
         if (base / TIMES_FILE).is_file():
@@ -237,3 +239,15 @@ class SemanticKittiReader:
         track = track_around(times, poses, int(Path(item.relpath).stem), str(base / POSES_FILE))
         velodyne = np.linalg.inv(tr) @ track.poses @ tr
         return track._replace(poses=velodyne)
+
+
+def _require_pose_files(base: Path) -> None:
+    """CorruptItemError naming both poses.txt and calib.txt when both are missing (one
+    missing file is named by the reading that needs it)."""
+    missing = [name for name in (POSES_FILE, CALIB_FILE) if not present(base / name)]
+    if len(missing) == 2:
+        raise CorruptItemError(
+            f"{base}: no {POSES_FILE} and no {CALIB_FILE}; poses need both (the camera poses, "
+            "one 3 x 4 row-major line per scan, and calib.txt's Tr from the KITTI odometry "
+            "calibration archive): put them there."
+        )

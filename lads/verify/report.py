@@ -23,7 +23,9 @@ ADVICE = {
     "layout_mismatch": "outputs keep the source's relative paths: rebuild the tree",
     "aligned_label_differs": f"aligned mode copies label files byte for byte: {REBUILD}",
     "provenance_mismatch": REBUILD,
-    "copied_file_differs": "copies must be byte-identical: copy it again from the source",
+    "copied_file_differs": "copies must be byte-identical: if the source changed, re-run the "
+    "build (it copies the file again and rebuilds the items it feeds); if the source lost it, "
+    "verify against the source the tree was built from; else restore the tree's copy",
     "source_changed": "the source changed since the build: rebuild or restore the source",
     "source_unreadable": "pass the source tree the output was built from",
     "missing_source_item": "the build skipped it: re-run the build",

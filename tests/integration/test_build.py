@@ -243,8 +243,10 @@ def test_refuses_to_write_inside_the_source(source):
 
 
 def test_refuses_a_tree_built_with_other_settings(source, built):
-    with pytest.raises(BuildError, match="other settings"):
+    with pytest.raises(BuildError, match="other settings.*variant 'snow' with other param"):
         run_build("semantickitti", source, built, snow(rate_mm_h=1.0), seed=0)
+    with pytest.raises(BuildError, match="variant 'snow' there, 'rain' here; seed 0 there, 1"):
+        run_build("semantickitti", source, built, pipeline_for("semantickitti", "rain"), seed=1)
 
 
 def test_refuses_a_foreign_nonempty_directory(source, tmp_path):

@@ -152,6 +152,13 @@ def test_missing_poses_fail_each_frame_by_name_and_neighbours_0_needs_none(stree
         limit=1,
     )
     assert len(report.failed) == 1 and "poses.txt" in report.failed[0][1]
+    assert "--neighbours 0" in report.failed[0][1]
+    (src / "sequences" / "00" / "calib.txt").rename(tmp_path / "calib.txt")
+    report = run_build(
+        "semantickitti", src, tmp_path / "c", pipeline, jobs=1, progress=False, limit=1
+    )
+    assert "no poses.txt and no calib.txt" in report.failed[0][1]
+    (tmp_path / "calib.txt").rename(src / "sequences" / "00" / "calib.txt")
     alone = pipeline.with_overrides(neighbours=0)
     report = run_build(
         "semantickitti", src, tmp_path / "b", alone, jobs=1, progress=False, figures=False, limit=1
