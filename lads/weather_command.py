@@ -26,6 +26,8 @@ if TYPE_CHECKING:  # the command imports the physics only when it runs (start-up
 # Label files the command reads, told apart by their size: SemanticKITTI-style uint32
 # (class in the low 16 bits, instance above) and nuScenes lidarseg uint8.
 LABEL_DTYPES = (np.dtype("<u4"), np.dtype("u1"))
+# Scans stored as text (RADIATE's .csv): a reader's format, not a headerless record.
+TEXT_SUFFIXES = (".csv", ".txt")
 
 
 def _datasets_particle_labels() -> str:
@@ -39,8 +41,10 @@ class _Strength(click.ParamType):
     name = "NUMBER|SEVERITY"
 
     def convert(self, value: Any, param: Any, ctx: Any) -> float | str:
-        if isinstance(value, float | int) or value in SEVERITIES:
-            return value  # type: ignore[no-any-return]
+        if isinstance(value, float | int):
+            return value
+        if str(value).lower() in SEVERITIES:
+            return str(value).lower()
         try:
             return float(value)
         except ValueError:
@@ -56,7 +60,7 @@ STRENGTH = _Strength()
 @click.option("--sensor", required=True, help="Profile name (see `lads profiles`).")
 @click.option(
     "--columns",
-    type=int,
+    type=click.IntRange(min=4),
     default=None,
     help="float32 columns per point (default: 5 if the profile has a ring column, else 4).",
 )
@@ -116,6 +120,13 @@ def weather_command(
         raise click.UsageError("give exactly one of --rain, --snow, --fog")
     if labels_in is not None and particle_label is None:
         raise click.UsageError(_particle_label_hint())
+    if labels_in is None and (labels_out is not None or particle_label is not None):
+        raise click.UsageError("--labels-out and --particle-label apply to --labels: pass it")
+    if scan.suffix.lower() in TEXT_SUFFIXES:
+        raise click.UsageError(
+            f"{scan}: a text scan; lads weather reads headerless float32 records (KITTI .bin, "
+            "nuScenes .pcd.bin). Build RADIATE's .csv scans with `lads build --source radiate`."
+        )
     ((name, strength),) = chosen.items()
     stage = _stage(name, strength, mode, weather_settings, detection)
     profile = load_profile(sensor)
@@ -212,5 +223,15 @@ def _summary(output: Path, n_out: int, result: WeatherResult, stage: WeatherStag
     return (
         f"{output}: {n_out} points (attenuated {c['attenuated']}, particle {c['particle']}, "
         f"lost {c['lost']}); {stage.name} {strength}{preset}, {stage.mode} return, "
-        f"{stage.settings} settings; alpha = {result.extinction_per_m:.3e} 1/m"
+        f"{stage.settings} settings, detection {_detection_words(stage)}; "
+        f"alpha = {result.extinction_per_m:.3e} 1/m"
     )
+
+
+def _detection_words(stage: WeatherStage) -> str:
+    """The detection rule the stage ran with, as `--detection` names it."""
+    if stage.detection is not None:
+        return str(stage.detection)
+    if stage.settings == "lisa":
+        return "LISA's fixed threshold"
+    return "sensor (its detection limit)"

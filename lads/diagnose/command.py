@@ -90,5 +90,7 @@ def diagnose_command(
         settings=settings,
         progress=True,
     )
+    for warning in doc.get("warnings") or []:
+        click.echo(f"warning: {warning}", err=True)
     names = ", ".join(f"{e['id']} {e['key']}" for e in doc["effects"]) or "none"
     click.echo(f"verdict: {doc['verdict']}; effects: {names}; report: {out / 'report.md'}")

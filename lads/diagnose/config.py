@@ -233,6 +233,8 @@ class VerdictConfig:
         z_test: test-group gain (cluster SEs) that makes unstable effects "ambiguous".
         min_rows: fewest comparable beams to fit.
         min_groups: fewest spatial groups to fit.
+        paired_share_warn: share of beams returning in both paired trees below which the
+            report warns that the trees may not be the same scenes.
     """
 
     long_range_band_m: tuple[float, float] = (30.0, 120.0)
@@ -243,6 +245,7 @@ class VerdictConfig:
     z_test: float = 3.0
     min_rows: int = 2000
     min_groups: int = 10
+    paired_share_warn: float = 0.5
 
 
 @dataclass(frozen=True, slots=True)

@@ -33,6 +33,7 @@ from lads.errors import DiagnoseError
 MIN_ROWS = CONFIG.verdict.min_rows
 MIN_GROUPS = CONFIG.verdict.min_groups
 LOCALIZE_BOOT = CONFIG.localize.bootstrap
+PAIRED_SHARE_WARN = CONFIG.verdict.paired_share_warn
 
 
 def _rng(seed: int, what: str) -> np.random.Generator:
@@ -58,6 +59,9 @@ def diagnose(
         DiagnoseError: trees that do not correspond or hold another sensor (see
             `trees.open_trees`), too few beams or groups to fit, or constant intensities.
     """
+    _check_outside(out, "--out", sim_root, real_root)
+    if write_corrected_to is not None:
+        _check_outside(Path(write_corrected_to), "--write-corrected", sim_root, real_root)
     # Every array here is small: a second BLAS thread only spins (it doubled the CPU time of
     # a run and gained no wall time), and it starves the fit workers of `settings.jobs`.
     with threadpool_limits(limits=1):
@@ -186,10 +190,47 @@ def _write(
         "config": CONFIG.to_dict(),
         "config_sha256": CONFIG.sha256(),
         "localization_after": to_json(loc_after).get("statements", []),
+        **_pairing(table, paired),
     }
     doc = build_report(dg, context, to_json(loc_before), figs)
     write_report(doc, out)
     return doc
+
+
+def _pairing(table: BeamTable, paired: bool) -> dict[str, Any]:
+    """How many beams returned in both trees, in one, or in the other (paired runs), and a
+    warning when few returned in both: paired trees are the same scenes from the same
+    poses, so most beams should."""
+    if not paired:
+        return {"warnings": []}
+    both = int((table.ret_sim & table.ret_real).sum())
+    counts = {
+        "both": both,
+        "real_only": int((table.ret_real & ~table.ret_sim).sum()),
+        "sim_only": int((table.ret_sim & ~table.ret_real).sum()),
+    }
+    share = both / max(1, both + counts["real_only"] + counts["sim_only"])
+    warnings = []
+    if share < PAIRED_SHARE_WARN:
+        warnings.append(
+            f"only {share:.0%} of the beams returned in both trees: paired trees should be the "
+            "same scenes rendered from the real scans' poses; if they are not, compare them "
+            "unpaired (--unpaired)"
+        )
+    return {"pairing": {**counts, "share_both": round(share, 4)}, "warnings": warnings}
+
+
+def _check_outside(folder: Path, option: str, *roots: Path) -> None:
+    """DiagnoseError when `folder` is one of the compared trees or inside one: lads never
+    writes into a dataset it reads."""
+    where = Path(folder).resolve()
+    for root in roots:
+        tree = Path(root).resolve()
+        if where == tree or tree in where.parents:
+            raise DiagnoseError(
+                f"{folder}: {option} is inside the compared tree {root}; lads never writes into "
+                f"a dataset it reads. Choose a {option} folder outside both trees."
+            )
 
 
 def _check_fit_data(d: Design, sim_root: Path, real_root: Path) -> None:

@@ -103,9 +103,10 @@ def resolve_roots(cfg: TrainConfig, data_root: Path | None, where: str) -> Train
         if all(Path(r).expanduser().is_absolute() for r in roots):
             return domain
         if data_root is None:
+            folders = ", ".join(f"{r}/" for r in roots)
             raise ConfigError(
                 f"{where}: {ctx}.root is {domain.root!r}, relative to a data root: pass "
-                f"--data-root DIR (the folder that holds {domain.root}/) or set {DATA_ROOT_ENV}."
+                f"--data-root DIR (the folder that holds {folders}) or set {DATA_ROOT_ENV}."
             )
         return replace(domain, data_root=str(data_root.expanduser().resolve()))
 

@@ -487,3 +487,48 @@ def test_five_column_scans_in_a_kitti_tree_are_another_sensor(sim_tree, tmp_path
     real = write_kitti(tmp_path / "real", {SCAN0: (five, None), SCAN1: two_scans()[SCAN1]})
     with pytest.raises(DiagnoseError, match=r"000000\.bin: .* 4-column .* fit \[5\] columns"):
         open_trees(sim_tree, real, "semantickitti", paired=True)
+
+
+def test_a_unit_encoded_tree_beside_a_byte_encoded_one_is_refused(sim_tree, tmp_path):
+    """WADS (0-255) against a tree written for SemanticKITTI's 0-1 remission: each tree fits
+    the byte range on its own, together they cannot be compared."""
+    scans = {k: (p.copy(), lab) for k, (p, lab) in two_scans().items()}
+    for points, _ in scans.values():
+        points[:, 3] = np.round(points[:, 3] * 255.0)
+    real = write_kitti(tmp_path / "real", scans)
+    with pytest.raises(DiagnoseError, match="sim tree looks written in a unit encoding"):
+        open_trees(sim_tree, real, "wads", paired=True)
+    open_trees(real, real, "wads", paired=True)  # the same encoding on both sides is fine
+
+
+def test_unpaired_trees_with_labels_on_one_side_only_are_refused(sim_tree, tmp_path):
+    bare = write_kitti(tmp_path / "bare", two_scans(labelled=False))
+    with pytest.raises(DiagnoseError, match="sim tree has no label file"):
+        open_trees(bare, sim_tree, "semantickitti", paired=False)
+    open_trees(bare, sim_tree, "semantickitti", paired=True)  # paired beams need no classes
+
+
+def test_a_report_folder_inside_a_compared_tree_is_refused(sim_tree, tmp_path):
+    from lads.diagnose.run import diagnose
+
+    real = write_kitti(tmp_path / "real", two_scans())
+    for out, corrected in ((real / "diag", None), (tmp_path / "ok", sim_tree / "fixed")):
+        with pytest.raises(DiagnoseError, match="lads never writes into a dataset it reads"):
+            diagnose(sim_tree, real, "semantickitti", out, write_corrected_to=corrected)
+        assert not out.exists() and (corrected is None or not corrected.exists())
+
+
+def test_a_paired_run_where_few_beams_return_in_both_trees_warns(sim_tree):
+    import dataclasses
+
+    from lads.diagnose.run import _pairing
+
+    table = paired_table(open_trees(sim_tree, sim_tree, "semantickitti", paired=True))
+    same = _pairing(table, paired=True)
+    assert same["warnings"] == [] and same["pairing"]["share_both"] == 1.0
+    gone = table.ret_real.copy()
+    gone[: int(0.7 * gone.size)] = False
+    few = _pairing(dataclasses.replace(table, ret_real=gone), paired=True)
+    assert few["pairing"]["real_only"] == 0 and few["pairing"]["sim_only"] > 0
+    assert len(few["warnings"]) == 1 and "--unpaired" in few["warnings"][0]
+    assert _pairing(table, paired=False) == {"warnings": []}

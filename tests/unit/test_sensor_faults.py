@@ -22,10 +22,14 @@ def test_dead_channels_are_distinct_and_their_returns_all_lost():
     dead = faults.dead_channels(64, 0.25, rng)
     assert dead.size == 16 and np.unique(dead).size == 16
     channel = np.repeat(np.arange(64), 10)
-    xyz = np.zeros((channel.size, 3), np.float32)
+    xyz = np.ones((channel.size, 3), np.float32)
+    xyz[::10] = 0.0  # one row per channel at zero range: no return of any laser, kept
     res = faults.beam_missing(xyz, np.zeros(channel.size, np.float32), channel, dead)
     assert set(channel[res.lost_index]) == set(dead.tolist())
-    assert not np.isin(channel[res.source_index], dead).any()
+    assert res.lost_index.size == 9 * dead.size
+    kept = channel[res.source_index]
+    assert not np.isin(kept[xyz[res.source_index].any(axis=1)], dead).any()
+    assert np.isin(np.arange(0, channel.size, 10), res.source_index).all()
     assert (res.outcome == Outcome.KEPT).all()
 
 

@@ -129,3 +129,29 @@ def test_settings_and_detection_reach_the_stage_and_are_checked_as_in_a_build(sc
     ):
         refused, _ = weather(folder, *bad)
         assert refused.exit_code == 2 and "Error" in refused.output, bad
+
+
+def test_mistaken_arguments_are_refused_with_what_to_pass(scan):
+    folder, _, _ = scan
+    for columns in ("0", "3", "-1"):
+        refused, _ = weather(folder, "--rain", "1", "--columns", columns)
+        assert refused.exit_code == 2 and "--columns" in refused.output, columns
+    for alone in (["--particle-label", "1"], ["--labels-out", str(folder / "x.label")]):
+        refused, _ = weather(folder, "--rain", "1", *alone)
+        assert refused.exit_code == 2 and "apply to --labels" in refused.output
+    (folder / "scan.csv").write_text("1,2,3,4\n")
+    text = CliRunner().invoke(main, ["weather", str(folder / "scan.csv"), str(folder / "o.csv"),
+                                     "--sensor", "hdl32e", "--fog", "50"])  # fmt: skip
+    assert text.exit_code == 2 and "--source radiate" in text.output
+
+
+def test_severity_names_in_any_case_and_the_rule_used_is_reported(scan):
+    folder, _, _ = scan
+    upper, out = weather(folder, "--snow", "Heavy")
+    assert upper.exit_code == 0, upper.output
+    named = out.read_bytes()
+    lower, out = weather(folder, "--snow", "heavy")
+    assert out.read_bytes() == named
+    assert "detection sensor (its detection limit)" in lower.output
+    lisa, _ = weather(folder, "--rain", "1", "--weather-settings", "lisa")
+    assert "detection LISA's fixed threshold" in lisa.output

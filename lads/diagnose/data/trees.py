@@ -176,6 +176,13 @@ def open_trees(
     sim_scans, real_scans = tuple(sorted(sim.items)), tuple(sorted(real.items))
     if paired and sim_scans != real_scans:
         raise DiagnoseError(_relpath_mismatch(sim, real, sim_scans, real_scans))
+    if not paired and sim.labelled != real.labelled:
+        bare = sim if not sim.labelled else real
+        raise DiagnoseError(
+            f"{bare.root}: the {'sim' if bare is sim else 'real'} tree has no label file for "
+            "every scan, the other has: an unpaired comparison matches beams of the same class "
+            "(and range and incidence), so give both trees labels (or neither)."
+        )
     profile = load_profile(_profile_name(sim))
     labelled = sim.labelled or real.labelled
     enc = profile.intensity
@@ -201,9 +208,33 @@ def open_trees(
         paired,
         {"sim": sim, "real": real},
     )
-    pair.read_scan("sim", sim_scans[0])
-    pair.read_scan("real", real_scans[0])
+    _check_same_encoding(
+        pair.read_scan("sim", sim_scans[0]), pair.read_scan("real", real_scans[0]), pair
+    )
     return pair
+
+
+def _check_same_encoding(sim: Scan, real: Scan, pair: TreePair) -> None:
+    """DiagnoseError when one tree's intensities all lie in [0, 1] and the other's reach
+    well past it: a unit-encoded tree (0-0.99) beside a byte-encoded one (0-255) passes
+    each tree's own range check but cannot be compared."""
+    top = {name: float(s.intensity.max(initial=0.0)) for name, s in (("sim", sim), ("real", real))}
+    unit = [name for name, v in top.items() if v <= 1.0]
+    if len(unit) != 1 or max(top.values()) <= UNIT_MISMATCH_FACTOR:
+        return
+    other = "real" if unit[0] == "sim" else "sim"
+    raise DiagnoseError(
+        f"the {unit[0]} tree's first scan has intensities up to {top[unit[0]]:g}, the "
+        f"{other} tree's up to {top[other]:g}: the {unit[0]} tree looks written in a unit "
+        f"encoding (0-1) and the {other} in the '{pair.profile.name}' sensor's "
+        f"{pair.profile.intensity.kind} encoding (0-{pair.profile.intensity.max_value:g}). "
+        "Write both trees for the same sensor and encoding."
+    )
+
+
+# A tree whose intensities stay within [0, 1] beside one reaching past this is in another
+# encoding (a byte-encoded scan always holds returns far brighter than 1 of 255).
+UNIT_MISMATCH_FACTOR = 4.0
 
 
 def _open_tree(root: Path, source: str, tree: str) -> _TreeSource:

@@ -131,6 +131,7 @@ def _md_header(doc: dict[str, Any]) -> list[str]:
         f"- **verdict: {doc['verdict']}**"
         + (f" ({'; '.join(doc['verdict_reasons'])})" if doc["verdict_reasons"] else "")
     )
+    lines += [f"- **warning:** {w}" for w in doc.get("warnings") or []]
     return lines
 
 

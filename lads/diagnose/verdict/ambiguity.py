@@ -152,7 +152,7 @@ def resample_swaps(
                     "ids": ids,
                     "keys": [CATALOGUE[i].key for i in ids],
                     "reason": f"the resamples chose {u} instead of {s} in {instead:.0%} of "
-                    f"them and one of the two in {either:.0%}",
+                    f"them and one of these two forms in {either:.0%}",
                 }
             )
     return out
