@@ -175,7 +175,7 @@ def variants() -> None:
 @click.option("--water-film-mm", type=float, help="Override the wet-ground water film, mm.")
 @click.option(
     "--severity",
-    type=click.Choice(SEVERITIES),
+    type=click.Choice(SEVERITIES, case_sensitive=False),
     help="Weather severity preset: sets the rain/snow rate or fog visibility to the preset's "
     "(docs/physics.md, 'Severity presets'); both are recorded.",
 )
