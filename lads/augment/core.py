@@ -351,6 +351,14 @@ def _particle_label(dataset: str | None, particle_label: int | None) -> int | No
     return int(reader_class(dataset).particle_label) if particle_label is None else particle_label
 
 
+def checked_probability(value: Any, where: str) -> float:
+    """`value` as the share of samples an adapter corrupts; AugmentInputError unless in
+    [0, 1]."""
+    if isinstance(value, bool) or not isinstance(value, int | float) or not 0.0 <= value <= 1.0:
+        raise AugmentInputError(f"{where}: probability {value!r}; expected a number in [0, 1].")
+    return float(value)
+
+
 def _check_label_fits(label: Any, labels: npt.NDArray[np.generic], sample_id: str | int) -> None:
     """AugmentInputError unless the particle class `label` is a value of the labels' dtype
     (a cast would wrap -1 to 4294967295 in uint32, or 300 to a real class in uint8)."""
@@ -409,3 +417,12 @@ def _check_arrays(
             "build reports a scan file holding them as corrupt)."
         )
     profile.intensity.validate(points[:, 3], f"{where}: points[:, 3] (intensity)")
+    if ring_column is not None:
+        ring = points[:, ring_column]
+        bad = (ring != np.rint(ring)) | (ring < 0) | (ring >= profile.channels)
+        if bad.any():
+            raise AugmentInputError(
+                f"{where}: {int(bad.sum())} ring values (column {ring_column}) are not lasers "
+                f"0..{profile.channels - 1} of {profile.name} (e.g. {ring[bad][:3].tolist()}); "
+                "pass the ring_column of the laser index, or the sensor the cloud is from."
+            )

@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from lads.augment.core import Corruption
+from lads.augment.core import Corruption, checked_probability
 from lads.augment.pseudo_labels import PSEUDO_LABEL_SET, vehicle_labels
 from lads.augment.shared_epoch import SharedEpoch
 from lads.errors import AugmentInputError
@@ -75,17 +75,16 @@ class LadsCorruption(_Base):  # type: ignore[misc]
     def __init__(
         self,
         corruption: str,
+        severity: str | None = None,
         probability: float = 1.0,
         vehicle_classes: list[int] | None = None,
         **options: Any,
     ) -> None:
-        if not 0.0 <= probability <= 1.0:
-            raise AugmentInputError(f"LadsCorruption: probability {probability}; expected [0, 1].")
+        self.probability = checked_probability(probability, "LadsCorruption")
         self.vehicle_classes = None if vehicle_classes is None else frozenset(vehicle_classes)
         if self.vehicle_classes is not None:
             options.setdefault("dataset", PSEUDO_LABEL_SET)
-        self.corruption = Corruption(corruption, **options)
-        self.probability = float(probability)
+        self.corruption = Corruption(corruption, severity, **options)
         self._epoch = SharedEpoch()  # persistent workers read what set_epoch sets
 
     @property

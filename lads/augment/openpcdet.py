@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from lads.augment.core import Corruption
+from lads.augment.core import Corruption, checked_probability
 from lads.augment.pseudo_labels import PSEUDO_LABEL_SET, VEHICLE_NAMES, vehicle_labels
 from lads.augment.shared_epoch import SharedEpoch
 from lads.corruptions import corruption_spec
@@ -59,11 +59,17 @@ class OpenPCDetCorruption:
                 f"{sorted(set(_KEYS) | _OWN_KEYS)}."
             )
         options = {_KEYS[k]: v for k, v in given.items() if k in _KEYS}
+        for key in ("CORRUPTION", "SENSOR"):
+            if key not in given:
+                raise AugmentInputError(
+                    f"lads_corruption: no {key} key; the entry needs CORRUPTION and SENSOR "
+                    "(a profile of `lads profiles`, e.g. hdl64e)."
+                )
         self.from_boxes = corruption_spec(str(options.get("corruption"))).name == BOXED
         if self.from_boxes:
             options.setdefault("dataset", PSEUDO_LABEL_SET)
         self.corruption = Corruption(**options, **dict(given.get("PARAMS") or {}))
-        self.probability = float(given.get("PROBABILITY", 1.0))
+        self.probability = checked_probability(given.get("PROBABILITY", 1.0), "lads_corruption")
         self.epoch_key = given.get("EPOCH_KEY", "epoch")
         self._epoch = _shared_epoch()  # `set_epoch` reaches it, in running workers too
 
@@ -81,12 +87,25 @@ class OpenPCDetCorruption:
         points = data_dict["points"]
         labels = None
         if self.from_boxes:
-            boxes = data_dict.get("gt_boxes", np.zeros((0, 7)))
-            names = data_dict.get("gt_names", [])
-            labels = vehicle_labels(points[:, :3], boxes, [n in VEHICLE_NAMES for n in names])
+            labels = _box_labels(data_dict, points)
         out = self.corruption.apply(points, labels, None, rng, sample_id)
         data_dict["points"] = out.points
         return data_dict
+
+
+def _box_labels(data_dict: dict[str, Any], points: np.ndarray) -> np.ndarray:
+    """SemanticKITTI ids from the boxes: car inside the boxes whose `gt_names` are vehicles.
+
+    Raises:
+        AugmentInputError: boxes without one name each (their classes are unknown)."""
+    boxes = np.asarray(data_dict.get("gt_boxes", np.zeros((0, 7))))
+    names = list(data_dict.get("gt_names", []))
+    if len(names) != len(boxes):
+        raise AugmentInputError(
+            f"lads_corruption: {len(boxes)} gt_boxes but {len(names)} gt_names; incomplete "
+            "echo finds vehicles by the names of their boxes, so each box needs one."
+        )
+    return vehicle_labels(points[:, :3], boxes, [n in VEHICLE_NAMES for n in names])
 
 
 @cache

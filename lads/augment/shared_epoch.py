@@ -13,6 +13,8 @@ from __future__ import annotations
 
 from typing import Any
 
+from lads.errors import AugmentInputError
+
 
 class SharedEpoch:
     """The current epoch (an int >= 0), in shared memory; torch is imported when one is made."""
@@ -32,4 +34,7 @@ class SharedEpoch:
         return self
 
     def set(self, epoch: int) -> None:
+        """Raises AugmentInputError unless `epoch` is a whole number >= 0."""
+        if isinstance(epoch, bool) or int(epoch) != epoch or epoch < 0:
+            raise AugmentInputError(f"set_epoch({epoch!r}): expected a whole number >= 0.")
         self._value.fill_(int(epoch))

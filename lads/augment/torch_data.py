@@ -16,7 +16,7 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset
 
-from lads.augment.core import AugmentInfo, Corruption
+from lads.augment.core import AugmentInfo, Corruption, checked_probability
 from lads.augment.shared_epoch import SharedEpoch
 from lads.errors import AugmentInputError
 
@@ -64,16 +64,12 @@ class CorruptedDataset(Dataset):  # type: ignore[type-arg]
         info_key: str | None = None,
         probability: float = 1.0,
     ) -> None:
-        if not 0.0 <= probability <= 1.0:
-            raise AugmentInputError(
-                f"CorruptedDataset: probability {probability}; expected [0, 1]."
-            )
         self.dataset = dataset
         self.corruption = corruption
         self.keys = (points_key, labels_key, instance_key)
         self.id_key = id_key
         self.info_key = info_key
-        self.probability = float(probability)
+        self.probability = checked_probability(probability, "CorruptedDataset")
         self._epoch = SharedEpoch()  # persistent workers read what set_epoch sets
 
     @property
@@ -91,11 +87,15 @@ class CorruptedDataset(Dataset):  # type: ignore[type-arg]
 
     def __getitem__(self, index: int) -> Any:
         sample = self.dataset[index]
-        sample_id = index if self.id_key is None else sample[self.id_key]
+        sample_id = index if self.id_key is None else _field(sample, self.id_key, "id_key")
         rng = self.corruption.rng(str(sample_id), self.epoch)
         if self.probability < 1.0 and rng.random() >= self.probability:
             return sample
-        arrays = [None if k is None else _as_numpy(sample[k]) for k in self.keys]
+        names = ("points_key", "labels_key", "instance_key")
+        arrays = [
+            None if k is None else _as_numpy(_field(sample, k, name))
+            for k, name in zip(self.keys, names, strict=True)
+        ]
         points, labels, instance = (None if a is None else a[0] for a in arrays)
         result = self.corruption.apply(points, labels, instance, rng, str(sample_id))  # type: ignore[arg-type]
         new = (result.points, result.labels, result.instance)
@@ -119,6 +119,18 @@ class CorruptedDataset(Dataset):  # type: ignore[type-arg]
             return out
         # A named tuple takes its fields as arguments; a tuple or list takes one iterable.
         return type(sample)(*out) if hasattr(sample, "_fields") else type(sample)(out)
+
+
+def _field(sample: Any, key: str | int, option: str) -> Any:
+    """sample[key]; AugmentInputError naming the CorruptedDataset option when it is absent."""
+    try:
+        return sample[key]
+    except (KeyError, IndexError, TypeError) as exc:
+        kind = type(sample).__name__
+        raise AugmentInputError(
+            f"CorruptedDataset: the wrapped dataset's sample ({kind}) has no {key!r}, the "
+            f"{option}; pass the key or index under which the sample holds it."
+        ) from exc
 
 
 def worker_init_fn(worker_id: int) -> None:

@@ -84,7 +84,9 @@ class IntensityEncoding:
         return 0.5 * self.step / self.reflectivity_full_scale
 
     def validate(self, intensity: npt.NDArray[Any], what: str) -> None:
-        """Raise IntensityEncodingError if any value lies outside [0, max_value]."""
+        """Raise IntensityEncodingError if any value lies outside [0, max_value], or if a
+        byte encoding is given values that are all in [0, 1] and not all whole numbers (a
+        unit-encoded scan fits the byte range but holds no byte code)."""
         if intensity.size == 0:
             return
         all_finite = bool(np.isfinite(intensity).all())
@@ -97,6 +99,13 @@ class IntensityEncoding:
                 f"encoding holds values in [0, {self.max_value:g}]. Pass the sensor profile "
                 "that matches the data (e.g. 'hdl64e' for SemanticKITTI remission in [0, 1), "
                 "'hdl32e' for nuScenes 0-255) or rescale the intensities first."
+            )
+        if self.kind == "byte" and high <= 1.0 and not np.array_equal(finite, np.rint(finite)):
+            raise IntensityEncodingError(
+                f"{what}: every intensity lies in [0, 1] and some are fractions, but the "
+                f"'byte' encoding stores whole numbers 0-{self.max_value:g}: the values look "
+                "unit-encoded (e.g. SemanticKITTI remission). Pass the sensor profile that "
+                "matches the data (e.g. 'hdl64e'), or its 0-255 codes."
             )
 
 

@@ -335,3 +335,57 @@ def test_openpcdet_set_epoch_reaches_persistent_workers():
         for a, b in zip(second, fresh, strict=True)
     )
     assert not torch.equal(torch.as_tensor(first[0]), torch.as_tensor(second[0]))
+
+
+def test_adapters_refuse_mistaken_settings_by_name():
+    from lads.augment.mmdet3d import LadsCorruption
+    from lads.augment.openpcdet import OpenPCDetCorruption
+    from lads.augment.shared_epoch import SharedEpoch
+    from lads.errors import AugmentInputError
+
+    positional = LadsCorruption("snow", "heavy", sensor="hdl64e", particle_label=0)
+    assert positional.corruption.severity == "heavy"  # as Corruption("snow", "heavy", ...)
+    entry = {"NAME": "lads_corruption", "CORRUPTION": "fog", "SENSOR": "hdl64e"}
+    for probability in (2.0, -1.0, "half"):
+        with pytest.raises(AugmentInputError, match="probability"):
+            OpenPCDetCorruption({**entry, "SEVERITY": "light", "PROBABILITY": probability})
+    with pytest.raises(AugmentInputError, match="no SENSOR key"):
+        OpenPCDetCorruption({"NAME": "lads_corruption", "CORRUPTION": "fog", "SEVERITY": "light"})
+    for epoch in (-1, 1.5):
+        with pytest.raises(AugmentInputError, match="whole number"):
+            SharedEpoch().set(epoch)
+    with pytest.raises(AugmentInputError, match="no 'mask', the labels_key"):
+        CorruptedDataset(Clouds(), Corruption("fog", "light", sensor="hdl64e"), labels_key="mask")[
+            0
+        ]
+
+
+def test_boxes_without_a_name_each_are_refused_for_incomplete_echo():
+    from lads.augment.openpcdet import OpenPCDetCorruption
+    from lads.errors import AugmentInputError
+
+    xyz, intensity = street_frame(load_profile("hdl64e"), azimuths=240)
+    points = np.column_stack([xyz, intensity]).astype(np.float32)
+    entry = OpenPCDetCorruption({"NAME": "lads_corruption", "CORRUPTION": "incomplete_echo",
+                                 "SEVERITY": "heavy", "SENSOR": "hdl64e"})  # fmt: skip
+    sample = {"points": points, "gt_boxes": np.ones((2, 7), np.float32), "frame_id": "1"}
+    for names in ([], ["Car"]):  # none, or fewer than the boxes: their classes are unknown
+        with pytest.raises(AugmentInputError, match="2 gt_boxes but"):
+            entry({**sample, "gt_names": names} if names else sample)
+    entry({**sample, "gt_names": ["Car", "Pedestrian"]})
+
+
+def test_ring_values_and_encodings_that_do_not_fit_the_sensor_are_refused():
+    from lads.errors import AugmentInputError, IntensityEncodingError
+
+    xyz, intensity = street_frame(load_profile("hdl32e"), azimuths=240)
+    ring = np.zeros(len(xyz), np.float32)
+    points = np.column_stack([xyz, intensity, ring]).astype(np.float32)
+    points[3, 4] = 40.0  # an HDL-32E has lasers 0..31
+    for name in ("fog", "beam_missing"):
+        with pytest.raises(AugmentInputError, match="ring values"):
+            Corruption(name, "light", sensor="hdl32e", ring_column=4)(points, sample_id="x")
+    unit = points[:, :4].copy()
+    unit[:, 3] = np.linspace(0.0, 0.99, len(unit))  # SemanticKITTI remission
+    with pytest.raises(IntensityEncodingError, match="look unit-encoded"):
+        Corruption("fog", "light", sensor="hdl32e")(unit, sample_id="x")
