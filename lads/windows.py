@@ -117,8 +117,7 @@ def run_window_stage(
         poses = _sequence_poses(keyed, keyed.scan_position(item)[0], stamp)
     except CorruptItemError as exc:
         raise CorruptItemError(
-            f"{exc} (Without poses, neighbours 0, `--neighbours 0`, transfers each frame "
-            "from its own scan.)"
+            f"{exc} (Without poses, `--neighbours 0` transfers each frame from its own scan.)"
         ) from exc
     # One window and a few more: a worker handed every k-th frame (k jobs) needs k new scans
     # per frame, and the window holds most of the next frame's.
