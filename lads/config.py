@@ -208,8 +208,9 @@ class PipelineConfig:
                     "pipeline file, or pass --intensity physics."
                 )
             else:
+                model = absolute_model(intensity, Path.cwd())
                 stages = [
-                    StageConfig(s.stage, {**s.params, "model": intensity})
+                    StageConfig(s.stage, {**s.params, "model": model})
                     if s.stage == "intensity"
                     else s
                     for s in stages
@@ -315,7 +316,26 @@ def load_pipeline(path: Path) -> PipelineConfig:
         raise ConfigError(f"{path}: cannot read the pipeline file ({exc}).") from exc
     except yaml.YAMLError as exc:
         raise ConfigError(f"{path}: not valid YAML ({exc}).") from exc
-    return parse_pipeline(data, str(path))
+    pipeline = parse_pipeline(data, str(path))
+    base = Path(path).resolve().parent
+    stages = tuple(
+        StageConfig(s.stage, {**s.params, "model": absolute_model(s.params["model"], base)})
+        if s.stage == "intensity" and isinstance(s.params.get("model"), str)
+        else s
+        for s in pipeline.stages
+    )
+    return replace(pipeline, stages=stages)
+
+
+def absolute_model(model: str, base: Path) -> str:
+    """An intensity model as the pipeline records it: a shipped name as it is, a weight file
+    (a `.pt` name or a path) absolute, taken from `base` when relative (the working folder
+    for --intensity, a pipeline file's folder for its `model`), so the recorded pipeline
+    means the same file from any folder."""
+    if not (model.endswith(".pt") or "/" in model or "\\" in model):
+        return model
+    path = Path(model).expanduser()
+    return str(path if path.is_absolute() else (base / path).resolve())
 
 
 def _pipeline_files(directory: Path) -> dict[str, Path]:

@@ -60,9 +60,18 @@ def build_stages(pipeline: PipelineConfig) -> tuple[Stage, ...]:
     the frame's own columns).
 
     Raises:
-        ConfigError: an unknown stage, or a record the sensor stage cannot fill.
+        ConfigError: an unknown stage, a record the sensor stage cannot fill, or a weather
+            intensity model with no weather stage before it (to read its style from).
     """
     stages = [build_stage(s) for s in pipeline.stages]
+    for k, stage in enumerate(stages):
+        before = any(isinstance(s, WeatherStage) for s in stages[:k])
+        if isinstance(stage, IntensityStage) and stage.reads_style() and not before:
+            raise ConfigError(
+                f"pipeline '{pipeline.variant}': the weather intensity model "
+                f"'{stage.model}' takes its style from a rain, snow or fog stage before it; "
+                "put the intensity stage after one, or give it a target."
+            )
     record = pipeline.point_record()
     if record is None:
         return tuple(stages)

@@ -119,6 +119,11 @@ class IntensityStage:
             out.append(replace(frame, points=points))
         return out
 
+    def reads_style(self) -> bool:
+        """Whether the stage takes its output style from the frame's weather (a weather
+        model with no `target`): a rain, snow or fog stage must run before it."""
+        return self.target is None and _model(self.model, self.device).meta.kind == "weather"
+
     def _request(self, frame: Frame) -> tuple[PointRequest, np.ndarray]:
         """The generator's inputs for one frame, and the (N,) mask of points it predicts
         (every point not at zero range)."""

@@ -199,3 +199,35 @@ def test_weather_settings_are_a_checked_stage_parameter():
     bad = {**SNOW, "stages": [{"stage": "snow", "rate_mm_h": 1.0, "settings": "carla"}]}
     with pytest.raises(ConfigError, match="t.yaml: stages\\[0\\]"):
         parse_pipeline(bad, "t.yaml")
+
+
+def test_a_weight_file_is_recorded_by_its_absolute_path(tmp_path, monkeypatch):
+    """A relative .pt path would make the tree mean another file from another folder."""
+    from lads.config import load_pipeline, pipeline_for
+
+    monkeypatch.chdir(tmp_path)
+    snow = pipeline_for("semantickitti", "snow")
+    given = snow.with_overrides(intensity="runs/mine.pt")
+    model = next(s.params["model"] for s in given.stages if s.stage == "intensity")
+    assert model == str(tmp_path / "runs" / "mine.pt")
+    named = snow.with_overrides(intensity="weather")
+    assert next(s.params["model"] for s in named.stages if s.stage == "intensity") == "weather"
+    folder = tmp_path / "pipelines"
+    folder.mkdir()
+    (folder / "mine.yaml").write_text(
+        "schema_version: 1\nvariant: mine\nstages:\n"
+        "- {stage: snow, rate_mm_h: 2.0}\n- {stage: intensity, model: weights/w.pt}\n"
+    )
+    loaded = load_pipeline(folder / "mine.yaml")
+    assert loaded.stages[1].params["model"] == str(folder / "weights" / "w.pt")
+
+
+def test_a_weather_intensity_model_before_any_weather_is_refused_when_stages_are_built():
+    from lads.stages import build_stages
+
+    data = {"schema_version": 1, "variant": "first", "stages": [
+        {"stage": "intensity", "model": "weather"}, {"stage": "snow", "rate_mm_h": 2.0}]}  # fmt: skip
+    with pytest.raises(ConfigError, match="takes its style from a rain, snow or fog stage"):
+        build_stages(parse_pipeline(data, "first.yaml"))
+    data["stages"] = data["stages"][::-1]
+    assert len(build_stages(parse_pipeline(data, "first.yaml"))) == 2
