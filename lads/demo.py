@@ -20,6 +20,7 @@ from typing import Any
 
 from lads.config import pipeline_for
 from lads.figures import correspondence_figure, variant_figure
+from lads.files import make_folder
 from lads.runner import run_build
 from lads.synth import write_synthetic_dataset
 from lads.verify import verify_tree
@@ -30,6 +31,10 @@ MARKER = "lads_demo.json"
 
 def _fresh(out_dir: Path) -> None:
     """Start from an empty demo folder; only ever delete a folder the demo made."""
+    if out_dir.exists() and not out_dir.is_dir():
+        from lads.errors import BuildError
+
+        raise BuildError(f"{out_dir}: is a file, not a folder; pass another --out.")
     if out_dir.exists() and any(out_dir.iterdir()):
         if not (out_dir / MARKER).is_file():
             from lads.errors import BuildError
@@ -38,7 +43,7 @@ def _fresh(out_dir: Path) -> None:
                 f"{out_dir}: not empty and not a lads demo folder; pass another --out."
             )
         shutil.rmtree(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    make_folder(out_dir)
     (out_dir / MARKER).write_text('{"made_by": "lads demo"}\n')
 
 

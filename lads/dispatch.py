@@ -27,13 +27,15 @@ def dispatch(  # type: ignore[no-untyped-def]
             yield from process_items(task, plan)
         return
     if backend == "dask":
+        from distributed import Client, as_completed
+
         try:
-            from distributed import Client, as_completed
-        except ImportError as exc:
+            client = Client(scheduler) if scheduler else Client(processes=False)
+        except (OSError, TimeoutError) as exc:
             raise BuildError(
-                "--backend dask needs dask.distributed: pip install 'lads[dask]'."
-            ) from exc
-        client = Client(scheduler) if scheduler else Client(processes=False)
+                f"--scheduler {scheduler}: cannot reach the Dask scheduler ({exc}); start it "
+                "(`dask scheduler`) or pass the address it prints."
+            ) from None
         try:
             # Plain futures: joblib's dask backend kept the client process busy, which on a
             # small machine took a core from the workers (2 workers ran slower than 1).
@@ -53,6 +55,20 @@ def dispatch(  # type: ignore[no-untyped-def]
             delayed(process_items)(task, plan) for task in tasks
         ):
             yield from rows
+
+
+def check_backend(backend: str, scheduler: str | None) -> None:
+    """BuildError, before anything is written, for a backend that cannot run here: dask
+    without dask.distributed installed, or a scheduler address without the dask backend."""
+    if scheduler is not None and backend != "dask":
+        raise BuildError(f"--scheduler {scheduler} is an address for --backend dask; pass both.")
+    if backend == "dask":
+        try:
+            import distributed  # noqa: F401
+        except ImportError as exc:
+            raise BuildError(
+                "--backend dask needs dask.distributed: pip install 'lads[dask]'."
+            ) from exc
 
 
 def default_batch(pipeline: PipelineConfig) -> int:

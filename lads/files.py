@@ -40,6 +40,21 @@ def write_error(path: Path, exc: OSError) -> OutputWriteError:
     return OutputWriteError(f"{path}: cannot write: {what}; {todo}.")
 
 
+def make_folder(path: Path) -> None:
+    """Create the folder `path` (and its parents) or raise OutputWriteError saying in words
+    why it cannot be (a file in the way, no rights, a full or read-only disk)."""
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except FileExistsError:
+        raise OutputWriteError(f"{path}: is a file, not a folder; choose another path.") from None
+    except NotADirectoryError:
+        raise OutputWriteError(
+            f"{path}: a part of the path is a file, not a folder; choose another path."
+        ) from None
+    except OSError as exc:
+        raise write_error(path, exc) from exc
+
+
 def _atomically(path: Path, fill: Callable[[Path], object]) -> None:
     """Make `path` by filling a temp file and renaming it; a failure leaves no temp file.
     Whatever `fill` returns is ignored."""

@@ -10,7 +10,7 @@ from typing import Any
 
 from lads.built_tree import PLAN_JSON, RUN_JSON, STATE_DIR, BuildPlan, identity
 from lads.errors import BuildError
-from lads.files import atomic_copy, atomic_write, sha256_file, write_error
+from lads.files import atomic_copy, atomic_write, make_folder, sha256_file
 from lads.lock import LOCK_NAME
 from lads.readers.base import unreadable_reason
 
@@ -32,10 +32,7 @@ def check_paths(source_root: Path, out_root: Path) -> None:
 
 def make_output(out_root: Path) -> None:
     """Create OUT (and its parents) or say in words why it cannot be created."""
-    try:
-        out_root.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise write_error(out_root, exc) from exc
+    make_folder(out_root)
 
 
 def previous_identity(path: Path, ident: dict[str, Any]) -> dict[str, Any]:

@@ -25,7 +25,7 @@ from lads.built_tree import (
     freeze_options,
 )
 from lads.config import PipelineConfig
-from lads.dispatch import default_batch, dispatch
+from lads.dispatch import check_backend, default_batch, dispatch
 from lads.errors import BuildError, ConfigError, OutputWriteError
 from lads.files import atomic_write, remove_stray_temps, write_error
 from lads.finalise import finalise
@@ -180,6 +180,7 @@ class _RunSettings:
         _check_count("jobs", self.jobs, 1)
         _check_count("batch", self.batch, 1)
         _check_count("limit", self.limit, 1)
+        check_backend(self.backend, self.scheduler)
 
 
 def _plan_build(

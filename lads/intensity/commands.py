@@ -11,7 +11,7 @@ import click
 import numpy as np
 
 from lads.errors import TrainingError
-from lads.files import atomic_write
+from lads.files import atomic_write, make_folder
 from lads.intensity.eval_frames import frames_of
 from lads.intensity.train_config import (
     DATA_ROOT_ENV,
@@ -202,6 +202,7 @@ def eval_intensity_command(
     from lads.intensity.checkpoint import SHIPPED
 
     cfg = load_train_config(config, data_root=data_root)
+    make_folder(out_dir)  # a bad --out stops here, not after the scoring
     path = model_path or (cfg.name if cfg.name in SHIPPED else str(cfg.output_path()))
     from lads.intensity.cache import role_split
 

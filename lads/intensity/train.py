@@ -37,7 +37,7 @@ import torch
 from tqdm.auto import tqdm
 
 from lads.errors import TrainingError
-from lads.files import atomic_copy, atomic_write
+from lads.files import atomic_copy, atomic_write, make_folder
 from lads.intensity.cache import CacheJob, build_cache, iter_frames
 from lads.intensity.cache_statistics import Statistics
 from lads.intensity.checkpoint import (
@@ -82,7 +82,8 @@ def train(
         TrainingError: unusable data, a checkpoint of another config, or a diverged run.
     """
     run = cfg.run_path(run_dir)
-    run.mkdir(parents=True, exist_ok=True)
+    make_folder(cfg.output_path(run_dir).parent)  # before the training, not after it
+    make_folder(run)
     jobs = build_cache(run, cfg, progress=progress)
     channels = channel_names(cfg.kind == "weather")
     facts = run_statistics(run, cfg, jobs, channels)

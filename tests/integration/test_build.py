@@ -509,3 +509,23 @@ def test_a_limited_trial_is_a_named_subset_and_a_smaller_one_keeps_the_larger(
     assert {k: v for k, v in trial.items() if k != "run.json"} == {
         k: v for k, v in full.items() if k != "run.json"
     }
+
+
+def test_a_backend_that_cannot_run_is_refused_before_the_output_is_made(source, tmp_path):
+    import dask
+
+    out = tmp_path / "never"
+    with pytest.raises(BuildError, match="address for --backend dask"):
+        run_build("semantickitti", source, out, snow(), scheduler="tcp://127.0.0.1:1")
+    assert not out.exists()
+    with dask.config.set({"distributed.comm.timeouts.connect": "1s"}):
+        with pytest.raises(BuildError, match="cannot reach the Dask scheduler"):
+            run_build(
+                "semantickitti",
+                source,
+                out,
+                snow(),
+                backend="dask",
+                scheduler="tcp://127.0.0.1:1",
+                progress=False,
+            )
