@@ -128,9 +128,16 @@ def refresh_card(out_root: Path) -> Path:
         BuildError: the tree has no SHA256SUMS (not a finished build).
         ManifestError: run.json or manifest.jsonl is missing or not JSON.
     """
+    from lads import lock
     from lads.card import CARD_NAME, write_card
     from lads.errors import BuildError
 
+    owner = lock.holder(out_root)
+    if owner is not None:
+        raise BuildError(
+            f"{out_root}: {lock.describe(owner)} is writing this tree now; the build writes the "
+            "card when it finishes (run `lads card` after it to re-render one)."
+        )
     sums = out_root / SHA256SUMS
     if not sums.is_file():
         raise BuildError(

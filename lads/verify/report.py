@@ -40,6 +40,7 @@ ADVICE = {
     "incomplete_release": "",
     "inventory_extra": "",
     "card_invalid": "regenerate it with `lads card`",
+    "build_running": "verify the tree when that build has finished",
 }
 
 

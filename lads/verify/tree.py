@@ -6,8 +6,10 @@ import contextlib
 import time
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 from lads import lock
+from lads.built_tree import SHA256SUMS
 from lads.errors import BuildError
 from lads.verify import hashing, manifest_checks, provenance, source_checks
 from lads.verify.report import VerifyReport
@@ -75,7 +77,13 @@ def _run(
     if v.src is not None and not v.src.is_dir():
         v.add(".", "source_unreadable", f"source root {v.src} is not a directory")
         v.src = None
-    _note_lock(v)
+    owner = None if v.holds_lock else lock.holder(v.out)
+    if owner is not None and not (v.out / SHA256SUMS).is_file():
+        # A first build still running has no SHA256SUMS or manifest: every finding would be
+        # one, with advice for a finished tree.
+        v.add(".", "build_running", f"{lock.describe(owner)} is writing this tree now")
+        return
+    _note_lock(v, owner)
     v.walk()
     manifest_checks.load_metadata(v)
     hashing.hash_everything(v)
@@ -116,13 +124,13 @@ def _regenerate_lock(v: Verifier, regenerate: int) -> Iterator[None]:
         lock.release(held)
 
 
-def _note_lock(v: Verifier) -> None:
-    """Say so when a build is writing the tree now, or left its lock file behind."""
-    owner = None if v.holds_lock else lock.holder(v.out)
+def _note_lock(v: Verifier, owner: Any) -> None:
+    """Say so when a build is writing a finished tree again (a resume or a repair), or left
+    its lock file behind."""
     if owner is not None:
         v.notes.append(
             f"{lock.describe(owner)} is writing this tree now: what follows describes a "
-            "moment of an unfinished build"
+            "moment of that run"
         )
     elif not v.holds_lock and (v.out / lock.LOCK_NAME).exists():
         v.notes.append(

@@ -133,3 +133,22 @@ def test_verify_regenerate_takes_the_lock_and_plain_verify_notes_a_running_build
     finally:
         lock.release(held)
     assert verify_tree(bench.reference, bench.source, regenerate=1).ok
+
+
+def test_a_first_build_still_running_is_reported_as_such(tmp_path):
+    """Before its first finish a tree has no SHA256SUMS or manifest: verify and card say a
+    build is running instead of advising repairs of a finished tree."""
+    from lads.errors import BuildError
+    from lads.finalise import refresh_card
+    from lads.verify import verify_tree
+
+    tree = tmp_path / "tree"
+    tree.mkdir()
+    held = lock.acquire(tree, "build")
+    try:
+        report = verify_tree(tree, None)
+        assert [p.kind for p in report.problems] == ["build_running"]
+        with pytest.raises(BuildError, match="is writing this tree now"):
+            refresh_card(tree)
+    finally:
+        lock.release(held)
