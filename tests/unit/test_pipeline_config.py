@@ -225,8 +225,8 @@ def test_a_weight_file_is_recorded_by_its_absolute_path(tmp_path, monkeypatch):
 def test_a_weather_intensity_model_before_any_weather_is_refused_when_stages_are_built():
     from lads.stages import build_stages
 
-    data = {"schema_version": 1, "variant": "first", "stages": [
-        {"stage": "intensity", "model": "weather"}, {"stage": "snow", "rate_mm_h": 2.0}]}  # fmt: skip
+    stages = [{"stage": "intensity", "model": "weather"}, {"stage": "snow", "rate_mm_h": 2.0}]
+    data = {"schema_version": 1, "variant": "first", "stages": stages}
     with pytest.raises(ConfigError, match="takes its style from a rain, snow or fog stage"):
         build_stages(parse_pipeline(data, "first.yaml"))
     data["stages"] = data["stages"][::-1]

@@ -160,7 +160,7 @@ def test_severity_names_in_any_case_and_the_rule_used_is_reported(scan):
 def test_a_unit_encoded_scan_told_a_byte_sensor_is_refused(scan):
     folder, _, _ = scan
     out = folder / "byte.bin"
-    result = CliRunner().invoke(main, ["weather", str(folder / "scan.bin"), str(out),
-                                       "--sensor", "hdl32e", "--columns", "4", "--rain", "5"])  # fmt: skip
+    args = ["weather", str(folder / "scan.bin"), str(out), "--sensor", "hdl32e"]
+    result = CliRunner().invoke(main, [*args, "--columns", "4", "--rain", "5"])
     assert result.exit_code == EXIT_LADS_ERROR and "look unit-encoded" in result.output
     assert not out.exists()
