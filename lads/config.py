@@ -168,8 +168,8 @@ class PipelineConfig:
         PointFormatError if a `source` tree cannot hold its record (`target_record`)."""
         if self.sources and source not in self.sources:
             raise ConfigError(
-                f"{where}: pipeline '{self.variant}' applies to sources "
-                f"{', '.join(self.sources)}, not {source!r}."
+                f"{where}: applies to sources {', '.join(self.sources)}, not {source!r} (its "
+                "'sources' list)."
             )
         target = self.sensor_target()
         if self.point_format == "target" and target is not None:
@@ -297,15 +297,20 @@ def parse_pipeline(data: Any, where: str) -> PipelineConfig:
     sources = data.get("sources") or []
     if not isinstance(sources, list) or not all(isinstance(s, str) and s for s in sources):
         raise ConfigError(f"{where}: 'sources' must be a list of reader names.")
-    return PipelineConfig(
-        variant=str(data.get("variant", "")),
-        stages=tuple(stages),
-        points=str(writer.get("points", "physical")),
-        particle_label=writer.get("particle_label"),
-        description=str(data.get("description", "")),
-        sources=tuple(sources),
-        point_format=str(writer.get("point_format") or DEFAULT_POINT_FORMAT),
-    )
+    if "variant" not in data:
+        raise ConfigError(f"{where}: no 'variant' key; name the variant the pipeline builds.")
+    try:
+        return PipelineConfig(
+            variant=str(data["variant"]),
+            stages=tuple(stages),
+            points=str(writer.get("points", "physical")),
+            particle_label=writer.get("particle_label"),
+            description=str(data.get("description", "")),
+            sources=tuple(sources),
+            point_format=str(writer.get("point_format") or DEFAULT_POINT_FORMAT),
+        )
+    except ConfigError as exc:  # the checks of the whole pipeline: name the file too
+        raise ConfigError(f"{where}: {exc}") from None
 
 
 def load_pipeline(path: Path) -> PipelineConfig:

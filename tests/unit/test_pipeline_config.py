@@ -231,3 +231,12 @@ def test_a_weather_intensity_model_before_any_weather_is_refused_when_stages_are
         build_stages(parse_pipeline(data, "first.yaml"))
     data["stages"] = data["stages"][::-1]
     assert len(build_stages(parse_pipeline(data, "first.yaml"))) == 2
+
+
+def test_whole_pipeline_checks_name_the_file():
+    snow = [{"stage": "snow", "rate_mm_h": 1.0}]
+    with pytest.raises(ConfigError, match=r"^mine.yaml: writer.points is 'phys'"):
+        parse_pipeline({"schema_version": 1, "variant": "x", "stages": snow,
+                        "writer": {"points": "phys"}}, "mine.yaml")  # fmt: skip
+    with pytest.raises(ConfigError, match=r"^mine.yaml: no 'variant' key"):
+        parse_pipeline({"schema_version": 1, "stages": snow}, "mine.yaml")
