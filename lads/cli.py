@@ -5,9 +5,10 @@ Exit codes: `lads.exit_codes` (0 success, 1 a result that is not clean, 2 a Lads
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -24,7 +25,7 @@ from lads.cli_options import (
 )
 from lads.correspondence import POINT_MODES
 from lads.errors import LadsError
-from lads.exit_codes import EXIT_INCOMPLETE, EXIT_LADS_ERROR
+from lads.exit_codes import EXIT_INCOMPLETE, EXIT_INTERRUPTED, EXIT_LADS_ERROR
 from lads.physics.severity import SEVERITIES
 from lads.point_format import POINT_FORMATS
 from lads.readers import READERS
@@ -249,10 +250,34 @@ def variants() -> None:
 @_lads_errors
 def build(**options: Any) -> None:
     """Build a variant tree: one output item per source item, same format and layout."""
-    from lads.runner import run_build
 
     opts = _BuildOptions(**options)
-    report = run_build(
+    with _resumable():
+        report = _run(opts)
+    click.echo(report.summary_text())
+    if not report.complete:
+        sys.exit(EXIT_INCOMPLETE)
+
+
+@contextlib.contextmanager
+def _resumable() -> Iterator[None]:
+    """Ctrl-C (or SIGINT) during a build: say that the finished items are kept and how to
+    go on, instead of click's bare "Aborted!"."""
+    try:
+        yield
+    except KeyboardInterrupt:
+        click.echo(
+            "lads: interrupted; the items built so far are kept: run the same command again "
+            "to resume.",
+            err=True,
+        )
+        sys.exit(EXIT_INTERRUPTED)
+
+
+def _run(opts: _BuildOptions) -> Any:
+    from lads.runner import run_build
+
+    return run_build(
         opts.source,
         opts.source_root,
         opts.out_root,
@@ -271,9 +296,6 @@ def build(**options: Any) -> None:
         wait=opts.wait,
         batch=opts.batch,
     )
-    click.echo(report.summary_text())
-    if not report.complete:
-        sys.exit(EXIT_INCOMPLETE)
 
 
 @dataclass(frozen=True, slots=True)

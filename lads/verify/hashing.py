@@ -12,6 +12,7 @@ from concurrent.futures import ThreadPoolExecutor, as_completed
 from pathlib import Path
 
 from lads.built_tree import NOT_SUMMED, SHA256SUMS, STATE_DIR
+from lads.card import CARD_NAME
 from lads.files import TMP_SUFFIX
 from lads.verify.state import Verifier, entries
 
@@ -118,11 +119,13 @@ def hash_everything(v: Verifier) -> None:
 def check_sums(v: Verifier) -> None:
     """Every listed file is present with its digest; every other file is reported."""
     for rel, want in v.sums.items():
+        # The card is rendered from the tree's metadata: `lads card` remakes it.
+        kind = "card_invalid" if rel == CARD_NAME else None
         if rel not in v.files:
-            v.add(rel, "missing_output", "listed in SHA256SUMS but absent")
+            v.add(rel, kind or "missing_output", "listed in SHA256SUMS but absent")
         elif rel in v.digests and v.digests[rel] != want:
             got = v.digests[rel]
-            v.add(rel, "checksum_mismatch", f"sha256 {got}, SHA256SUMS says {want}")
+            v.add(rel, kind or "checksum_mismatch", f"sha256 {got}, SHA256SUMS says {want}")
     journal = [rel for rel in v.files if rel.split("/")[0] == BUILD_STATE_DIR]
     if journal:
         what = f"the build's resume journal ({len(journal)} files): the build did not finish"

@@ -10,6 +10,7 @@ from typing import Any
 
 from lads import lock
 from lads.built_tree import SHA256SUMS
+from lads.card import CARD_NAME
 from lads.errors import BuildError
 from lads.verify import hashing, manifest_checks, provenance, source_checks
 from lads.verify.report import VerifyReport
@@ -139,10 +140,10 @@ def _note_lock(v: Verifier, owner: Any) -> None:
 
 
 def _check_card(v: Verifier) -> None:
-    if "README.md" not in v.files:
-        v.notes.append("no dataset card (README.md); `lads card` writes one")
+    if CARD_NAME not in v.files:
+        v.notes.append(f"no dataset card ({CARD_NAME}); `lads card` writes one")
         return
     from lads.card import validate_card
 
-    for msg in validate_card((v.out / "README.md").read_text(errors="replace")):
-        v.add("README.md", "card_invalid", msg)
+    for msg in validate_card((v.out / CARD_NAME).read_text(errors="replace")):
+        v.add(CARD_NAME, "card_invalid", msg)

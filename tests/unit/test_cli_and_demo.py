@@ -100,3 +100,20 @@ def test_profiles_command_lists_every_shipped_sensor():
     assert result.exit_code == 0
     for name in ("hdl64e", "hdl32e", "wads64"):
         assert name in result.output
+
+
+def test_an_interrupted_build_says_how_to_resume(monkeypatch, tmp_path):
+    import lads.runner
+    from lads.exit_codes import EXIT_INTERRUPTED
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(lads.runner, "run_build", interrupted)
+    src = tmp_path / "src"
+    src.mkdir()
+    args = ["build", "--source", "semantickitti", "--variant", "rain", "--in", str(src),
+            "--out", str(tmp_path / "out")]  # fmt: skip
+    result = CliRunner().invoke(main, args)
+    assert result.exit_code == EXIT_INTERRUPTED
+    assert "run the same command again to resume" in result.output

@@ -466,3 +466,11 @@ def test_regenerate_of_a_tree_whose_every_item_failed_says_so(tree, fake_regener
     assert problem.kind == "regenerate_nothing_built"
     assert "no built item" in problem.message and "re-run the build" in problem.message
     assert fake_regenerate == []
+
+
+def test_a_deleted_or_edited_card_is_remade_with_lads_card(tree):
+    src, out = tree
+    (out / "README.md").unlink()
+    report = verify_tree(out, src, source_items=ids(out))
+    assert at(report, "README.md") == {"card_invalid"}
+    assert "lads card" in report.problems[0].message
