@@ -87,6 +87,12 @@ def load_train_config(path: str | Path, *, data_root: str | Path | None = None) 
         raise ConfigError(f"{p}: cannot read the training config: {exc}") from None
     cfg = parse_train_config(raw, str(p))
     base = data_root or os.environ.get(DATA_ROOT_ENV) or (None if shipped else p.parent)
+    if base is not None and not Path(base).expanduser().is_dir():
+        named = "--data-root" if data_root else f"${DATA_ROOT_ENV}"
+        raise ConfigError(
+            f"{base}: no such folder ({named}); pass the folder that holds the datasets "
+            "(semantickitti/, nuscenes-scene0001/, wads/, ...)."
+        )
     return resolve_roots(cfg, None if base is None else Path(base), str(p))
 
 

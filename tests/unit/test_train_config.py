@@ -26,6 +26,14 @@ def test_a_shipped_config_needs_a_data_root(monkeypatch):
         load_train_config("synth-to-kitti")
 
 
+def test_a_data_root_that_does_not_exist_is_named_with_where_it_came_from(tmp_path, monkeypatch):
+    monkeypatch.setenv(DATA_ROOT_ENV, str(tmp_path / "nowhere"))
+    with pytest.raises(ConfigError, match=rf"nowhere: no such folder \(\${DATA_ROOT_ENV}\)"):
+        load_train_config("weather")
+    with pytest.raises(ConfigError, match=r"gone: no such folder \(--data-root\)"):
+        load_train_config("weather", data_root=tmp_path / "gone")
+
+
 def test_relative_roots_are_taken_from_the_data_root_or_the_environment(tmp_path, monkeypatch):
     monkeypatch.delenv(DATA_ROOT_ENV, raising=False)
     for data in (tmp_path, tmp_path / "elsewhere"):
