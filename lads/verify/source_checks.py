@@ -10,6 +10,7 @@ tests replace `lads.readers` in sys.modules or patch `lads.worker.regenerate_out
 from __future__ import annotations
 
 import importlib
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -49,6 +50,23 @@ def check_sources(v: Verifier) -> None:
                 why = "is absent or unreadable" if got is None else f"has sha256 {got}"
                 what = f"source of {row['item_id']} {why}; the build saw {s.get('sha256')}"
                 v.add(s["path"], "source_changed", what)
+
+
+def resolve_source_root(v: Verifier) -> None:
+    """The source root as the tree's reader takes it: a reader may step into a folder of the
+    given one (SemanticKITTI's and Voxelscape's `dataset/`), and the manifest's source paths
+    are relative to where it stepped. Left as given when the reader cannot be made."""
+    name = v.run_json.get("source")
+    options = v.run_json.get("reader_options") or {}
+    if not isinstance(name, str) or v.src is None:
+        return
+    try:
+        get_reader = importlib.import_module("lads.readers").get_reader
+        root = Path(get_reader(name, v.src, **(options if isinstance(options, dict) else {})).root)
+    except (ImportError, AttributeError, TypeError, LadsError):
+        return
+    if root.is_dir():
+        v.src = root
 
 
 def check_source_items(v: Verifier, source_items: list[str] | None) -> None:

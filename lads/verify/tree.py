@@ -87,6 +87,8 @@ def _run(
     _note_lock(v, owner)
     v.walk()
     manifest_checks.load_metadata(v)
+    if v.src is not None:
+        source_checks.resolve_source_root(v)
     hashing.hash_everything(v)
     hashing.check_sums(v)
     manifest_checks.check_run_json(v)

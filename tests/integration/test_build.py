@@ -529,3 +529,17 @@ def test_a_backend_that_cannot_run_is_refused_before_the_output_is_made(source, 
                 scheduler="tcp://127.0.0.1:1",
                 progress=False,
             )
+
+
+def test_a_tree_built_from_the_parent_of_dataset_verifies_against_it(source, tmp_path):
+    """SemanticKITTI's reader steps into `dataset/`; verify finds the sources the same way."""
+    from lads.verify import verify_tree
+
+    parent = tmp_path / "kitti"
+    (parent / "dataset").mkdir(parents=True)
+    (parent / "dataset" / "sequences").symlink_to(source / "sequences")
+    out = tmp_path / "out"
+    report = run_build("semantickitti", parent, out, snow(rate_mm_h=10.0), seed=0, limit=2)
+    assert report.complete, report.failed
+    check = verify_tree(out, parent, regenerate=1, seed=0)
+    assert check.ok, [f"{p.kind} {p.path}: {p.message}" for p in check.problems]
