@@ -78,11 +78,25 @@ def _items(reader: Any, stamp: tuple[str, int]) -> tuple[Item, ...]:
     return tuple(reader.items())
 
 
+@functools.lru_cache(maxsize=4)
+def _placed(reader: Any, stamp: tuple[str, int]) -> tuple[Item, ...]:
+    """The tree's items that have a place in time (`scan_position`); a scan whose name is
+    not a number fails as its own item and is no other frame's neighbour."""
+    out = []
+    for item in _items(reader, stamp):
+        try:
+            reader.scan_position(item)
+        except CorruptItemError:
+            continue
+        out.append(item)
+    return tuple(out)
+
+
 @functools.lru_cache(maxsize=64)
 def _sequence_poses(reader: Any, sequence: str, stamp: tuple[str, int]) -> dict[str, F64]:
     """Pose of every scan of one sequence of the tree, read once per worker."""
     position = reader.scan_position
-    items = [it for it in _items(reader, stamp) if position(it)[0] == sequence]
+    items = [it for it in _placed(reader, stamp) if position(it)[0] == sequence]
     return reader.sensor_poses(items)  # type: ignore[no-any-return]
 
 
@@ -110,7 +124,8 @@ def run_window_stage(
         )
     keyed: Any = reader  # readers are hashable objects; the Reader protocol does not say so
     stamp = _stamp(reader, item)
-    window, centre = window_of(_items(keyed, stamp), item, stage.neighbours, keyed.scan_position)
+    keyed.scan_position(item)  # a scan without a place in time fails here, alone
+    window, centre = window_of(_placed(keyed, stamp), item, stage.neighbours, keyed.scan_position)
     if len(window) == 1:
         return stage(frame, rng)  # no neighbour in the tree: the frame's own pose cancels
     try:

@@ -17,11 +17,15 @@ from typing import Protocol
 
 import numpy as np
 
-from lads.frame import Frame, Item
+from lads.frame import RING_COLUMN, Frame, Item
 
 # No automotive LiDAR measures beyond a few hundred metres: a coordinate beyond this is a
 # corrupt file, not a return (and would blow up every range image built from it).
 MAX_COORDINATE_M = 10_000.0
+# Files macOS leaves beside each file on foreign file systems (AppleDouble metadata).
+APPLEDOUBLE_PREFIX = "._"
+# More lasers than any spinning LiDAR has (128 today): a ring value beyond is no laser.
+MAX_LASERS = 256
 
 
 @dataclass(frozen=True, slots=True)
@@ -110,6 +114,25 @@ def entries_matching(folder: Path, suffix: str) -> list[Path]:
         return []
 
 
+def scan_number(relpath: str) -> int:
+    """The scan number a scan file is named by (`000123.bin` -> 123): its place in time.
+
+    Raises:
+        CorruptItemError: the name is not a number (a re-downloaded `000000 (1).bin`, a
+            macOS `._000000.bin`).
+    """
+    from lads.errors import CorruptItemError
+
+    stem = Path(relpath).name.split(".")[0]
+    if not stem.isdigit():
+        raise CorruptItemError(
+            f"{relpath}: the scan's name is not its number (NNNNNN.bin), so it has no place "
+            "in the sequence's time; variants that read poses (sensor-*, motion-recorded) "
+            "need numbered scans: rename or remove the file."
+        )
+    return int(stem)
+
+
 def present(path: Path) -> bool:
     """Whether a name exists at `path`, even as a dangling symbolic link (which then fails
     loudly when read, instead of being skipped)."""
@@ -137,6 +160,11 @@ def read_records(path: Path, dtype: np.dtype | type, columns: int, what: str) ->
     from lads.errors import CorruptItemError
 
     dt = np.dtype(dtype).newbyteorder("<")
+    if path.name.startswith(APPLEDOUBLE_PREFIX):
+        raise CorruptItemError(
+            f"{path}: a macOS metadata file (AppleDouble '._' copy), not {what}; delete it "
+            "(`find ROOT -name '._*' -delete`)."
+        )
     try:
         # np.fromfile gives a writable buffer (bytes would give read-only arrays, which
         # numba compiles as a separate type) without a second copy of the file.
@@ -178,6 +206,16 @@ def check_finite(points: np.ndarray, path: Path, columns: tuple[str, ...]) -> No
             f"{path}: {problem}. The file is corrupt: re-extract it from the dataset archive "
             "(lads never drops points, since labels are matched by index)."
         )
+    if RING_COLUMN in columns:
+        ring = points[:, columns.index(RING_COLUMN)]
+        bad = (ring != np.rint(ring)) | (ring < 0) | (ring >= MAX_LASERS)
+        if bad.any():
+            raise CorruptItemError(
+                f"{path}: {int(bad.sum())} of {ring.size} values of the '{RING_COLUMN}' column "
+                f"are not laser numbers (e.g. {ring[bad][:3].tolist()}): the file holds another "
+                f"record than {len(columns)} float32 columns ({', '.join(columns)}), such as "
+                "a 4-column x, y, z, intensity file. Write it in this layout's record."
+            )
 
 
 def unusable_values(points: np.ndarray, columns: tuple[str, ...]) -> str | None:

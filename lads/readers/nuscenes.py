@@ -183,7 +183,8 @@ class NuScenesReader:
         if not found:
             raise DatasetNotFoundError(
                 f"{self.root}: no v1.0-* table folder; expected a nuScenes dataroot with e.g. "
-                "v1.0-mini/ (unpack the metadata and lidarseg archives there)."
+                "v1.0-mini/ (unpack the metadata and lidarseg archives there), or, for loose "
+                "scan files without tables, --source nuscenes-scans."
             )
         if len(found) > 1:
             raise ConfigError(

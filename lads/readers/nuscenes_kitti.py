@@ -32,6 +32,7 @@ from lads.readers.base import (
     entries_matching,
     present,
     read_scan_and_labels,
+    scan_number,
 )
 from lads.readers.poses import PoseTrack, pose_lines, track_around
 
@@ -144,7 +145,7 @@ class NuScenesKittiReader:
     def scan_position(self, item: Item) -> tuple[str, int]:
         """(scene, keyframe number) of an item: its place in time, for a sensor transfer's
         window (`lads.transfer.window`)."""
-        return item.relpath.rsplit("/", 2)[0], int(Path(item.relpath).stem)
+        return item.relpath.rsplit("/", 2)[0], scan_number(item.relpath)
 
     def pose_relpaths(self, item: Item) -> list[str]:
         """The file an item's pose comes from (its scene's poses.txt): a source of every
@@ -164,7 +165,7 @@ class NuScenesKittiReader:
             for it in items:
                 if it.relpath.rsplit("/", 2)[0] != scene:
                     continue
-                k = int(Path(it.relpath).stem)
+                k = scan_number(it.relpath)
                 if k >= len(poses):
                     raise CorruptItemError(
                         f"{path}: {len(poses)} poses, none for keyframe {k} ({it.relpath}); "
@@ -183,4 +184,4 @@ class NuScenesKittiReader:
         path = self.root / item.relpath.rsplit("/", 2)[0] / "poses.txt"
         poses = pose_lines(path, "the scene's lidar -> global poses")
         times = np.arange(len(poses), dtype=np.float64) * KEYFRAME_PERIOD_S
-        return track_around(times, poses, int(Path(item.relpath).stem), str(path))
+        return track_around(times, poses, scan_number(item.relpath), str(path))

@@ -123,7 +123,7 @@ class RadiateReader:
                 "Re-extract the file."
             ) from exc
         lines = text.split("\n")
-        if lines[-1] == "":
+        while lines and not lines[-1].strip():  # blank lines at the end are no points
             lines.pop()
         bad = next((i for i, ln in enumerate(lines) if ln.count(",") != _FIELDS - 1), None)
         if bad is not None:
@@ -135,10 +135,7 @@ class RadiateReader:
         try:
             values = np.array(",".join(lines).split(",") if lines else [], dtype=np.float64)
         except ValueError as exc:
-            raise CorruptItemError(
-                f"{path}: {exc}; expected only numbers `x,y,z,intensity,ring` per line. "
-                "The file is corrupt: re-extract it."
-            ) from exc
+            raise CorruptItemError(_not_numbers(path, lines, exc)) from exc
         points = values.astype(np.float32).reshape(-1, _FIELDS)
         check_finite(points, path, self.columns)
         return Frame.from_source(item, self.sensor, self.columns, points, None)
@@ -162,3 +159,22 @@ class RadiateReader:
         values = points.astype(np.float64).ravel().tolist()
         text = ("%.5g,%.5g,%.5g,%.5g,%.5g\n" * n) % tuple(values)
         return [EncodedFile(rel, "scan", text.encode("ascii"), n, 0)]
+
+
+def _not_numbers(path: Path, lines: list[str], exc: ValueError) -> str:
+    """The message for a scan with a value that is not a number, naming its line: a header
+    line (RADIATE's scans have none) or a damaged one."""
+    for k, line in enumerate(lines):
+        try:
+            [float(v) for v in line.split(",")]
+        except ValueError:
+            if k == 0:
+                return (
+                    f"{path}: line 1 is {line[:80]!r}, a header; RADIATE velo_lidar scans hold "
+                    "only numbers `x,y,z,intensity,ring`: delete that line."
+                )
+            return (
+                f"{path}: line {k + 1} is {line[:80]!r}; expected only numbers "
+                "`x,y,z,intensity,ring` per line. The file is corrupt: re-extract it."
+            )
+    return f"{path}: {exc}; expected only numbers `x,y,z,intensity,ring` per line."

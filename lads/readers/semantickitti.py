@@ -31,6 +31,7 @@ from lads.readers.base import (
     normalize_sequences,
     present,
     read_scan_and_labels,
+    scan_number,
     select_sequences,
 )
 from lads.readers.poses import (
@@ -176,7 +177,7 @@ class SemanticKittiReader:
     def scan_position(self, item: Item) -> tuple[str, int]:
         """(sequence, scan number) of an item: its place in time, for a sensor transfer's
         window (`lads.transfer.window`)."""
-        return item.relpath.split("/")[1], int(Path(item.relpath).stem)
+        return item.relpath.split("/")[1], scan_number(item.relpath)
 
     def pose_relpaths(self, item: Item) -> list[str]:
         """The files an item's pose and time come from (poses.txt, calib.txt's Tr and, when
@@ -204,7 +205,7 @@ class SemanticKittiReader:
             for it in items:
                 if it.relpath.split("/")[1] != seq:
                     continue
-                k = int(Path(it.relpath).stem)
+                k = scan_number(it.relpath)
                 if k >= len(poses):
                     raise CorruptItemError(
                         f"{base / POSES_FILE}: {len(poses)} poses, none for scan {k} "
@@ -236,7 +237,7 @@ class SemanticKittiReader:
                     "sweep_period_s to time the scans by; put the sequence's times.txt there."
                 )
             times = np.arange(len(poses), dtype=np.float64) * period
-        track = track_around(times, poses, int(Path(item.relpath).stem), str(base / POSES_FILE))
+        track = track_around(times, poses, scan_number(item.relpath), str(base / POSES_FILE))
         velodyne = np.linalg.inv(tr) @ track.poses @ tr
         return track._replace(poses=velodyne)
 

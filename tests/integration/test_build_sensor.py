@@ -362,3 +362,20 @@ def test_a_frame_without_neighbours_in_the_tree_needs_no_poses(street: Path, tmp
         rel,
         rel.replace("velodyne", "labels")[:-3] + "label",
     ]
+
+
+def test_scans_named_without_a_number_fail_alone(street: Path, tmp_path: Path):
+    """A browser's `000000 (1).bin` has no place in time, a macOS `._000001.bin` is no scan:
+    each fails as its own item, named, and every other frame transfers."""
+    src = tmp_path / "src"
+    shutil.copytree(street, src)
+    seq = src / "sequences" / "00"
+    shutil.copy(seq / "velodyne" / "000000.bin", seq / "velodyne" / "000000 (1).bin")
+    shutil.copy(seq / "labels" / "000000.label", seq / "labels" / "000000 (1).label")
+    (seq / "velodyne" / "._000001.bin").write_bytes(b"\0" * 4096)
+    (seq / "labels" / "._000001.label").write_bytes(b"\0" * 1024)
+    report = _build_32(src, tmp_path / "out")
+    failed = dict(report.failed)  # type: ignore[attr-defined]
+    assert report.built == FRAMES  # type: ignore[attr-defined]
+    assert "is not its number" in failed["semantickitti:sequences/00/velodyne/000000 (1).bin"]
+    assert "macOS metadata file" in failed["semantickitti:sequences/00/velodyne/._000001.bin"]

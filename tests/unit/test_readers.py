@@ -465,7 +465,7 @@ def test_radiate_number_format_is_five_significant_digits(tree):
     [
         ("1,2,3,4\n", "line 2 is '1,2,3,4'"),
         ("1,2,3,4,5,6\n", "line 2"),
-        ("1,2,x,4,5\n", "could not convert"),
+        ("1,2,x,4,5\n", "line 2 is '1,2,x,4,5'; expected only numbers"),
         ("1,nan,3,4,5\n", "NaN or infinite"),
         ("\n", "line 2"),
     ],
@@ -479,6 +479,18 @@ def test_radiate_malformed_lines_name_file_and_line(tree, line, match):
     with pytest.raises(CorruptItemError, match=match) as err:
         reader.read(item)
     assert str(path) in str(err.value)
+
+
+def test_radiate_blank_lines_at_the_end_are_no_points_and_a_header_is_named(tree):
+    reader, root = tree("radiate")
+    item = reader.items()[0]
+    path = root / item.relpath
+    n = len(reader.read(item).points)
+    path.write_text(path.read_text() + "\n  \n\n")
+    assert len(reader.read(item).points) == n
+    path.write_text("x,y,z,intensity,ring\n" + path.read_text())
+    with pytest.raises(CorruptItemError, match="line 1 is 'x,y,z,intensity,ring', a header"):
+        reader.read(item)
 
 
 # ----------------------------------------------------------------------------------------
@@ -839,3 +851,20 @@ def test_read_scan_reads_a_scan_file_through_its_reader_and_refuses_a_stranger(
     stranger.write_bytes((root / item.relpath).read_bytes())
     with pytest.raises(InputDataError, match="not a scan of the semantickitti tree"):
         read_scan("semantickitti", root, stranger)
+
+
+def test_a_four_column_file_in_a_five_column_layout_is_refused_by_its_ring(tmp_path):
+    """20 x N bytes also divide a 4-column file of 5k points: its values land in the ring
+    column as intensities and coordinates, which are no laser numbers."""
+    from lads.errors import CorruptItemError
+
+    rng = np.random.default_rng(0)
+    xyz = rng.uniform(-30.0, 30.0, (5000, 3))
+    four = np.column_stack([xyz, rng.integers(0, 255, 5000)]).astype("<f4")
+    four.tofile(tmp_path / "scan.pcd.bin")
+    reader = get_reader("nuscenes-scans", tmp_path)
+    with pytest.raises(CorruptItemError, match="'ring' column are not laser numbers"):
+        reader.read(reader.items()[0])
+    five = np.column_stack([four, np.arange(5000) % 32]).astype("<f4")
+    five.tofile(tmp_path / "scan.pcd.bin")
+    assert reader.read(reader.items()[0]).points.shape == (5000, 5)
