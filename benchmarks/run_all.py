@@ -18,6 +18,7 @@ sensor_transfer_real.json  sensor transfer of real scans, ring statistics vs rea
 sensor_build_speed.json    lads build --variant sensor-hdl32e: frames/s, memory, Dask bytes
 augment_speed.json    lads.augment corruptions through each loader adapter: frames/s, one core
 ground_fit.json       the ground fit (wet ground without labels) against labelled real frames
+variant_sweep.json    every other shipped variant built and verified on real frames by `lads`
 """
 
 from __future__ import annotations
@@ -52,6 +53,7 @@ BENCHMARKS = (
     "sensor_build_speed",
     "augment_speed",
     "ground_fit",
+    "variant_sweep",
 )
 
 
