@@ -29,6 +29,8 @@ from typing import Any
 
 from lads.built_tree import MANIFEST, RUN_JSON, SHA256SUMS
 from lads.config import pipeline_for
+from lads.errors import LadsError
+from lads.exit_codes import EXIT_LADS_ERROR
 from lads.runner import run_build
 from lads.verify import verify_tree
 
@@ -139,6 +141,16 @@ def build_entry(entry: Entry, out: Path, *, seed: int, jobs: int) -> dict[str, A
 
 
 def main(argv: list[str] | None = None) -> int:
+    """`make release`; a LadsError (a root without the release's sequences, a bad build
+    setting) is one line on stderr and exit code EXIT_LADS_ERROR, as the CLI's."""
+    try:
+        return _release(argv)
+    except LadsError as exc:
+        sys.stderr.write(f"make release: error: {exc}\n")
+        return EXIT_LADS_ERROR
+
+
+def _release(argv: list[str] | None) -> int:
     parser = argparse.ArgumentParser(description="Build, verify and document the LADS table.")
     parser.add_argument("--frames", type=int, default=6, help="frames per synthetic source")
     parser.add_argument("--seed", type=int, default=0)

@@ -514,3 +514,16 @@ def test_the_writer_creates_the_items_of_each_reader_and_their_encoded_bytes(
         for item in reader.items():
             for encoded in reader.encode(reader.read(item)):
                 assert encoded.payload == (root / encoded.relpath).read_bytes()
+
+
+def test_a_release_root_without_the_release_sequences_is_one_line_and_exit_2(
+    tmp_path, monkeypatch, capsys
+):
+    from lads.release import main as release_main
+
+    write_synthetic_dataset(tmp_path / "kitti", frames=1)  # sequence 00 only
+    monkeypatch.setenv("LADS_SEMANTICKITTI_ROOT", str(tmp_path / "kitti"))
+    monkeypatch.setenv("LADS_RELEASE_OUT", str(tmp_path / "release"))
+    assert release_main([]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("make release: error:") and "not found" in err and "Traceback" not in err
