@@ -269,15 +269,7 @@ def _build_locked(
     from tqdm import tqdm
 
     out_root = Path(plan.out_root)
-    claim_output(out_root, plan)
-    remove_stray_temps(out_root)
-    copied = copy_source_files(reader, Path(reader.root), out_root)
-    try:
-        provenance.create_store(
-            out_root, points_mode=plan.pipeline.points, config_hash=plan.pipeline.config_hash()
-        )
-    except OSError as exc:
-        raise write_error(out_root / provenance.STORE_NAME, exc) from exc
+    copied = _prepare_output(plan, reader)
     versions = [(stage.name, stage.version) for stage in stages_for(plan.pipeline)]
     done = finished_rows(out_root, Path(reader.root), items, versions)
     wanted = items[:limit] if limit else items
@@ -311,6 +303,22 @@ def _build_locked(
     report.foreign = finalise(
         out_root, plan, kept, rows, copied, figures=figures, limit=limit, source_items=len(items)
     )
+
+
+def _prepare_output(plan: BuildPlan, reader: Any) -> list[dict[str, Any]]:
+    """Claim OUT for this plan, clear a crashed run's temp files, copy the source's side
+    files and open the provenance store; returns the copied files' entries."""
+    out_root = Path(plan.out_root)
+    claim_output(out_root, plan)
+    remove_stray_temps(out_root)
+    copied = copy_source_files(reader, Path(reader.root), out_root)
+    try:
+        provenance.create_store(
+            out_root, points_mode=plan.pipeline.points, config_hash=plan.pipeline.config_hash()
+        )
+    except OSError as exc:
+        raise write_error(out_root / provenance.STORE_NAME, exc) from exc
+    return copied
 
 
 def _try_report(out_root: Path, report: BuildReport, seconds: list[float]) -> None:

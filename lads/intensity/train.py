@@ -63,6 +63,15 @@ from lads.readers import label_set_for
 CHECKPOINT = "checkpoints/latest.pt"
 
 
+def _folders(cfg: TrainConfig, run_dir: Path | None) -> Path:
+    """Make the run folder and the weight file's folder before any work (a file in the way
+    fails now, not after the training); returns the run folder."""
+    make_folder(cfg.output_path(run_dir).parent)
+    run = cfg.run_path(run_dir)
+    make_folder(run)
+    return run
+
+
 def train(
     cfg: TrainConfig,
     *,
@@ -81,9 +90,7 @@ def train(
     Raises:
         TrainingError: unusable data, a checkpoint of another config, or a diverged run.
     """
-    run = cfg.run_path(run_dir)
-    make_folder(cfg.output_path(run_dir).parent)  # before the training, not after it
-    make_folder(run)
+    run = _folders(cfg, run_dir)
     jobs = build_cache(run, cfg, progress=progress)
     channels = channel_names(cfg.kind == "weather")
     facts = run_statistics(run, cfg, jobs, channels)

@@ -176,13 +176,8 @@ def open_trees(
     sim_scans, real_scans = tuple(sorted(sim.items)), tuple(sorted(real.items))
     if paired and sim_scans != real_scans:
         raise DiagnoseError(_relpath_mismatch(sim, real, sim_scans, real_scans))
-    if not paired and sim.labelled != real.labelled:
-        bare = sim if not sim.labelled else real
-        raise DiagnoseError(
-            f"{bare.root}: the {'sim' if bare is sim else 'real'} tree has no label file for "
-            "every scan, the other has: an unpaired comparison matches beams of the same class "
-            "(and range and incidence), so give both trees labels (or neither)."
-        )
+    if not paired:
+        _check_both_labelled(sim, real)
     profile = load_profile(_profile_name(sim))
     labelled = sim.labelled or real.labelled
     enc = profile.intensity
@@ -212,6 +207,18 @@ def open_trees(
         pair.read_scan("sim", sim_scans[0]), pair.read_scan("real", real_scans[0]), pair
     )
     return pair
+
+
+def _check_both_labelled(sim: _TreeSource, real: _TreeSource) -> None:
+    """DiagnoseError when one unpaired tree has labels and the other has not."""
+    if sim.labelled == real.labelled:
+        return
+    bare = sim if not sim.labelled else real
+    raise DiagnoseError(
+        f"{bare.root}: the {'sim' if bare is sim else 'real'} tree has no label file for "
+        "every scan, the other has: an unpaired comparison matches beams of the same class "
+        "(and range and incidence), so give both trees labels (or neither)."
+    )
 
 
 def _check_same_encoding(sim: Scan, real: Scan, pair: TreePair) -> None:

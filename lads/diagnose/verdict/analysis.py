@@ -75,6 +75,11 @@ class Diagnosis:
     frequencies: dict[str, float]
 
 
+# The verdict's reason when the simulation is the recording itself (`_reproduces`).
+REPRODUCES = (
+    "the simulation reproduces the recording: every beam returns in both, with the same "
+    "stored intensity, so nothing is missing"
+)
 # The steps `diagnose_design` announces to its `phase` callback, in order.
 PHASES = ("selection", "resamples", "final fit and bootstrap", "ambiguity, noise, held-out")
 
@@ -135,11 +140,7 @@ def _diagnose_design(
         # space, not at the value, so an exact copy still "gains" from tiny shifts: no
         # physics is missing when every beam agrees.
         effects, possible, alternatives, sets = [], [], [], []
-        verdict = "no_missing_physics"
-        reasons = [
-            "the simulation reproduces the recording: every beam returns in both, with the "
-            "same stored intensity, so nothing is missing"
-        ]
+        verdict, reasons = "no_missing_physics", [REPRODUCES]
     return Diagnosis(
         split,
         selection,
