@@ -22,7 +22,13 @@ import numpy as np
 import numpy.typing as npt
 
 from lads.diagnose.data.table import SensorInfo
-from lads.errors import ConfigError, DatasetNotFoundError, DiagnoseError, IntensityEncodingError
+from lads.errors import (
+    ConfigError,
+    CorruptItemError,
+    DatasetNotFoundError,
+    DiagnoseError,
+    IntensityEncodingError,
+)
 from lads.frame import Frame, Item
 from lads.physics.materials import class_ids
 from lads.physics.projection import MIN_RANGE_M
@@ -203,9 +209,8 @@ def open_trees(
         paired,
         {"sim": sim, "real": real},
     )
-    _check_same_encoding(
-        pair.read_scan("sim", sim_scans[0]), pair.read_scan("real", real_scans[0]), pair
-    )
+    pair.read_scan("sim", sim_scans[0])
+    pair.read_scan("real", real_scans[0])
     return pair
 
 
@@ -219,29 +224,6 @@ def _check_both_labelled(sim: _TreeSource, real: _TreeSource) -> None:
         "every scan, the other has: an unpaired comparison matches beams of the same class "
         "(and range and incidence), so give both trees labels (or neither)."
     )
-
-
-def _check_same_encoding(sim: Scan, real: Scan, pair: TreePair) -> None:
-    """DiagnoseError when one tree's intensities all lie in [0, 1] and the other's reach
-    well past it: a unit-encoded tree (0-0.99) beside a byte-encoded one (0-255) passes
-    each tree's own range check but cannot be compared."""
-    top = {name: float(s.intensity.max(initial=0.0)) for name, s in (("sim", sim), ("real", real))}
-    unit = [name for name, v in top.items() if v <= 1.0]
-    if len(unit) != 1 or max(top.values()) <= UNIT_MISMATCH_FACTOR:
-        return
-    other = "real" if unit[0] == "sim" else "sim"
-    raise DiagnoseError(
-        f"the {unit[0]} tree's first scan has intensities up to {top[unit[0]]:g}, the "
-        f"{other} tree's up to {top[other]:g}: the {unit[0]} tree looks written in a unit "
-        f"encoding (0-1) and the {other} in the '{pair.profile.name}' sensor's "
-        f"{pair.profile.intensity.kind} encoding (0-{pair.profile.intensity.max_value:g}). "
-        "Write both trees for the same sensor and encoding."
-    )
-
-
-# A tree whose intensities stay within [0, 1] beside one reaching past this is in another
-# encoding (a byte-encoded scan always holds returns far brighter than 1 of 255).
-UNIT_MISMATCH_FACTOR = 4.0
 
 
 def _open_tree(root: Path, source: str, tree: str) -> _TreeSource:
@@ -286,7 +268,13 @@ def _read(source: str, profile: SensorProfile, tree: str, src: _TreeSource, relp
     path = src.root / relpath
     columns: tuple[str, ...] = src.reader.columns
     _check_size(path, columns, source, profile, tree)
-    frame = src.reader.read(src.items[relpath])
+    try:
+        frame = src.reader.read(src.items[relpath])
+    except CorruptItemError as exc:  # the reader's own check: say which tree, and why
+        raise DiagnoseError(
+            f"the {tree} tree: {exc} Both trees must hold {source} scans of the "
+            f"'{profile.name}' sensor: the trees look like different sensors or formats."
+        ) from exc
     points, columns, labels_raw = frame.points, frame.columns, frame.labels
     intensity = np.array(points[:, columns.index("intensity")], dtype=np.float32)
     try:
