@@ -1,6 +1,7 @@
 """The `lads` command line.
 
-Exit codes: `lads.exit_codes` (0 success, 1 a result that is not clean, 2 a LadsError).
+Exit codes: `lads.exit_codes` (0 success, 1 a result that is not clean, 2 a LadsError, 130 a
+build interrupted by Ctrl-C).
 """
 
 from __future__ import annotations
