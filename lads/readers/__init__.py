@@ -142,19 +142,25 @@ def _as_recorded(reader: Reader) -> Reader:
         run = json.loads(path.read_text())
     except (OSError, ValueError):
         return reader  # no run.json, or a dataset's own file of that name: the format's record
-    columns = run.get("point_columns") if isinstance(run, dict) and "lads_version" in run else None
+    if not (isinstance(run, dict) and "lads_version" in run):
+        return reader
+    columns = run.get("point_columns")
+    sensor = run.get("sensor")
+    if isinstance(sensor, str) and sensor != reader.sensor:
+        # A tree lads built for another sensor (a transfer, in either record): its points
+        # are that sensor's, intensity encoding included.
+        record = f" ({', '.join(map(str, columns))})" if isinstance(columns, list) else ""
+        raise ConfigError(
+            f"{path}: the scans hold the {sensor} sensor's points{record}, but the "
+            f"{reader.name} reader was told sensor {reader.sensor}; pass --sensor {sensor} "
+            "(reader option sensor) to read this tree."
+        )
     if columns is None or columns == list(reader.columns):
         return reader
     if not (isinstance(columns, list) and columns and all(isinstance(c, str) for c in columns)):
         raise ConfigError(
             f"{path}: point_columns is {columns!r}; expected the list of column names lads "
             "wrote. The file was edited: restore it from the tree's SHA256SUMS or rebuild."
-        )
-    if run.get("sensor") != reader.sensor:
-        raise ConfigError(
-            f"{path}: the scans hold the {run.get('sensor')} record ({', '.join(columns)}), but "
-            f"the {reader.name} reader was told sensor {reader.sensor}; pass --sensor "
-            f"{run.get('sensor')} (reader option sensor) to read this tree."
         )
     return with_columns(reader, columns)
 

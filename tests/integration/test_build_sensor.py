@@ -69,7 +69,9 @@ def test_the_transferred_tree_verifies_and_regenerates(built: Path, street: Path
 
 def test_output_is_the_targets_scan_in_the_sources_format(built: Path, street: Path):
     target = load_profile("hdl32e")
-    reader = get_reader("semantickitti", built)
+    with pytest.raises(ConfigError, match="pass --sensor hdl32e"):
+        get_reader("semantickitti", built)  # its points are the HDL-32E's, not the format's
+    reader = get_reader("semantickitti", built, sensor="hdl32e")
     for item in reader.items():
         frame = reader.read(item)
         assert frame.labels is not None and len(frame.labels) == len(frame.points) > 1000
@@ -90,7 +92,7 @@ def test_provenance_names_the_source_return_each_beam_hit(built: Path, street: P
     poses = reader.sensor_poses(list(items.values()))
     stage = stages_for(pipeline_for("semantickitti", "sensor-hdl32e"))[0]
     for rel in sorted(items)[:2]:
-        out = get_reader("semantickitti", built).read(items[rel])
+        out = get_reader("semantickitti", built, sensor="hdl32e").read(items[rel])
         source_index, outcome, attrs = provenance.read_item(built, rel)
         window, scans = provenance.read_source_scan(built, rel)
         assert (outcome == Outcome.RESAMPLED).all() and rel in window and len(window) == FRAMES
@@ -302,7 +304,7 @@ def test_weather_on_a_transferred_tree_uses_the_target_sensor(built: Path, tmp_p
     assert report.complete, report.failed
     assert json.loads((out / "run.json").read_text())["sensor"] == "hdl32e"
     frame = get_reader("semantickitti", built, sensor="hdl32e").read(
-        get_reader("semantickitti", built).items()[0]
+        get_reader("semantickitti", built, sensor="hdl32e").items()[0]
     )
     assert frame.sensor == "hdl32e"
     with pytest.raises(ConfigError, match="no-such-lidar"):

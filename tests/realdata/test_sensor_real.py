@@ -73,7 +73,7 @@ def test_real_kitti_frames_to_the_hdl32e(shared_data, tmp_path):
     out = tmp_path / "seq00"
     _build_and_verify(src, out, pipeline_for("semantickitti", "sensor-hdl32e"), figures=True)
     target = load_profile("hdl32e")
-    reader = get_reader("semantickitti", out, sequences=["00"])
+    reader = get_reader("semantickitti", out, sequences=["00"], sensor="hdl32e")
     for item in reader.items():
         frame = reader.read(item)
         assert 10_000 < len(frame.points) < 70_000  # an HDL-32E scan, not the 120k of the 64E
@@ -156,7 +156,7 @@ def test_real_nuscenes_keyframes_to_a_64_beam_sensor(shared_data, tmp_path, targ
     check = verify_tree(out, src, regenerate=1, seed=0)
     assert check.ok, [f"{p.kind} {p.path}: {p.message}" for p in check.problems]
     profile = load_profile(target)
-    reader = get_reader("nuscenes-kitti", out)
+    reader = get_reader("nuscenes-kitti", out, sensor="hdl64e")
     for item in reader.items():
         frame = reader.read(item)
         assert frame.labels is not None and frame.labels.max() < 31  # 31: ego body, dropped
