@@ -166,7 +166,7 @@ def _description(run: dict[str, Any], src: Source) -> str:
 
 def _format_text(run: dict[str, Any]) -> str:
     """What a loader of the tree needs: the source's own record, or the target's."""
-    if run.get("point_format", "source") != "target":
+    if _native_record(run):
         return (
             "Every file has the source's format, name and folder, so the source dataset's "
             "loaders, calibration, poses and label maps work unchanged."
@@ -182,11 +182,24 @@ def _format_text(run: dict[str, Any]) -> str:
 
 def _record_words(run: dict[str, Any]) -> str:
     """The point record of the tree's scans in words: the source format's, or (a transfer
-    written with --point-format target) the target sensor's own, with its columns."""
-    if run.get("point_format") != "target":
+    written with --point-format target, or a tree built on one) the sensor's own, with its
+    columns."""
+    if _native_record(run):
         return "the source's own format"
     columns = ", ".join(str(c) for c in run.get("point_columns") or ())
-    return f"the target sensor's own point record ({columns}, float32)"
+    return f"the {run.get('sensor', 'target')} sensor's own point record ({columns}, float32)"
+
+
+def _native_record(run: dict[str, Any]) -> bool:
+    """Whether the scans hold the dataset format's own record: the columns its reader
+    writes by default (a weather tree built on a target-record transfer keeps that
+    transfer's record while its own point_format says "source")."""
+    from lads.readers import READERS, reader_class
+
+    columns, source = run.get("point_columns"), run.get("source")
+    if not isinstance(columns, list) or source not in READERS:
+        return run.get("point_format") != "target"
+    return list(reader_class(str(source)).columns) == columns
 
 
 def _layout(ok: list[dict[str, Any]], run: dict[str, Any]) -> str:

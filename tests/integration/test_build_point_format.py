@@ -145,6 +145,8 @@ def test_weather_on_the_native_tree_reads_and_keeps_its_five_columns(native: Pat
     run = json.loads((out / "run.json").read_text())
     assert run["sensor"] == "hdl32e" and run["point_columns"] == RECORD
     assert run["point_format"] == "source"  # the source here is the native tree
+    card = (out / "README.md").read_text()  # still the HDL-32E's record: a loader must know
+    assert "hdl32e sensor's own point record" in card and "source's format, name" not in card
     reader = get_reader("semantickitti", out, sensor="hdl32e")
     frame = reader.read(reader.items()[0])
     assert frame.columns == tuple(RECORD) and np.isin(frame.points[:, 4], np.arange(32)).all()
