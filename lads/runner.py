@@ -33,6 +33,7 @@ from lads.frame import Item
 from lads.lock import output_lock
 from lads.output_tree import check_paths, claim_output, copy_source_files, make_output
 from lads.resume import finished_rows
+from lads.stages import check_sensor
 from lads.worker import reader_for, stages_for
 
 __all__ = ["BuildReport", "run_build"]
@@ -197,8 +198,9 @@ def _plan_build(
     options = freeze_options(reader_options or {})
     plan = BuildPlan(source, str(source_root), str(out_root), options, pipeline, seed)
     pipeline.check_source(source, f"pipeline '{pipeline.variant}'")
-    stages_for(pipeline)  # a bad stage (e.g. missing weights) stops here, before any output
+    stages = stages_for(pipeline)  # a bad stage (e.g. missing weights) stops here, before output
     reader = reader_for(plan)
+    check_sensor(stages, pipeline.output_sensor(reader.sensor))
     return plan, reader, reader.items()
 
 

@@ -54,6 +54,15 @@ def build_stage(config: StageConfig) -> Stage:
     return cast(Stage, cls.from_config(config))
 
 
+def check_sensor(stages: tuple[Stage, ...], sensor: str) -> None:
+    """ConfigError, before any frame is built, when a stage cannot run on frames of
+    `sensor` (a learned weather intensity without that sensor's calibration)."""
+    styles = tuple(s.name for s in stages if isinstance(s, WeatherStage))
+    for stage in stages:
+        if isinstance(stage, IntensityStage):
+            stage.check_sensor(sensor, styles)
+
+
 def build_stages(pipeline: PipelineConfig) -> tuple[Stage, ...]:
     """Every stage of `pipeline`, in order; its sensor stage writes the point record the
     pipeline's writer names (`PipelineConfig.point_record`: the target's native one, or

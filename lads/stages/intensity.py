@@ -119,6 +119,26 @@ class IntensityStage:
             out.append(replace(frame, points=points))
         return out
 
+    def check_sensor(self, sensor: str, styles: tuple[str, ...]) -> None:
+        """ConfigError, before any frame, when a weather model cannot write its output in
+        `sensor`'s units: it needs a calibration of that sensor and of each style's own
+        (`styles`: the weather stages before it, or the stage's target)."""
+        model = _model(self.model, self.device)
+        if model.meta.kind != "weather":
+            return  # a sensor model writes its target's units, whatever the frame's sensor
+        cal = model.meta.calibration
+        for key in (self.target,) if self.target else styles:
+            if key not in model.meta.targets:
+                continue  # a style the model lacks fails with the model's own message
+            spec = model.meta.targets[key]
+            if sensor != spec.sensor and (sensor not in cal or spec.sensor not in cal):
+                raise ConfigError(
+                    f"intensity model '{self.model}' has no calibration for sensor "
+                    f"'{sensor}' (it knows {sorted(cal)}), so it cannot write its {key} "
+                    "output in that sensor's units; build with --intensity physics, or train "
+                    "the model with that sensor's data."
+                )
+
     def reads_style(self) -> bool:
         """Whether the stage takes its output style from the frame's weather (a weather
         model with no `target`): a rain, snow or fog stage must run before it."""

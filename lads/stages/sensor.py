@@ -85,6 +85,9 @@ class SensorStage:
         (deterministic: the worker computes them once per scan and lends them to every
         window that holds it)."""
         _check_columns(frame)
+        # Albedo comes from the intensity: values of another encoding would saturate silently.
+        profile = load_profile(frame.sensor)
+        profile.intensity.validate(frame.intensity, f"{frame.item.item_id}: intensity")
         ring = (
             frame.points[:, frame.columns.index(RING_COLUMN)]
             if RING_COLUMN in frame.columns
@@ -92,7 +95,7 @@ class SensorStage:
         )
         scan = WindowScan(frame.xyz, frame.intensity, frame.labels, ring, np.eye(4))
         label_set = label_set_for(frame.item.dataset)
-        surfels = window_surfels(scan, load_profile(frame.sensor), label_set)
+        surfels = window_surfels(scan, profile, label_set)
         return PreparedScan(surfels, dict(frame.extra_labels))
 
     def __call__(self, frame: Frame, rng: np.random.Generator) -> Frame:

@@ -381,3 +381,45 @@ def test_scans_named_without_a_number_fail_alone(street: Path, tmp_path: Path):
     assert report.built == FRAMES  # type: ignore[attr-defined]
     assert "is not its number" in failed["semantickitti:sequences/00/velodyne/000000 (1).bin"]
     assert "macOS metadata file" in failed["semantickitti:sequences/00/velodyne/._000001.bin"]
+
+
+def test_weather_whose_learned_intensity_lacks_the_sensor_is_refused_before_any_frame(
+    street: Path, tmp_path: Path
+):
+    transferred = tmp_path / "vx"
+    pipeline = pipeline_for("semantickitti", "sensor-voxelscape64")
+    run_build("semantickitti", street, transferred, pipeline, progress=False, limit=1)
+    snow = tmp_path / "snow"
+    with pytest.raises(ConfigError, match="no calibration for sensor 'voxelscape64'"):
+        run_build(
+            "semantickitti",
+            transferred,
+            snow,
+            pipeline_for("semantickitti", "snow"),
+            reader_options={"sensor": "voxelscape64"},
+            progress=False,
+        )
+    assert not snow.exists()
+    physics = pipeline_for("semantickitti", "snow").with_overrides(intensity="physics")
+    report = run_build(
+        "semantickitti",
+        transferred,
+        snow,
+        physics,
+        reader_options={"sensor": "voxelscape64"},
+        progress=False,
+    )
+    assert report.complete, report.failed
+
+
+def test_intensities_of_another_encoding_fail_each_frame_by_name(street: Path, tmp_path: Path):
+    """0-255 codes read as an HDL-64E's 0-0.99 remission would all become albedo 0.99."""
+    src = tmp_path / "src"
+    shutil.copytree(street, src)
+    for scan in (src / "sequences" / "00" / "velodyne").glob("*.bin"):
+        points = np.fromfile(scan, "<f4").reshape(-1, 4)
+        points[:, 3] = np.rint(points[:, 3] * 255.0)
+        points.tofile(scan)
+    report = _build_32(src, tmp_path / "out", neighbours=0)
+    assert report.built == 0  # type: ignore[attr-defined]
+    assert all("IntensityEncodingError" in e for _, e in report.failed)  # type: ignore[attr-defined]
