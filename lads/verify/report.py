@@ -41,6 +41,7 @@ ADVICE = {
     "inventory_extra": "",
     "card_invalid": "regenerate it with `lads card`",
     "build_running": "verify the tree when that build has finished",
+    "inventory_other_dataset": "pass the inventory of the tree's own dataset (manifests/)",
 }
 
 

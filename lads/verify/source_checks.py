@@ -163,6 +163,11 @@ def check_inventory(v: Verifier, release: str) -> None:
     from lads import inventory as inv
 
     name, subset = inv.parse_release(release)
+    source = v.run_json.get("source")
+    if isinstance(source, str) and source != name:
+        v.add(".", "inventory_other_dataset", f"inventory {release!r} lists {name} items; this "
+              f"tree was built from source {source!r}")  # fmt: skip
+        return
     rows = v.ok_rows()
     version = inv.tree_version(v.run_json, [o["path"] for r in rows for o in entries(r, "outputs")])
     for path, kind, message in inv.compare(

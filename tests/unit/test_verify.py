@@ -381,6 +381,9 @@ def test_inventory_incomplete(tree):
     assert "incomplete_release" in kinds(report)
     text = " ".join(p.message for p in report.problems)
     assert "01, 02" in text and "expected 4541" in text
+    other = verify_tree(out, src, inventory="voxelscape")  # another dataset's inventory
+    assert kinds(other) == {"inventory_other_dataset"}
+    assert "built from source 'semantickitti'" in other.problems[0].message
 
 
 # -- several faults at once, and regeneration ---------------------------------------------
