@@ -21,8 +21,9 @@ Synthetic frames become nuScenes data as follows:
   stays consistent.
 - Points keep the synthetic order (ring by ring, top first), not the HDL-32E firing order
   (rings interleaved); the ring column is the channel, 0 = lowest beam.
-- Intensity is the hdl32e profile's byte encoding (integers 0-255 as float32) of the
-  frame's continuous reflectivity (the frame's own encoding when it already is that one).
+- Intensity is the sensor profile's own encoding: the hdl32e byte codes (integers 0-255 as
+  float32) for nuScenes' own sensor, another profile's values for a street that sensor
+  scanned (read it with that --sensor).
 - Labels: SemanticKITTI raw ids -> lidarseg `index` via nuscenes_lidarseg.yaml.
 """
 
@@ -41,7 +42,6 @@ import numpy.typing as npt
 
 from lads.errors import ConfigError
 from lads.readers.nuscenes import CHANNEL, TABLES
-from lads.sensors.profile import SensorProfile, load_profile
 
 # The class table lives in nuscenes_classes; importers take it from here too.
 from lads.synth.nuscenes_classes import CLASSES_FILE as CLASSES_FILE
@@ -57,7 +57,6 @@ REAL_SENSOR_ROTATION = (
     0.010646214713995808,
     -0.7063073142877817,
 )
-NUSCENES_INTENSITY_PROFILE = "hdl32e"  # whose intensity encoding the scans use
 # nuScenes sensor frame from the synthetic (KITTI-convention) one: x_n = -y, y_n = x, z_n = z.
 NUSC_FROM_SYNTH = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
 
@@ -145,16 +144,13 @@ SENSOR_ROTATION = quaternion_wxyz(NUSC_FROM_SYNTH.T)  # exact -90 deg yaw: (0.70
 def nuscenes_points(
     xyz: npt.NDArray[np.float32],
     intensity: npt.NDArray[np.float32],
-    reflectivity: npt.NDArray[np.float32],
     ring: npt.NDArray[np.int64],
-    profile: SensorProfile,
 ) -> npt.NDArray[np.float32]:
     """(N, 5) float32 points x, y, z (m), intensity, ring of a synthetic frame as the
     nuScenes reader's frames hold them: axes rotated to nuScenes LIDAR_TOP, intensity in the
-    hdl32e byte encoding (integers 0-255), ring the channel index (0 = lowest beam)."""
-    target = load_profile(NUSCENES_INTENSITY_PROFILE).intensity
-    values = intensity if profile.intensity == target else target.from_reflectivity(reflectivity)
-    cols = [-xyz[:, 1], xyz[:, 0], xyz[:, 2], values, ring.astype(np.float32)]
+    frame's sensor's own encoding (hdl32e: byte codes 0-255), ring the channel index (0 =
+    lowest beam)."""
+    cols = [-xyz[:, 1], xyz[:, 0], xyz[:, 2], intensity, ring.astype(np.float32)]
     return np.column_stack(cols).astype(np.float32)
 
 

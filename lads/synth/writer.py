@@ -14,6 +14,7 @@ and renamed into place.
 
 from __future__ import annotations
 
+import functools
 import re
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
@@ -99,8 +100,9 @@ def write_synthetic_dataset(
         out_root: root of the tree (created if missing).
         sensor: profile name or YAML path (lads.sensors.profile.load_profile); None picks
             the layout's own sensor (DEFAULT_SENSOR: hdl64e, or hdl32e for nuscenes). Any
-            profile works with any layout (nuscenes: ring = channel index, intensity
-            re-encoded as nuScenes bytes).
+            profile works with any layout (nuscenes: ring = channel index). A named sensor's
+            scans hold its own intensity encoding (build them with --sensor SENSOR); without
+            one, Voxelscape's hold its continuous reflectivity (read as voxelscape64's).
         frames: number of 10 Hz frames, >= 1 (nuscenes: each one a keyframe, NUSC_KEYFRAME_US
             apart).
         layout: "semantickitti", "nuscenes" or "voxelscape".
@@ -122,7 +124,10 @@ def write_synthetic_dataset(
     _check_arguments(layout, frames, sequence, seed)
     profile = load_profile(DEFAULT_SENSOR[layout] if sensor is None else sensor)
     out_root = Path(out_root)
-    plan = _LAYOUT_PLANS[layout](out_root, sequence, seed, profile, frames)
+    plan_of = _LAYOUT_PLANS[layout]
+    if layout == "voxelscape" and sensor is not None:
+        plan_of = functools.partial(_voxelscape, continuous=False)  # the sensor's own encoding
+    plan = plan_of(out_root, sequence, seed, profile, frames)
     _refuse_stale_files(_expected_files(out_root, plan))
     frame_iter = synth_frames(profile, frames=frames, seed=seed, azimuth_bins=azimuth_bins)
     bar = tqdm(frame_iter, total=frames, unit="frame", disable=None if progress else True)
@@ -266,17 +271,27 @@ def _semantickitti(
 
 
 def _voxelscape(
-    out_root: Path, sequence: str, seed: int, profile: SensorProfile, frames: int
+    out_root: Path,
+    sequence: str,
+    seed: int,
+    profile: SensorProfile,
+    frames: int,
+    continuous: bool = True,
 ) -> _LayoutPlan:
-    """Voxelscape: points with the continuous reflectivity as intensity, kitti_labels and
-    the orig / sub-label codes of each generator part (voxelscape_ids.yaml); no side files."""
+    """Voxelscape: points with the continuous reflectivity as intensity (`continuous`, the
+    format's own) or the profile's encoded intensity, kitti_labels and the orig / sub-label
+    codes of each generator part (voxelscape_ids.yaml); no side files."""
     reader, ids = VoxelscapeReader(out_root), voxelscape_ids()
 
     def frame_of(item: Item, f: SynthFrame) -> Frame:
         # Continuous physical intensity rho * cos(incidence) * texture, clipped below 1.
         # kitti_labels keep the instance ids in the high 16 bits, as SemanticKITTI does
         # (Voxelscape leaves those bits undocumented; readers mask with 0xFFFF).
-        intensity = np.clip(f.reflectivity, 0.0, _VOXELSCAPE_MAX).astype(np.float32)
+        intensity = (
+            np.clip(f.reflectivity, 0.0, _VOXELSCAPE_MAX).astype(np.float32)
+            if continuous
+            else f.intensity
+        )
         kitti = (f.labels >> 16 << 16) | ids.kitti_of_part[f.part]
         extras: dict[str, npt.NDArray[np.generic]] = {
             "orig_labels": ids.orig_of_part[f.part],
@@ -308,7 +323,7 @@ def _nuscenes(
     scene = _nuscenes_scene(sequence, seed, profile)
 
     def frame_of(item: Item, f: SynthFrame) -> Frame:
-        points = nusc.nuscenes_points(f.xyz, f.intensity, f.reflectivity, f.ring, profile)
+        points = nusc.nuscenes_points(f.xyz, f.intensity, f.ring)
         labels = classes.labels(f.labels)
         return Frame.from_source(item, profile.name, reader.columns, points, labels)
 

@@ -11,6 +11,7 @@ from click.testing import CliRunner
 
 from lads.errors import ConfigError, SensorProfileError
 from lads.physics.materials import class_materials
+from lads.readers import get_reader
 from lads.readers.nuscenes import TABLES, NuScenesReader
 from lads.readers.semantickitti import SemanticKittiReader
 from lads.readers.voxelscape import VoxelscapeReader
@@ -462,9 +463,23 @@ def test_nuscenes_default_sensor_is_hdl32e_and_any_profile_works(tmp_path):
     )
     scan = np.fromfile(_nusc_scans(tmp_path / "n")[0], dtype="<f4").reshape(-1, 5)
     assert summary.sensor == "hdl64e" and scan[:, 4].max() == 63  # ring = channel index
-    intensity = scan[:, 3]  # re-encoded from the KITTI [0, 1) remission to nuScenes bytes
-    assert np.array_equal(intensity, np.round(intensity)) and intensity.max() > 1
+    intensity = scan[:, 3]  # the HDL-64E's own remission: read the tree with that sensor
+    assert intensity.max() <= np.float32(0.99)
+    assert not np.array_equal(intensity, np.round(intensity))
     assert len(NuScenesReader(tmp_path / "n").items()) == 1
+    reader = get_reader("nuscenes", tmp_path / "n", sensor="hdl64e")
+    assert reader.read(reader.items()[0]).points.shape == scan.shape
+
+
+def test_a_voxelscape_street_of_a_named_sensor_holds_its_encoding(tmp_path):
+    """Without --sensor, Voxelscape's own continuous reflectivity; with one, that sensor's
+    values, so `lads build --sensor S` reads what `lads synth --sensor S` wrote."""
+    for sensor in ("hdl32e", "hdl64e"):
+        write_synthetic_dataset(tmp_path / sensor, sensor=sensor, frames=1, layout="voxelscape")
+        reader = get_reader("voxelscape", tmp_path / sensor, sensor=sensor)
+        values = reader.read(reader.items()[0]).intensity
+        step = load_profile(sensor).intensity.step
+        assert np.allclose(values / step, np.rint(values / step), atol=1e-3)
 
 
 def test_synth_command_writes_a_nuscenes_tree(tmp_path):
