@@ -236,12 +236,15 @@ def correspondence_figure(path: Path) -> Path:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """`python -m lads.figures DIR`: draw the documentation figures into DIR."""
-    import sys
+    """`python -m lads.figures [DIR]`: draw the documentation figures into DIR (docs)."""
+    import argparse
 
-    args = sys.argv[1:] if argv is None else argv
-    folder = Path(args[0] if args else "docs")
-    correspondence_figure(folder / "point_correspondence.png")
+    parser = argparse.ArgumentParser(
+        prog="python -m lads.figures", description="Draw the documentation figures."
+    )
+    parser.add_argument("folder", nargs="?", default="docs", type=Path)
+    args = parser.parse_args(argv)
+    correspondence_figure(args.folder / "point_correspondence.png")
     return 0
 
 

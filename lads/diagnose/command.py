@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
+from typing import Any
 
 import click
 
@@ -92,5 +93,13 @@ def diagnose_command(
     )
     for warning in doc.get("warnings") or []:
         click.echo(f"warning: {warning}", err=True)
-    names = ", ".join(f"{e['id']} {e['key']}" for e in doc["effects"]) or "none"
+    names = ", ".join(_named(e) for e in doc["effects"]) or "none"
     click.echo(f"verdict: {doc['verdict']}; effects: {names}; report: {out / 'report.md'}")
+
+
+def _named(effect: dict[str, Any]) -> str:
+    """An effect as the one-line summary names it: ID, key, its class where it is confined
+    to one, and "(possible)" unless it is claimed."""
+    cls = f"[{effect['class']}]" if effect.get("class") else ""
+    status = "" if effect.get("status") == "claimed" else f" ({effect.get('status')})"
+    return f"{effect['id']}{cls} {effect['key']}{status}"

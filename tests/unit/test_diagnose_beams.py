@@ -532,3 +532,21 @@ def test_a_paired_run_where_few_beams_return_in_both_trees_warns(sim_tree):
     assert few["pairing"]["real_only"] == 0 and few["pairing"]["sim_only"] > 0
     assert len(few["warnings"]) == 1 and "--unpaired" in few["warnings"][0]
     assert _pairing(table, paired=False) == {"warnings": []}
+
+
+def test_a_one_sided_scan_mismatch_names_only_the_side_that_lacks_scans(sim_tree, tmp_path):
+    scans = two_scans()
+    scans.pop(SCAN1)
+    real = write_kitti(tmp_path / "real", scans)
+    with pytest.raises(DiagnoseError) as err:
+        open_trees(sim_tree, real, "semantickitti", paired=True)
+    assert "1 of 2 scans of the sim tree" in str(err.value) and "e.g. []" not in str(err.value)
+
+
+def test_the_summary_line_names_class_and_status():
+    from lads.diagnose.command import _named
+
+    claimed = {"id": "C6", "key": "class_reflectance", "class": "road", "status": "claimed"}
+    possible = {"id": "C1", "key": "range_exponent", "class": None, "status": "possible"}
+    assert _named(claimed) == "C6[road] class_reflectance"
+    assert _named(possible) == "C1 range_exponent (possible)"

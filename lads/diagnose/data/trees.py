@@ -254,13 +254,21 @@ def _relpath_mismatch(
 ) -> str:
     only_sim = sorted(set(sim_scans) - set(real_scans))
     only_real = sorted(set(real_scans) - set(sim_scans))
+    sides = []
+    if only_sim:
+        sides.append(
+            f"{len(only_sim)} of {len(sim_scans)} scans of the sim tree {sim.root} are missing "
+            f"from the real tree (e.g. {only_sim[:_EXAMPLES]})"
+        )
+    if only_real:
+        sides.append(
+            f"{len(only_real)} of {len(real_scans)} scans of the real tree {real.root} are "
+            f"missing from the sim tree (e.g. {only_real[:_EXAMPLES]})"
+        )
     return (
-        f"paired trees must hold the same scans, but {len(only_sim)} of {len(sim_scans)} scans "
-        f"of the sim tree {sim.root} are missing from the real tree (e.g. "
-        f"{only_sim[:_EXAMPLES]}) and {len(only_real)} of {len(real_scans)} scans of the real "
-        f"tree {real.root} are missing from the sim tree (e.g. {only_real[:_EXAMPLES]}). "
-        "Render the simulation from the real scans' poses with the same relative paths, or "
-        "compare the trees unpaired."
+        f"paired trees must hold the same scans, but {' and '.join(sides)}. Render the "
+        "simulation from the real scans' poses with the same relative paths, or compare the "
+        "trees unpaired."
     )
 
 
