@@ -376,6 +376,11 @@ def select_sequences(
 
     if wanted is None:
         return sorted(found)
+    # A folder named by the number without the padding (`8` for 08) is that sequence.
+    by_number = {int(f): f for f in found if f.isdigit()}
+    wanted = tuple(
+        by_number.get(int(w), w) if w.isdigit() and w not in found else w for w in wanted
+    )
     missing = sorted(set(wanted) - set(found))
     if missing:
         raise DatasetNotFoundError(

@@ -294,6 +294,9 @@ def test_sequences_option_restricts_items_and_copied_files(tree):
     assert len(get_reader("semantickitti", root, sequences="11").items()) == 2
     with pytest.raises(DatasetNotFoundError, match="'07'"):
         get_reader("semantickitti", root, sequences=["07"]).items()
+    (root / "sequences" / "01").rename(root / "sequences" / "1")  # a folder without padding
+    picked = get_reader("semantickitti", root, sequences=["1"]).items()
+    assert picked and {it.relpath.split("/")[1] for it in picked} == {"1"}
 
 
 def test_copied_files_lists_calib_poses_times_present(tree):
