@@ -310,7 +310,7 @@ def parse_pipeline(data: Any, where: str) -> PipelineConfig:
             point_format=str(writer.get("point_format") or DEFAULT_POINT_FORMAT),
         )
     except ConfigError as exc:  # the checks of the whole pipeline: name the file too
-        raise ConfigError(f"{where}: {exc}") from None
+        raise type(exc)(f"{where}: {exc}") from None
 
 
 def load_pipeline(path: Path) -> PipelineConfig:
