@@ -29,6 +29,7 @@ role; scans and lidarseg labels round-trip byte for byte.
 from __future__ import annotations
 
 import io
+import json
 import zipfile
 from dataclasses import replace
 from pathlib import Path
@@ -237,6 +238,13 @@ class NuScenesReader:
         try:
             nusc = NuScenes(version=version, dataroot=str(self.root), verbose=False)
         except Exception as exc:  # devkit asserts and KeyErrors: wrap with context
+            subset = _trial_subset(self.root)
+            if subset:
+                raise ReaderError(
+                    f"{self.root}: a lads tree built with --limit ({subset}); its copied "
+                    "tables list every source frame, which nuscenes-devkit refuses. Build it "
+                    f"without --limit to use it as a source ({type(exc).__name__}: {exc})."
+                ) from exc
             raise ReaderError(
                 f"{table_root}: nuscenes-devkit cannot load this database "
                 f"({type(exc).__name__}: {exc}); expected consistent tables, one label file "
@@ -399,6 +407,22 @@ class NuScenesReader:
             data = np.frombuffer(raw.payload, dtype=PANOPTIC_DTYPE.newbyteorder("<"))
             files.append(EncodedFile(rel, role, npz_bytes(data), n, 0))
         return files
+
+
+def _trial_subset(root: Path) -> str | None:
+    """The "M of N items" of a lads tree a --limit build left short at `root`, else None."""
+    from lads.built_tree import RUN_JSON
+
+    try:
+        run = json.loads((root / RUN_JSON).read_text())
+    except (OSError, ValueError):
+        return None
+    if not isinstance(run, dict) or "lads_version" not in run:
+        return None
+    items, total = run.get("items"), run.get("source_items")
+    if isinstance(items, int) and isinstance(total, int) and items < total:
+        return f"{items} of {total} items"
+    return None
 
 
 def _numbered(items: list[Item]) -> list[Item]:

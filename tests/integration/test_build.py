@@ -543,3 +543,16 @@ def test_a_tree_built_from_the_parent_of_dataset_verifies_against_it(source, tmp
     assert report.complete, report.failed
     check = verify_tree(out, parent, regenerate=1, seed=0)
     assert check.ok, [f"{p.kind} {p.path}: {p.message}" for p in check.problems]
+
+
+def test_a_nuscenes_trial_subset_used_as_a_source_says_what_it_is(tmp_path):
+    from lads.errors import ReaderError
+    from lads.readers import get_reader
+
+    src = tmp_path / "src"
+    write_synthetic_dataset(src, frames=3, layout="nuscenes", azimuth_bins=256)
+    out = tmp_path / "trial"
+    pipeline = pipeline_for("nuscenes", "C-beam_missing-light")
+    assert run_build("nuscenes", src, out, pipeline, progress=False, limit=2).complete
+    with pytest.raises(ReaderError, match=r"built with --limit \(2 of 3 items\)"):
+        get_reader("nuscenes", out).items()
