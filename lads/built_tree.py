@@ -70,6 +70,17 @@ def freeze_options(options: dict[str, Any]) -> tuple[tuple[str, Any], ...]:
     )
 
 
+def trial_subset(run: Any) -> tuple[int, int] | None:
+    """(items the tree holds, items of its source) of a tree whose run.json says a --limit
+    build left source items out; None for any other tree or record."""
+    if not isinstance(run, dict) or not isinstance(run.get("limit"), int):
+        return None
+    items, total = run.get("items"), run.get("source_items")
+    if isinstance(items, int) and isinstance(total, int) and items < total:
+        return items, total
+    return None
+
+
 def state_path(out_root: Path, item_id: str) -> Path:
     """Where the finished-item record of one item is journaled during a build."""
     return out_root / STATE_DIR / "items" / (sha256_bytes(item_id.encode())[:32] + ".json")

@@ -27,6 +27,16 @@ from lads.physics.result import Outcome
 POINT_MODES = ("physical", "aligned", "resampled")
 
 
+def label_fits(label: int, dtype: np.dtype) -> bool:
+    """Whether the particle class `label` is a value of integer labels of `dtype` (a cast
+    would wrap -1 to 4294967295 in uint32, or 300 to a real class in uint8); any value fits
+    a non-integer dtype."""
+    if not np.issubdtype(dtype, np.integer):
+        return True
+    info = np.iinfo(dtype)
+    return info.min <= int(label) <= info.max
+
+
 def physical(
     out: Frame, particle_label: int
 ) -> tuple[Frame, npt.NDArray[np.int64], npt.NDArray[np.uint8]]:

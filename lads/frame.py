@@ -18,6 +18,14 @@ from lads.physics.result import Outcome
 RING_COLUMN = "ring"
 
 
+def not_lasers(ring: npt.ArrayLike, channels: int) -> npt.NDArray[np.bool_]:
+    """(N,) bool: the ring values that are no laser number 0..channels-1 (not finite, not
+    whole, or out of range); the one rule every ring check applies."""
+    arr = np.asarray(ring, dtype=np.float64)
+    with np.errstate(invalid="ignore"):
+        return ~np.isfinite(arr) | (arr != np.rint(arr)) | (arr < 0) | (arr >= channels)
+
+
 @dataclass(frozen=True, slots=True)
 class Item:
     """One scan of a source tree, by relative paths (POSIX, relative to the source root).

@@ -10,7 +10,7 @@ from typing import Any
 
 from lads.built_tree import PLAN_JSON, RUN_JSON, STATE_DIR, BuildPlan, identity
 from lads.errors import BuildError
-from lads.files import atomic_copy, atomic_write, make_folder, sha256_file
+from lads.files import atomic_copy, atomic_write, sha256_file
 from lads.lock import LOCK_NAME
 from lads.readers.base import unreadable_reason
 
@@ -28,11 +28,6 @@ def check_paths(source_root: Path, out_root: Path) -> None:
             f"{out_root}: the output directory contains the source tree {source_root}; choose an "
             "--out that is neither inside nor around the source."
         )
-
-
-def make_output(out_root: Path) -> None:
-    """Create OUT (and its parents) or say in words why it cannot be created."""
-    make_folder(out_root)
 
 
 def previous_identity(path: Path, ident: dict[str, Any]) -> dict[str, Any]:

@@ -27,11 +27,11 @@ from lads.built_tree import (
 from lads.config import PipelineConfig
 from lads.dispatch import check_backend, default_batch, dispatch
 from lads.errors import BuildError, ConfigError, OutputWriteError
-from lads.files import atomic_write, remove_stray_temps, write_error
+from lads.files import atomic_write, make_folder, remove_stray_temps, write_error
 from lads.finalise import finalise
 from lads.frame import Item
 from lads.lock import output_lock
-from lads.output_tree import check_paths, claim_output, copy_source_files, make_output
+from lads.output_tree import check_paths, claim_output, copy_source_files
 from lads.resume import finished_rows
 from lads.stages import check_sensor
 from lads.worker import reader_for, stages_for
@@ -147,7 +147,7 @@ def run_build(
     settings = _RunSettings(jobs, backend, scheduler, fail_fast, progress, figures, batch, limit)
     source_root, out_root = Path(source_root).resolve(), Path(out_root).resolve()
     plan, reader, items = _plan_build(source, source_root, out_root, pipeline, seed, reader_options)
-    make_output(out_root)
+    make_folder(out_root)
     with output_lock(out_root, "build", wait=wait):
         report = _build_and_report(plan, reader, items, settings, start)
     if report.stopped_early:

@@ -193,7 +193,9 @@ def _read_labels(path: Path, n_points: int, scan: Path) -> npt.NDArray[Any]:
 
 
 def _check_fits(particle_label: int, dtype: np.dtype) -> None:
-    if particle_label > np.iinfo(dtype).max:
+    from lads.correspondence import label_fits
+
+    if not label_fits(particle_label, dtype):
         raise ConfigError(
             f"--particle-label {particle_label} does not fit the {dtype.name} labels "
             f"(0..{np.iinfo(dtype).max}); pass a class id of that label set."

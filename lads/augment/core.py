@@ -18,9 +18,10 @@ import numpy.typing as npt
 
 from lads.augment.pseudo_labels import PSEUDO_LABEL_SET, ground_labels
 from lads.config import StageConfig
+from lads.correspondence import label_fits
 from lads.corruptions import CorruptionSpec, corruption_spec
 from lads.errors import AugmentInputError, ConfigError
-from lads.frame import RING_COLUMN, Frame, Item
+from lads.frame import RING_COLUMN, Frame, Item, not_lasers
 from lads.physics.result import Outcome
 from lads.physics.severity import SEVERITIES
 from lads.readers.base import unusable_values
@@ -361,12 +362,8 @@ def checked_probability(value: Any, where: str) -> float:
 
 def _check_label_fits(label: Any, labels: npt.NDArray[np.generic], sample_id: str | int) -> None:
     """AugmentInputError unless the particle class `label` is a value of the labels' dtype
-    (a cast would wrap -1 to 4294967295 in uint32, or 300 to a real class in uint8)."""
-    dtype: Any = labels.dtype
-    if not np.issubdtype(dtype, np.integer):
-        return  # the contract asks for integer labels; nothing to wrap otherwise
-    info = np.iinfo(dtype)
-    if info.min <= int(label) <= info.max:
+    (`lads.correspondence.label_fits`)."""
+    if label_fits(label, labels.dtype):
         return
     raise AugmentInputError(
         f"sample {sample_id!r}: particle_label {label} is not a value of the labels' dtype "
@@ -419,7 +416,7 @@ def _check_arrays(
     profile.intensity.validate(points[:, 3], f"{where}: points[:, 3] (intensity)")
     if ring_column is not None:
         ring = points[:, ring_column]
-        bad = (ring != np.rint(ring)) | (ring < 0) | (ring >= profile.channels)
+        bad = not_lasers(ring, profile.channels)
         if bad.any():
             raise AugmentInputError(
                 f"{where}: {int(bad.sum())} ring values (column {ring_column}) are not lasers "

@@ -8,6 +8,7 @@ from typing import Any
 
 import yaml
 
+from lads.built_tree import trial_subset
 from lads.card.kinds import NOT_MODELLED_BY_KIND, WEATHER_STAGES, kind_fields, variant_kind
 from lads.card.sources import REALITY, Source
 
@@ -141,10 +142,13 @@ def fields(
 
 def _coverage(run: dict[str, Any], built: int) -> str:
     """Which source scans the tree holds: every one, or a --limit trial's subset."""
-    limit, total = run.get("limit"), run.get("source_items")
-    if limit is None or not isinstance(total, int) or built >= total:
+    subset = trial_subset(run)
+    if subset is None:
         return "every source scan once"
-    return f"a trial subset (`--limit {limit}`), {built} of the source's {total} scans, each once"
+    return (
+        f"a trial subset (`--limit {run['limit']}`), {built} of the source's {subset[1]} "
+        "scans, each once"
+    )
 
 
 def _description(run: dict[str, Any], src: Source) -> str:

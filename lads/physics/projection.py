@@ -14,6 +14,7 @@ import numpy as np
 import numpy.typing as npt
 
 from lads.errors import ConfigError, InvalidPointsError
+from lads.frame import not_lasers
 from lads.physics.image_kernels import organised_pixels, point_ranges
 from lads.sensors.profile import SensorProfile
 
@@ -154,9 +155,8 @@ def channels_of(
         raise InvalidPointsError(
             f"ring: shape {arr.shape} and dtype {arr.dtype}, expected ({len(xyz64)},) numbers."
         )
-    finite = np.isfinite(arr)
-    as_int = np.where(finite & (np.abs(arr) < 2**62), arr, -1).astype(np.int64)
-    bad = ~finite | (as_int != arr) | (as_int < 0) | (as_int >= profile.channels)
+    bad = not_lasers(arr, profile.channels)
+    as_int = np.where(bad, -1, arr).astype(np.int64)
     count = int(np.count_nonzero(bad))
     if count:
         raise InvalidPointsError(

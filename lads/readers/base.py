@@ -17,7 +17,7 @@ from typing import Protocol
 
 import numpy as np
 
-from lads.frame import RING_COLUMN, Frame, Item
+from lads.frame import RING_COLUMN, Frame, Item, not_lasers
 
 # No automotive LiDAR measures beyond a few hundred metres: a coordinate beyond this is a
 # corrupt file, not a return (and would blow up every range image built from it).
@@ -208,7 +208,7 @@ def check_finite(points: np.ndarray, path: Path, columns: tuple[str, ...]) -> No
         )
     if RING_COLUMN in columns:
         ring = points[:, columns.index(RING_COLUMN)]
-        bad = (ring != np.rint(ring)) | (ring < 0) | (ring >= MAX_LASERS)
+        bad = not_lasers(ring, MAX_LASERS)
         if bad.any():
             raise CorruptItemError(
                 f"{path}: {int(bad.sum())} of {ring.size} values of the '{RING_COLUMN}' column "

@@ -238,10 +238,11 @@ class NuScenesReader:
         try:
             nusc = NuScenes(version=version, dataroot=str(self.root), verbose=False)
         except Exception as exc:  # devkit asserts and KeyErrors: wrap with context
-            subset = _trial_subset(self.root)
+            subset = _recorded_subset(self.root)
             if subset:
                 raise ReaderError(
-                    f"{self.root}: a lads tree built with --limit ({subset}); its copied "
+                    f"{self.root}: a lads tree built with --limit ({subset[0]} of {subset[1]} "
+                    "items); its copied "
                     "tables list every source frame, which nuscenes-devkit refuses. Build it "
                     f"without --limit to use it as a source ({type(exc).__name__}: {exc})."
                 ) from exc
@@ -409,20 +410,14 @@ class NuScenesReader:
         return files
 
 
-def _trial_subset(root: Path) -> str | None:
-    """The "M of N items" of a lads tree a --limit build left short at `root`, else None."""
-    from lads.built_tree import RUN_JSON
+def _recorded_subset(root: Path) -> tuple[int, int] | None:
+    """`lads.built_tree.trial_subset` of the run.json at `root` (a lads tree), if any."""
+    from lads.built_tree import RUN_JSON, trial_subset
 
     try:
-        run = json.loads((root / RUN_JSON).read_text())
+        return trial_subset(json.loads((root / RUN_JSON).read_text()))
     except (OSError, ValueError):
         return None
-    if not isinstance(run, dict) or "lads_version" not in run:
-        return None
-    items, total = run.get("items"), run.get("source_items")
-    if isinstance(items, int) and isinstance(total, int) and items < total:
-        return f"{items} of {total} items"
-    return None
 
 
 def _numbered(items: list[Item]) -> list[Item]:

@@ -29,7 +29,7 @@ from lads.errors import (
     DiagnoseError,
     IntensityEncodingError,
 )
-from lads.frame import Frame, Item
+from lads.frame import Frame, Item, not_lasers
 from lads.physics.materials import class_ids
 from lads.physics.projection import MIN_RANGE_M
 from lads.readers import Reader, get_reader
@@ -338,8 +338,7 @@ def _check_size(
 def _checked_ring(
     column: npt.NDArray[np.float32], path: Path, tree: str, profile: SensorProfile
 ) -> npt.NDArray[np.int16]:
-    as_int = np.rint(column)
-    bad = (as_int != column) | (as_int < 0) | (as_int >= profile.channels)
+    bad = not_lasers(column, profile.channels)
     if bad.any():
         raise DiagnoseError(
             f"{path}: {int(bad.sum())} of {column.size} ring values in the {tree} tree's scan "
@@ -348,4 +347,4 @@ def _checked_ring(
             "The trees look like different sensors: write the laser channel (0 = lowest beam) "
             "in the ring column of both."
         )
-    return as_int.astype(np.int16)
+    return column.astype(np.int16)
